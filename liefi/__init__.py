@@ -1,0 +1,8 @@
+"""liefi: feedback integrators for nonholonomic mechanical systems."""
+from .phase_space import CotangentBundle, LieGroupPhaseSpace, PhaseSpace, TrivialPrincipalBundle
+from .system import NonholonomicSystem
+from . import groups, reduction
+
+__version__ = "0.1.0"
+from .feedback import FeedbackIntegrator, Invariant
+from .schemes import SCHEMES, ExplicitRungeKutta, IntegrationError, Solution, integrate

@@ -1,0 +1,96 @@
+"""System data as batch-first functions of the shape coordinates, with derivatives."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import _diff
+
+
+class DataFunction:
+    """A datum of a system (metric, constraints, potential) as a function of ``x``.
+
+    Constant data (an array, or any datum of a system with no shape space) is
+    stored once; callable data is evaluated batch-first and differentiated by
+    complex step unless an analytic ``derivative`` is supplied.
+
+    Parameters
+    ----------
+    value : array_like or callable
+        The constant value, or ``fun(x)`` mapping ``(..., n)`` to ``(..., *shape)``.
+    shape : tuple
+        Shape of one value.
+    n : int
+        Dimension of ``x``.
+    name : str
+        Name used in error messages (``"metric"``, ``"constraints"`` ...).
+    derivative : callable, optional
+        ``derivative(x)`` -> ``(..., n, *shape)``, ``d value / d x_k`` on axis ``-len(shape)-1``.
+    """
+
+    def __init__(self, value, shape, n, name, derivative=None, sample=None):
+        self.shape = tuple(shape)
+        self.n = n
+        self.name = name
+        self.constant = not callable(value)
+        self._derivative = derivative
+        if self.constant:
+            v = np.array(value, dtype=float)
+            if v.shape != self.shape:
+                raise ValueError(f"{name}: expected shape {self.shape}, got {v.shape}")
+            if not np.all(np.isfinite(v)):
+                raise ValueError(f"{name}: contains non-finite numbers")
+            v.setflags(write=False)
+            self.value = v
+            self.fun = None
+            return
+        self.value = None
+        self.fun = self._batched(value, sample)
+
+    def _batched(self, fun, sample):
+        """Wrap ``fun`` so it accepts a batch; fall back to a loop for point-wise functions."""
+        n = self.n
+        xs = np.zeros((2, n)) if sample is None else np.broadcast_to(np.asarray(sample, float), (2, n))
+        try:
+            out = np.asarray(fun(xs))
+            ok = out.shape == (2,) + self.shape
+        except Exception:  # noqa: BLE001 -- any failure means "not batch-aware"
+            ok = False
+        if ok:
+            return fun
+        try:
+            single = np.asarray(fun(xs[0]))
+        except Exception as exc:
+            raise ValueError(f"{self.name}: calling it at x = {xs[0]} failed: {exc!r}") from exc
+        if single.shape != self.shape:
+            raise ValueError(
+                f"{self.name}: expected a value of shape {self.shape} for x of shape ({n},), got {single.shape}"
+            )
+
+        def looped(x):
+            x = np.asarray(x)
+            flat = x.reshape(-1, n)
+            out = [np.asarray(fun(xi)) for xi in flat]
+            dtype = np.result_type(*out) if out else float
+            return np.array(out, dtype=dtype).reshape(x.shape[:-1] + self.shape)
+
+        looped.pointwise = True
+        return looped
+
+    def __call__(self, x):
+        if self.constant:
+            return self.value
+        return np.asarray(self.fun(x))
+
+    def with_derivative(self, x):
+        """``(value, d value/dx)`` with the derivative on the axis after the batch; ``None`` if constant."""
+        if self.constant:
+            return self.value, None
+        if self._derivative is not None:
+            return self(x), np.asarray(self._derivative(x))
+        return _diff.jacobian(self.fun, x)
+
+    def check_differentiable(self, x):
+        """Raise a named error if the complex-step derivative is wrong at ``x``."""
+        if not self.constant and self._derivative is None and self.n:
+            _diff.check_complex_step(self.fun, x, self.name)

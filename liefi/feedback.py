@@ -1,0 +1,345 @@
+"""Feedback integrators: the extended field plus ``-A grad V`` (Section 2.4).
+
+Given a :class:`~liefi.NonholonomicSystem` and an initial state, a
+:class:`FeedbackIntegrator` builds the Lyapunov function
+
+.. math:: V(y) = \\frac{k_0}{4} \\sum_{\\text{blocks}} \\|R^T R - I\\|^2
+          + \\sum_j \\frac{k_j}{2} (I_j(y) - I_{j0})^2
+
+over the invariants the user selects -- the constraint momenta ``J_i`` (target
+0), the extended energy ``h~`` or the original ``h`` (target: its initial
+value), and any user first integral -- and the vector field
+``y' = X(y) - A grad V(y)`` where ``X`` is the extended field (with the
+reconstruction of the group element when the configuration is integrated).
+``grad V . X = 0`` everywhere (each ``I_j`` is a first integral of ``X``;
+``R^T R`` is constant along ``R' = R hat(xi)``), so ``V`` only decreases and its
+zero set is invariant (Theorem ``(theorem:general)``).
+
+The state is ``y = (g, z)``: the group element in its embedding (omitted with
+``configuration=False``) then the reduced state ``z = (x, mu, p_x)``.
+Everything is batch-first; :meth:`FeedbackIntegrator.fun` is the
+``fun(t, y)`` of ``scipy.integrate.solve_ivp``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import _diff
+from .reduction import core as _core
+from .schemes import get_scheme, integrate
+from .system import NonholonomicSystem
+
+
+@dataclass(frozen=True)
+class Invariant:
+    """A user-given first integral of the extended field, a function of the reduced state.
+
+    Parameters
+    ----------
+    name : str
+    fun : callable
+        ``fun(z)``: ``(..., nz) -> (...)``, complex-step safe unless ``grad`` is given.
+    grad : callable, optional
+        ``grad(z)``: ``(..., nz) -> (..., nz)``.
+    """
+
+    name: str
+    fun: object
+    grad: object = None
+
+    def value_and_grad(self, z):
+        if self.grad is not None:
+            return np.asarray(self.fun(z)), np.asarray(self.grad(z))
+        return _diff.gradient(self.fun, z)
+
+
+def momentum_component(system, name):
+    """The invariant ``z[name]`` (a momentum component that is conserved, e.g. ``p_phi``)."""
+    i = system.state_names.index(name)
+
+    def fun(z):
+        return z[..., i]
+
+    def grad(z):
+        g = np.zeros(np.shape(z))
+        g[..., i] = 1.0
+        return g
+
+    return Invariant(name, fun, grad)
+
+
+class FeedbackIntegrator:
+    """The feedback-integrator vector field of a nonholonomic system.
+
+    Parameters
+    ----------
+    system : NonholonomicSystem
+    y0 : array_like
+        Initial state ``(g, z)`` (or ``z`` with ``configuration=False``); sets the
+        targets of the energy and user invariants.
+    invariants : sequence
+        Which invariants ``V`` penalizes: ``"constraints"`` (every ``J_i``, target 0),
+        ``"energy"`` (``h~`` or ``h`` by ``energy=``), and :class:`Invariant` objects.
+    gains : float or dict
+        One number for every gain, or ``{name: k}`` with names ``"J_1"``...,
+        ``"energy"``, ``"penalty"``, the invariants' names; ``"constraints"`` sets every ``J_i``.
+    energy : {"extended", "original"}
+        Penalize ``h~`` (default, the paper's main choice) or ``h`` (its Remarks).
+    configuration : bool
+        Integrate the group element too (default True).  Without it only the
+        reduced state is integrated, which is all a reduced scene needs.
+    field : {"extended", "projected"}
+        The extension: :func:`~liefi.reduction.extended_vector_field` (default)
+        or :func:`~liefi.reduction.projected_vector_field`.
+    A : array_like (n, n), optional
+        Constant matrix with positive definite symmetric part; the field is
+        ``X - A grad V``.  Identity by default.
+    targets : dict, optional
+        Target values ``{name: I_j0}`` overriding those taken from ``y0``.
+    """
+
+    def __init__(
+        self,
+        system: NonholonomicSystem,
+        y0,
+        *,
+        invariants=("constraints", "energy"),
+        gains=1.0,
+        energy="extended",
+        configuration=True,
+        field="extended",
+        A=None,
+        targets=None,
+    ):
+        if not isinstance(system, NonholonomicSystem):
+            raise TypeError(f"system: expected a liefi.NonholonomicSystem, got {system!r}")
+        if energy not in ("extended", "original"):
+            raise ValueError(f"energy: expected 'extended' or 'original', got {energy!r}")
+        if field not in ("extended", "projected"):
+            raise ValueError(f"field: expected 'extended' or 'projected', got {field!r}")
+        self.system = system
+        self.energy = energy
+        self.field = field
+        sp = system.space
+        self.configuration = bool(configuration) and sp.group.config_dim > 0
+        self.nc = sp.group.config_dim if self.configuration else 0
+        self.n = self.nc + sp.nz
+        self.names = (tuple(sp.group.config_names) if self.configuration else ()) + sp.state_names
+
+        y0 = np.asarray(y0, dtype=float)
+        if y0.shape[-1:] != (self.n,):
+            raise ValueError(
+                f"y0: expected a state of {self.n} numbers {self.names}, got shape {y0.shape}"
+                + (" (did you mean configuration=False?)" if y0.shape[-1:] == (sp.nz,) else "")
+            )
+        if not np.all(np.isfinite(y0)):
+            raise ValueError("y0: contains non-finite numbers")
+        self.y0 = y0
+
+        # --- which invariants -------------------------------------------------
+        self.use_constraints = False
+        self.use_energy = False
+        self.user = []
+        for inv in invariants:
+            if inv == "constraints":
+                self.use_constraints = system.K > 0
+            elif inv == "energy":
+                self.use_energy = True
+            elif isinstance(inv, Invariant):
+                self.user.append(inv)
+            elif isinstance(inv, str) and inv in sp.state_names:
+                self.user.append(momentum_component(system, inv))
+            else:
+                raise ValueError(
+                    f"invariants: unknown entry {inv!r}; use 'constraints', 'energy', a state "
+                    f"component name {sp.state_names} or a liefi.Invariant"
+                )
+        self.use_penalty = self.configuration and sp.group.penalty_hessian_bound() > 0
+
+        # --- gains ---------------------------------------------------------------
+        names = self.invariant_names
+        if np.isscalar(gains):
+            g = {k: float(gains) for k in names}
+        elif isinstance(gains, dict):
+            g = {}
+            for k, v in gains.items():
+                if k == "constraints":
+                    g.update({f"J_{i + 1}": float(v) for i in range(system.K)})
+                elif k in names:
+                    g[k] = float(v)
+                else:
+                    raise ValueError(f"gains: unknown name {k!r}; the invariants are {names}")
+            missing = [k for k in names if k not in g]
+            if missing:
+                raise ValueError(f"gains: no gain given for {missing}")
+        else:
+            raise TypeError("gains: expected a number or a dict {name: gain}")
+        for k, v in g.items():
+            if not np.isfinite(v) or v < 0:
+                raise ValueError(f"gains: the gain of {k!r} must be a finite non-negative number, got {v!r}")
+        self.gains = g
+        self._kJ = np.array([g[f"J_{i + 1}"] for i in range(system.K)]) if self.use_constraints else None
+
+        # --- A --------------------------------------------------------------------
+        if A is not None:
+            A = np.array(A, dtype=float)
+            if A.shape != (self.n, self.n):
+                raise ValueError(f"A: expected shape ({self.n}, {self.n}), got {A.shape}")
+            if np.any(np.linalg.eigvalsh(A + A.T) <= 0):
+                raise ValueError("A: its symmetric part A + A^T must be positive definite")
+        self.A = A
+
+        # --- targets ---------------------------------------------------------------
+        vals = self.invariant_values(y0)
+        self.targets = {k: (0.0 if k.startswith("J_") else float(np.asarray(v).reshape(-1)[0]) if np.ndim(v) == 0 or np.size(v) == 1 else np.asarray(v)) for k, v in vals.items() if k in names and k != "penalty"}
+        if targets:
+            for k, v in targets.items():
+                if k not in self.targets:
+                    raise ValueError(f"targets: unknown name {k!r}; targets exist for {list(self.targets)}")
+                self.targets[k] = v
+        self._eh = self.targets.get("energy", 0.0)
+        self._user_targets = [self.targets[u.name] for u in self.user]
+
+    # --- bookkeeping ---------------------------------------------------------------
+    @property
+    def invariant_names(self):
+        """Names of the penalized invariants, in the order of :meth:`invariant_values`."""
+        names = []
+        if self.use_penalty:
+            names.append("penalty")
+        if self.use_constraints:
+            names += [f"J_{i + 1}" for i in range(self.system.K)]
+        if self.use_energy:
+            names.append("energy")
+        names += [u.name for u in self.user]
+        return tuple(names)
+
+    def split(self, y):
+        """``y -> (g, z)`` (``g`` has zero length without configuration)."""
+        return y[..., : self.nc], y[..., self.nc :]
+
+    def invariant_values(self, y):
+        """All monitored quantities at ``y``: ``J_i``, ``energy`` (as penalized),
+        ``h``, ``h~``, user invariants, and the embedding penalty."""
+        y = np.asarray(y, float)
+        g, z = self.split(y)
+        t = _core.evaluate(self.system, z)
+        out = {}
+        if self.configuration:
+            out["penalty"] = self.system.space.group.penalty(g)
+        for i in range(self.system.K):
+            out[f"J_{i + 1}"] = t.J[..., i]
+        out["h"] = t.h
+        out["h~"] = t.ht
+        out["energy"] = t.ht if self.energy == "extended" else t.h
+        for u in self.user:
+            out[u.name] = u.value_and_grad(z)[0]
+        return out
+
+    # --- V and its gradient -----------------------------------------------------------
+    def _parts(self, y):
+        """(X(y), grad V(y), V(y)) in one pass over the system's terms."""
+        y = np.asarray(y, dtype=float)
+        g, z = self.split(y)
+        sys = self.system
+        zf = _core.project(sys, z) if self.field == "projected" else z
+        t = _core.evaluate(sys, zf)
+        lam = _core._multipliers(sys, zf, t.dht, t.dJ, t.Cinv)
+        zdot = _core._field(sys, zf, t.dht, lam, t.Eflat)
+        if zf is not z:
+            t = _core.evaluate(sys, z)
+
+        V = 0.0
+        gz = 0.0
+        if self.use_constraints:
+            kJ = self._kJ * t.J
+            V = V + 0.5 * np.einsum("...k,...k->...", kJ, t.J)
+            gz = gz + np.einsum("...k,...kj->...j", kJ, t.dJ)
+        if self.use_energy:
+            E, dE = (t.ht, t.dht) if self.energy == "extended" else (t.h, t.dh)
+            dEv = E - self._eh
+            k = self.gains["energy"]
+            V = V + 0.5 * k * dEv**2
+            gz = gz + (k * dEv)[..., None] * dE
+        for u, tgt in zip(self.user, self._user_targets):
+            val, grad = u.value_and_grad(z)
+            dv = val - tgt
+            k = self.gains[u.name]
+            V = V + 0.5 * k * dv**2
+            gz = gz + (k * dv)[..., None] * grad
+        gz = np.broadcast_to(gz, z.shape)
+
+        if self.configuration:
+            G = sys.space.group
+            n, d = sys.space.n, sys.space.d
+            xi = t.dht[..., n : n + d] if zf is z else _core.evaluate(sys, zf).dht[..., n : n + d]
+            gdot = G.config_rate(g, xi)
+            X = np.concatenate([np.broadcast_to(gdot, y.shape[:-1] + gdot.shape[-1:]), zdot], -1)
+            if self.use_penalty:
+                k0 = self.gains["penalty"]
+                V = V + k0 * G.penalty(g)
+                gg = k0 * G.penalty_grad(g)
+            else:
+                gg = np.zeros(g.shape)
+            gradV = np.concatenate([np.broadcast_to(gg, y.shape[:-1] + (self.nc,)), gz], -1)
+        else:
+            X, gradV = zdot, gz
+        return X, gradV, V
+
+    def lyapunov(self, y):
+        """``V(y)`` (shape ``(...)``); zero exactly on the target invariant set."""
+        return self._parts(y)[2]
+
+    def grad_lyapunov(self, y):
+        """``grad V(y)`` (shape ``(..., n)``), exact to rounding."""
+        return self._parts(y)[1]
+
+    def unforced_vector_field(self, y):
+        """The extended field ``X(y)`` alone (the feedback integrator with zero gains)."""
+        return self._parts(y)[0]
+
+    def vector_field(self, y):
+        """``X(y) - A grad V(y)``, batch-first: ``(..., n) -> (..., n)``."""
+        X, gV, _ = self._parts(y)
+        if self.A is not None:
+            gV = np.einsum("ij,...j->...i", self.A, gV)
+        return X - gV
+
+    __call__ = vector_field
+
+    def fun(self, t, y):
+        """``fun(t, y)`` for ``scipy.integrate.solve_ivp`` (``y`` of shape ``(n,)`` or ``(n, k)``)."""
+        y = np.asarray(y)
+        if y.ndim == 2:  # vectorized solve_ivp: (n, k)
+            return self.vector_field(y.T).T
+        return self.vector_field(y)
+
+    # --- running ------------------------------------------------------------------
+    def run(self, dt, t_final, scheme="euler", *, y0=None, save_every=1, check_every=1):
+        """Integrate from ``y0`` (default: the one given at construction) to ``t_final``.
+
+        Returns a :class:`~liefi.schemes.Solution`; raises
+        :class:`~liefi.schemes.IntegrationError` naming the time and components
+        if the run produces non-finite numbers.
+        """
+        if not np.isfinite(t_final) or t_final <= 0:
+            raise ValueError(f"t_final: must be a positive finite time, got {t_final!r}")
+        if not np.isfinite(dt) or dt <= 0:
+            raise ValueError(f"dt: the step must be a positive finite number, got {dt!r}")
+        n_steps = int(round(t_final / dt))
+        if abs(n_steps * dt - t_final) > 1e-9 * t_final:
+            raise ValueError(f"t_final: {t_final} is not a whole number of steps dt={dt}")
+        sch = get_scheme(scheme)
+        return integrate(
+            self.vector_field,
+            self.y0 if y0 is None else y0,
+            dt,
+            n_steps,
+            sch,
+            save_every=save_every,
+            names=self.names,
+            check_every=check_every,
+        )

@@ -1,0 +1,223 @@
+"""Nonholonomic mechanical systems given by their data only.
+
+A system is a phase space (:mod:`liefi.phase_space`) and three data:
+
+* ``metric`` ``m(x)``: the symmetric positive definite (reduced, locked) mass
+  tensor on ``P = (mu, p_x)``, shape ``(D, D)``; the kinetic energy is
+  ``1/2 <P, m(x)^{-1} P>``;
+* ``constraints`` ``e(x)``: ``K`` independent vectors (rows, shape ``(K, D)``)
+  defining the constraint set ``C = {<P, e_i(x)> = 0}``; they need *not* be
+  orthonormal for ``m`` (Remark ``(remark:nonhol:general)``);
+* ``potential`` ``U(x)`` (default 0).
+
+Everything else -- ``H~``, ``lambda``, ``lambda~``, the constrained, extended
+and reduced vector fields, the reconstruction -- is derived in
+:mod:`liefi.reduction`.  Each datum is a constant array or a batch-first
+function of ``x`` (``(..., n) -> (..., *shape)``) that accepts complex input;
+derivatives in ``x`` are taken by complex step (exact to rounding) unless an
+analytic one is passed.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._data import DataFunction
+from . import reduction as _red
+from .phase_space import PhaseSpace
+
+
+class NonholonomicSystem:
+    """A mechanical system with linear nonholonomic constraints on a phase space.
+
+    Parameters
+    ----------
+    space : PhaseSpace
+        ``CotangentBundle(n)``, ``LieGroupPhaseSpace(G)`` or ``TrivialPrincipalBundle(G, n)``.
+    metric : array_like (D, D) or callable
+        Mass tensor ``m(x)`` (symmetric positive definite).
+    constraints : array_like (K, D) or callable, optional
+        Constraint vectors ``e_i(x)`` as rows (a 1-D array is one constraint).
+    potential : callable, optional
+        ``U(x)`` (``(..., n) -> (...)``).
+    metric_derivative, constraints_derivative, potential_gradient : callable, optional
+        Analytic ``d/dx`` of the data, shape ``(..., n, *shape)``; by default the
+        complex step is used.
+    sample : array_like (n,), optional
+        A shape point at which the data are checked (default ``x = 0``).
+    check : bool
+        Check the data at ``sample`` (symmetry, positive definiteness,
+        independence, complex-step safety).  Default True.
+
+    Raises
+    ------
+    ValueError
+        Naming the datum and the fix, for a non-symmetric or indefinite metric,
+        dependent constraints, wrong shapes or non-finite numbers.
+    """
+
+    def __init__(
+        self,
+        space: PhaseSpace,
+        metric,
+        constraints=None,
+        potential=None,
+        *,
+        metric_derivative=None,
+        constraints_derivative=None,
+        potential_gradient=None,
+        sample=None,
+        check: bool = True,
+    ):
+        if not isinstance(space, PhaseSpace):
+            raise TypeError(f"space: expected a liefi PhaseSpace, got {space!r}")
+        self.space = space
+        n, D = space.n, space.D
+        if n == 0:
+            for name, val in (("metric", metric), ("constraints", constraints), ("potential", potential)):
+                if callable(val):
+                    raise ValueError(
+                        f"{name}: a system on a Lie group has no shape variables, so its "
+                        "data must be constant arrays (a G-invariant Hamiltonian has constant "
+                        "locked inertia and no potential)"
+                    )
+        if constraints is None:
+            constraints = np.zeros((0, D))
+        elif not callable(constraints):
+            constraints = np.atleast_2d(np.asarray(constraints, dtype=float))
+        K = constraints.shape[0] if not callable(constraints) else None
+        if K is None:
+            probe = np.asarray(constraints(np.zeros(n) if sample is None else np.asarray(sample, float)))
+            probe = np.atleast_2d(probe) if probe.ndim == 1 else probe
+            K = probe.shape[-2]
+        self.K = K
+        self.metric = DataFunction(metric, (D, D), n, "metric", metric_derivative, sample)
+        self.constraints = DataFunction(constraints, (K, D), n, "constraints", constraints_derivative, sample)
+        self.potential = DataFunction(
+            0.0 if potential is None else potential, (), n, "potential", potential_gradient, sample
+        )
+        self.constant = self.metric.constant and self.constraints.constant
+        if self.metric.constant:
+            self._minv = _checked_inverse(self.metric.value, "metric")
+        if self.constant:
+            E, m = self.constraints.value, self.metric.value
+            self._Eflat = E @ m
+            self._C = self._Eflat @ E.T
+            self._Cinv = _gram_inverse(self._C)
+        if check:
+            self.check(np.zeros(n) if sample is None else sample)
+
+    # --- names and sizes ---------------------------------------------------
+    @property
+    def state_names(self):
+        return self.space.state_names
+
+    def __repr__(self):
+        return f"NonholonomicSystem({self.space!r}, K={self.K})"
+
+    # --- validation -----------------------------------------------------------
+    def check(self, x):
+        """Check the data at the shape point(s) ``x``; raise a named ``ValueError`` if wrong."""
+        x = np.asarray(x, dtype=float)
+        if x.shape[-1:] != (self.space.n,):
+            raise ValueError(f"x: expected shape (..., {self.space.n}), got {x.shape}")
+        if not np.all(np.isfinite(x)):
+            raise ValueError("x: contains non-finite numbers")
+        m = np.asarray(self.metric(x), float)
+        if not np.all(np.isfinite(m)):
+            raise ValueError(f"metric: non-finite values at x = {x}")
+        asym = np.max(np.abs(m - np.swapaxes(m, -1, -2)), initial=0.0)
+        if asym > 1e-12 * max(1.0, np.max(np.abs(m), initial=0.0)):
+            raise ValueError(
+                f"metric: not symmetric (max |m - m^T| = {asym:.3g}); the mass tensor must be "
+                "symmetric positive definite, e.g. pass (m + m.T) / 2 if that is what you meant"
+            )
+        eig = np.linalg.eigvalsh(m)
+        if np.any(eig <= 0):
+            raise ValueError(
+                f"metric: not positive definite (smallest eigenvalue {eig.min():.3g}); every "
+                "inertia/mass must be positive"
+            )
+        if self.K:
+            E = np.asarray(self.constraints(x), float)
+            if not np.all(np.isfinite(E)):
+                raise ValueError(f"constraints: non-finite values at x = {x}")
+            C = E @ m @ np.swapaxes(E, -1, -2)
+            _gram_inverse(C)
+        U = np.asarray(self.potential(x), float)
+        if not np.all(np.isfinite(U)):
+            raise ValueError(f"potential: non-finite value at x = {x}")
+        if self.space.n:
+            for datum in (self.metric, self.constraints, self.potential):
+                datum.check_differentiable(x)
+
+    # --- the derived quantities (formulas in liefi.reduction.core) -----------
+    def hamiltonian(self, z):
+        """``h(z)``, see :func:`liefi.reduction.hamiltonian`."""
+        return _red.hamiltonian(self, z)
+
+    def extended_hamiltonian(self, z):
+        """``h~(z)``, see :func:`liefi.reduction.extended_hamiltonian`."""
+        return _red.extended_hamiltonian(self, z)
+
+    def constraint_momenta(self, z):
+        """``J_i(z) = <P, e_i>``, see :func:`liefi.reduction.constraint_momenta`."""
+        return _red.constraint_momenta(self, z)
+
+    def gram_matrix(self, x):
+        """``C^{li} = <e_l^flat, e_i>``, see :func:`liefi.reduction.gram_matrix`."""
+        return _red.gram_matrix(self, x)
+
+    def multipliers(self, z):
+        """``lambda(z)``, see :func:`liefi.reduction.multipliers`."""
+        return _red.multipliers(self, z)
+
+    def extended_multipliers(self, z):
+        """``lambda~(z)``, see :func:`liefi.reduction.extended_multipliers`."""
+        return _red.extended_multipliers(self, z)
+
+    def constrained_vector_field(self, z):
+        """Constrained field, see :func:`liefi.reduction.constrained_vector_field`."""
+        return _red.constrained_vector_field(self, z)
+
+    def extended_vector_field(self, z):
+        """Extended field, see :func:`liefi.reduction.extended_vector_field`."""
+        return _red.extended_vector_field(self, z)
+
+    def projected_vector_field(self, z):
+        """Extended field at the projection, see :func:`liefi.reduction.projected_vector_field`."""
+        return _red.projected_vector_field(self, z)
+
+    def project(self, z):
+        """Projection onto ``J = 0``, see :func:`liefi.reduction.project`."""
+        return _red.project(self, z)
+
+    def reconstruction(self, g, z, *, extended=True):
+        """``g'`` in the group's embedding, see :func:`liefi.reduction.reconstruction`."""
+        return _red.reconstruction(self, g, z, extended=extended)
+
+
+def _checked_inverse(m, name):
+    try:
+        np.linalg.cholesky(m)
+    except np.linalg.LinAlgError:
+        raise ValueError(
+            f"{name}: not symmetric positive definite; every inertia/mass must be positive"
+        ) from None
+    if np.max(np.abs(m - m.T), initial=0) > 1e-12 * max(1.0, np.abs(m).max()):
+        raise ValueError(f"{name}: not symmetric; pass (m + m.T) / 2 if that is what you meant")
+    return np.linalg.inv(m)
+
+
+def _gram_inverse(C):
+    """Inverse of the Gram matrix ``C^{li} = <e_l^flat, e_i>``; error if the constraints are dependent."""
+    K = C.shape[-1]
+    if K == 0:
+        return C
+    cond = np.linalg.cond(C)
+    if not np.all(np.isfinite(cond)) or np.any(cond > 1e12):
+        raise ValueError(
+            f"constraints: the constraint vectors are (nearly) linearly dependent (condition "
+            f"number of their Gram matrix {np.max(cond):.3g}); drop redundant constraints"
+        )
+    return np.linalg.inv(C)
