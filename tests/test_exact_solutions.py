@@ -332,18 +332,20 @@ def test_oscillator_y(q0, p0):
 
 def test_vectorised_shapes():
     t = np.linspace(0.0, 2.0, 12).reshape(3, 4)
-    outs = [
-        exact.suslov(t),
-        exact.knife_edge(t),
-        exact.chaplygin(t, 1.0, 1.0, 0.5, 0.0, (1.25, 0.3, 0.5)),
-        exact.vertical_disk(t, 1.0, 0.5, 0.25, 1.0, (0, 0, 0, 0), (0.3, 1.6, 0.0, 0.8)),
-        exact.heisenberg(t, (1.0, 2.0, 3.0), (0.5, 0.5, 0.5)),
-        exact.oscillator_y(t, 1.0, 0.0),
+    calls = [
+        lambda tt: exact.suslov(tt),
+        lambda tt: exact.knife_edge(tt),
+        lambda tt: exact.chaplygin(tt, 1.0, 1.0, 0.5, 0.0, (1.25, 0.3, 0.5)),
+        lambda tt: exact.vertical_disk(tt, 1.0, 0.5, 0.25, 1.0, (0, 0, 0, 0), (0.3, 1.6, 0.0, 0.8)),
+        lambda tt: exact.heisenberg(tt, (1.0, 2.0, 3.0), (0.5, 0.5, 0.5)),
+        lambda tt: exact.oscillator_y(tt, 1.0, 0.0),
     ]
-    for out in outs:
-        for key, val in out.items():
-            assert np.shape(val) == t.shape, key
-            np.testing.assert_allclose(np.ravel(val)[5], np.ravel(
-                {k: v for k, v in out.items()}[key])[5])
-    # scalar time works too
-    assert np.shape(exact.knife_edge(1.0)["x"]) == ()
+    for call in calls:
+        out2d, out1d = call(t), call(t.ravel())
+        assert out2d.keys() == out1d.keys()
+        for key in out2d:
+            assert np.shape(out2d[key]) == t.shape, key
+            np.testing.assert_array_equal(np.ravel(out2d[key]), out1d[key])
+        scalar = call(1.0)
+        for key in scalar:
+            assert np.shape(scalar[key]) == (), key

@@ -221,3 +221,29 @@ def reconstruction(system, g, z, *, extended=True):
 def poisson_bracket(system, z, df, dg):
     """The reduced phase space's bracket ``{f, g}(z)`` from gradients (see :mod:`liefi.phase_space`)."""
     return system.space.bracket(z, df, dg)
+
+
+def full_vector_field(system, y, *, kind="extended"):
+    """The field on ``y = (g, z)``: reconstruction of the group element plus the reduced field.
+
+    ``kind`` is ``"extended"`` (``g' = g . dh~/dmu`` with the extended field),
+    ``"constrained"`` (``g' = g . dh/dmu`` with the constrained field) or
+    ``"projected"``.
+    """
+    y = np.asarray(y, float)
+    nc = system.space.group.config_dim
+    g, z = y[..., :nc], y[..., nc:]
+    if kind == "projected":
+        z_eval = project(system, z)
+        kind = "extended"
+    else:
+        z_eval = z
+    t = evaluate(system, z_eval)
+    dH = t.dht if kind == "extended" else t.dh
+    if kind not in ("extended", "constrained"):
+        raise ValueError(f"kind: expected 'extended', 'constrained' or 'projected', got {kind!r}")
+    lam = _multipliers(system, z_eval, dH, t.dJ, t.Cinv)
+    zdot = _field(system, z_eval, dH, lam, t.Eflat)
+    n, d = system.space.n, system.space.d
+    gdot = system.space.group.config_rate(g, dH[..., n : n + d])
+    return np.concatenate([np.broadcast_to(gdot, zdot.shape[:-1] + gdot.shape[-1:]), zdot], -1)

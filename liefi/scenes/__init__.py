@@ -1,0 +1,41 @@
+"""The paper's experiments as scenes (Section 3), loaded on demand.
+
+``liefi.scenes.get("suslov")`` imports only that scene's module.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+from .base import RunResult, Scene, Variant
+
+#: scene name -> module (imported lazily, so a run loads only what it needs)
+REGISTRY = {
+    "suslov": "suslov",
+    "knife-edge": "knife_edge",
+    "chaplygin": "chaplygin",
+    "chaplygin-so2": "chaplygin",
+    "vertical-disk": "vertical_disk",
+    "roller-racer": "roller_racer",
+    "heisenberg": "heisenberg",
+    "oscillator": "oscillator",
+}
+
+
+def names():
+    """The scene names, in the paper's order."""
+    return list(REGISTRY)
+
+
+def get(name: str) -> Scene:
+    """The scene called ``name`` (see :func:`names`)."""
+    if name not in REGISTRY:
+        raise ValueError(f"scene: unknown scene {name!r}; choose one of {names()}")
+    mod = importlib.import_module(f"{__name__}.{REGISTRY[name]}")
+    scenes = getattr(mod, "SCENES", None)
+    if scenes is not None:
+        return scenes[name]
+    return mod.SCENE
+
+
+__all__ = ["Scene", "Variant", "RunResult", "REGISTRY", "names", "get"]

@@ -1,0 +1,285 @@
+"""Scenes: the paper's experiments as data on top of the core library.
+
+A :class:`Scene` holds a system's data (built lazily), the paper's settings
+(step, horizon, scheme, gains, which invariants ``V`` penalizes), named
+variants, and an exact or numerical reference solution.  :meth:`Scene.run`
+integrates exactly what is asked -- the reduced state alone unless the
+configuration is needed -- and returns a :class:`RunResult` with the error
+against the reference and the drift of every invariant.  No scene writes an
+equation of motion: the fields come from :mod:`liefi.reduction`.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from dataclasses import field as _field
+from functools import cached_property
+
+import numpy as np
+
+from ..feedback import FeedbackIntegrator
+from ..reduction import core as _core
+
+
+@dataclass(frozen=True)
+class Variant:
+    """A named way to run a scene.
+
+    Attributes
+    ----------
+    name, description : str
+    energy : {"extended", "original"}
+        Whether ``V`` penalizes ``h~`` or ``h``.
+    field : {"extended", "projected"}
+        Which extension of the constrained field is integrated.
+    options : dict
+        Scene-specific settings (e.g. the start of the Heisenberg system).
+    """
+
+    name: str
+    description: str
+    energy: str = "extended"
+    field: str = "extended"
+    options: dict = _field(default_factory=dict)
+
+
+@dataclass
+class RunResult:
+    """What one run of a scene produced.
+
+    ``max_error`` maps each compared variable to its max absolute error over
+    the saved points; ``max_drift`` maps each invariant to ``max |I(t) - I(0)|``
+    (the constraint momenta ``J_i``, the energies ``h`` and ``h~``, the scene's
+    other invariants, and ``orthogonality = ||R^T R - I||_F`` when the group
+    element is integrated in an embedding with a penalty).
+    """
+
+    scene: str
+    variant: str
+    scheme: str
+    dt: float
+    t_final: float
+    steps: int
+    cpu_seconds: float
+    rhs_evaluations: int
+    reference: str
+    gains: dict
+    t: np.ndarray
+    y: np.ndarray
+    names: tuple
+    errors: dict
+    invariants: dict
+    max_error: dict
+    max_drift: dict
+
+    def __getitem__(self, name):
+        return self.y[self.names.index(name)]
+
+    def to_dict(self):
+        """The JSON-able summary (the keys of ``liefi run --json``)."""
+        return {
+            "scene": self.scene,
+            "variant": self.variant,
+            "scheme": self.scheme,
+            "dt": self.dt,
+            "t_final": self.t_final,
+            "steps": self.steps,
+            "cpu_seconds": self.cpu_seconds,
+            "rhs_evaluations": self.rhs_evaluations,
+            "reference": self.reference,
+            "gains": self.gains,
+            "max_error": {k: float(v) for k, v in self.max_error.items()},
+            "max_drift": {k: float(v) for k, v in self.max_drift.items()},
+        }
+
+
+class Scene:
+    """Base class of the scenes; a scene module subclasses it and fills in data.
+
+    Class attributes to set: ``name``, ``title``, ``paper`` (section),
+    ``reference`` (``"exact"`` or ``"numerical"``), ``dt``, ``t_final``,
+    ``scheme``, ``gains`` (number or dict, see :class:`~liefi.FeedbackIntegrator`),
+    ``variants`` (dict of :class:`Variant`), ``error_variables`` (names
+    compared with the reference).  Methods to supply: :meth:`build_system`,
+    :meth:`initial_state`; and :meth:`exact` when ``reference == "exact"``.
+    """
+
+    name = ""
+    title = ""
+    paper = ""
+    reference = "exact"
+    dt = 1e-3
+    t_final = 10.0
+    scheme = "euler"
+    gains = 1.0
+    variants: dict = {}
+    error_variables: tuple = ()
+    #: schemes besides liefi's RK tableaux and ``scipy:METHOD`` this scene supports
+    extra_schemes: tuple = ()
+
+    # --- data (to supply) --------------------------------------------------------
+    def build_system(self):
+        raise NotImplementedError
+
+    def initial_state(self, variant: Variant):
+        """The full initial state ``(g, z)`` (group element in its embedding, then z)."""
+        raise NotImplementedError
+
+    def invariants(self, variant: Variant):
+        """Invariants ``V`` penalizes (default: constraints and energy)."""
+        return ("constraints", "energy")
+
+    def exact(self, t, variant: Variant):
+        """Reference values ``{name: array(len(t))}`` of the constrained motion."""
+        if self.reference == "numerical":
+            return self.numerical_reference(t, variant)
+        raise NotImplementedError
+
+    def observables(self, y, names):
+        """Derived quantities (e.g. the heading from a rotation matrix); default none."""
+        return {}
+
+    # --- derived -------------------------------------------------------------------
+    @cached_property
+    def system(self):
+        return self.build_system()
+
+    def variant(self, name=None) -> Variant:
+        if name is None:
+            return next(iter(self.variants.values()))
+        try:
+            return self.variants[name]
+        except KeyError:
+            raise ValueError(
+                f"variant: scene {self.name!r} has variants {list(self.variants)}, not {name!r}"
+            ) from None
+
+    def needs_configuration(self):
+        """True when a compared variable is a configuration number."""
+        cfg = set(self.system.space.group.config_names)
+        return any(v in cfg for v in self.error_variables)
+
+    def integrator(self, variant=None, *, gains=None, configuration=None, y0=None):
+        """The :class:`~liefi.FeedbackIntegrator` of this scene and variant."""
+        v = self.variant(variant) if not isinstance(variant, Variant) else variant
+        cfg = self.needs_configuration() if configuration is None else configuration
+        full = np.asarray(self.initial_state(v) if y0 is None else y0, float)
+        nc = self.system.space.group.config_dim
+        start = full if cfg else full[nc:]
+        return FeedbackIntegrator(
+            self.system,
+            start,
+            invariants=self.invariants(v),
+            gains=self.gains if gains is None else gains,
+            energy=v.energy,
+            configuration=cfg,
+            field=v.field,
+        )
+
+    def numerical_reference(self, t, variant: Variant, rtol=1e-12, atol=1e-12):
+        """High-accuracy integration (DOP853) of the *constrained* field from the start."""
+        from scipy.integrate import solve_ivp
+
+        key = (variant.name, float(t[-1]), len(t))
+        cache = self.__dict__.setdefault("_refcache", {})
+        if key not in cache:
+            y0 = np.asarray(self.initial_state(variant), float)
+            sys = self.system
+
+            def f(_t, y):
+                return _core.full_vector_field(sys, y, kind="constrained")
+
+            sol = solve_ivp(f, (0.0, float(t[-1])), y0, method="DOP853", rtol=rtol, atol=atol, t_eval=t)
+            if not sol.success:
+                raise RuntimeError(f"reference solution of {self.name!r} failed: {sol.message}")
+            names = tuple(sys.space.group.config_names) + sys.state_names
+            cache[key] = {n: sol.y[i] for i, n in enumerate(names)}
+        return cache[key]
+
+    # --- running ---------------------------------------------------------------------
+    def run(
+        self,
+        *,
+        dt=None,
+        t_final=None,
+        scheme=None,
+        gains=None,
+        variant=None,
+        configuration=None,
+        save_every=None,
+        max_saved=20000,
+        rtol=1e-9,
+        atol=1e-12,
+    ) -> RunResult:
+        """Run the scene at its settings unless told otherwise.
+
+        ``scheme`` is a liefi scheme name (``euler``, ``heun``, ``rk4``...),
+        ``"scipy:METHOD"`` (``solve_ivp`` with ``rtol``/``atol``), or one of the
+        scene's ``extra_schemes`` (e.g. ``"dla"``).
+        """
+        v = self.variant(variant) if not isinstance(variant, Variant) else variant
+        dt = float(self.dt if dt is None else dt)
+        T = float(self.t_final if t_final is None else t_final)
+        scheme = self.scheme if scheme is None else scheme
+        if not np.isfinite(dt) or dt <= 0:
+            raise ValueError(f"dt: the step must be a positive number, got {dt!r}")
+        if not np.isfinite(T) or T <= 0:
+            raise ValueError(f"t_final: must be a positive number, got {T!r}")
+        n_steps = int(round(T / dt))
+        if save_every is None:
+            save_every = max(1, n_steps // max_saved)
+        fi = self.integrator(v, gains=gains, configuration=configuration)
+
+        if scheme in self.extra_schemes:
+            t, Y, names, cpu, steps, nfev = self.run_extra(scheme, v, dt, T, save_every, fi)
+        elif str(scheme).startswith("scipy:"):
+            from scipy.integrate import solve_ivp
+
+            method = scheme.split(":", 1)[1]
+            t_eval = np.linspace(0.0, T, min(n_steps, max_saved) + 1)
+            start = time.process_time()
+            sol = solve_ivp(fi.fun, (0.0, T), fi.y0, method=method, t_eval=t_eval, rtol=rtol, atol=atol)
+            cpu = time.process_time() - start
+            if not sol.success:
+                raise RuntimeError(f"solve_ivp({method}) failed on {self.name!r}: {sol.message}")
+            if not np.all(np.isfinite(sol.y)):
+                raise FloatingPointError(f"solve_ivp({method}) returned non-finite values on {self.name!r}")
+            t, Y, names, steps, nfev = sol.t, sol.y, fi.names, int(sol.t.size), int(sol.nfev)
+        else:
+            sol = fi.run(dt, T, scheme, save_every=save_every)
+            t, Y, names, cpu, steps, nfev = sol.t, sol.y, sol.names, sol.cpu_seconds, sol.steps, sol.rhs_evaluations
+        return self._result(v, str(scheme), dt, T, fi, t, Y, names, cpu, steps, nfev)
+
+    def run_extra(self, scheme, variant, dt, T, save_every, fi):
+        """Run a scene-specific scheme; returns ``(t, Y, names, cpu, steps, nfev)``."""
+        raise ValueError(f"scheme: {scheme!r} is not available for scene {self.name!r}")
+
+    def _result(self, v, scheme, dt, T, fi, t, Y, names, cpu, steps, nfev):
+        data = {n: Y[i] for i, n in enumerate(names)}
+        data.update(self.observables(Y, names))
+        ref = self.exact(t, v)
+        errors = {k: data[k] - ref[k] for k in self.error_variables if k in data and k in ref}
+        # invariants along the run (the integrator's state layout)
+        nc_fi = fi.nc
+        full_names = fi.names
+        Yfi = np.stack([data[n] for n in full_names], -1) if all(n in data for n in full_names) else None
+        invariants = {}
+        if Yfi is not None:
+            vals = fi.invariant_values(Yfi)
+            for k, val in vals.items():
+                if k == "energy":
+                    continue
+                if k == "penalty":
+                    invariants["orthogonality"] = 2.0 * np.sqrt(np.maximum(val, 0.0))
+                else:
+                    invariants[k] = np.asarray(val)
+        max_drift = {}
+        for k, val in invariants.items():
+            base = 0.0 if k.startswith("J_") or k == "orthogonality" else val[0]
+            max_drift[k] = float(np.max(np.abs(val - base)))
+        max_error = {k: float(np.max(np.abs(e))) for k, e in errors.items()}
+        return RunResult(
+            self.name, v.name, scheme, dt, T, int(steps), float(cpu), int(nfev), self.reference,
+            dict(fi.gains), t, Y, tuple(names), errors, invariants, max_error, max_drift,
+        )
