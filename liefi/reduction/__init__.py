@@ -25,6 +25,7 @@ from .core import (
     projected_vector_field,
     reconstruction,
 )
+from .lift import LeftTrivialization, unreduce
 
 __all__ = [
     "Terms",
@@ -43,4 +44,6 @@ __all__ = [
     "group_velocity",
     "reconstruction",
     "poisson_bracket",
+    "LeftTrivialization",
+    "unreduce",
 ]

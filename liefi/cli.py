@@ -1,0 +1,355 @@
+"""The ``liefi`` command: list the paper's experiments, run one, reproduce them all.
+
+::
+
+    liefi list [-v]
+    liefi run SCENE [--dt DT] [--t-final T] [--scheme euler|heun|rk4|dla|scipy:METHOD]
+                    [--gains K | --gains K1,K2,... | --gains name=K,...] [--variant NAME]
+                    [--configuration] [--json] [--plot FILE.png]
+    liefi reproduce [--out DIR] [--only SCENE[,SCENE]] [--t-final-scale S]
+
+``liefi run`` runs one scene at the paper's settings unless told otherwise and
+reports its error against the exact (or numerical reference) solution, the
+drift of every invariant and its CPU time; ``--json`` prints one JSON object.
+``liefi reproduce`` is :mod:`liefi.reproduce`.
+
+Errors (unknown scene, variant or scheme, malformed gains, a diverging run)
+print one line ``liefi: error: ...`` on stderr and exit with code 2.
+:func:`main` takes ``argv`` and returns the exit code, so tests call it directly.
+matplotlib is imported only when a figure is written.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+
+from . import scenes as _scenes
+from .schemes import SCHEMES, IntegrationError
+
+#: solve_ivp methods accepted after ``scipy:``
+SCIPY_METHODS = ("RK23", "RK45", "DOP853", "Radau", "BDF", "LSODA")
+
+
+class UsageError(Exception):
+    """Bad command-line input; the message names the parameter."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, but a usage error is one line on stderr (raised, turned into exit 2 by main)."""
+
+    def error(self, message):
+        raise UsageError(f"{self.prog}: {message} (see '{self.prog} --help')")
+
+
+# --------------------------------------------------------------------------------------
+# helpers
+# --------------------------------------------------------------------------------------
+def gain_names(scene, variant=None, configuration=None):
+    """The order of ``--gains K1,K2,...``: the integrator's ``invariant_names``."""
+    return tuple(scene.integrator(variant, configuration=configuration).invariant_names)
+
+
+def default_gains(scene, names):
+    """The scene's paper gains expanded to ``{name: k}`` over ``names``."""
+    g = scene.gains
+    if isinstance(g, dict):
+        out = {}
+        for k, v in g.items():
+            if k == "constraints":
+                out.update({n: float(v) for n in names if n.startswith("J_")})
+            else:
+                out[k] = float(v)
+        return {n: out[n] for n in names if n in out}
+    return {n: float(g) for n in names}
+
+
+def parse_gains(text, scene, variant=None, configuration=None):
+    """``--gains`` text -> the ``gains`` argument of :meth:`Scene.run`.
+
+    ``"K"`` sets every gain; ``"K1,K2,..."`` sets the gains in the order of the
+    integrator's ``invariant_names``; ``"name=K,..."`` sets the named gains and
+    keeps the scene's value for the others (``constraints=K`` sets every ``J_i``).
+    """
+    if text is None:
+        return None
+    names = gain_names(scene, variant, configuration)
+    order = ",".join(names) or "(none)"
+    text = text.strip()
+    parts = [p.strip() for p in text.split(",")]
+
+    def number(s, what):
+        try:
+            v = float(s)
+        except ValueError:
+            raise UsageError(f"gains: {what} {s!r} is not a number (gain order for {scene.name}: {order})") from None
+        if not math.isfinite(v) or v < 0:
+            raise UsageError(f"gains: {what} must be a finite non-negative number, got {s!r}")
+        return v
+
+    if not text or any(not p for p in parts):
+        raise UsageError(f"gains: empty entry in {text!r}; give K, K1,K2,... (order {order}) or name=K,...")
+    if all("=" in p for p in parts):
+        out = default_gains(scene, names)
+        for p in parts:
+            k, v = (s.strip() for s in p.split("=", 1))
+            if k == "constraints":
+                for n in names:
+                    if n.startswith("J_"):
+                        out[n] = number(v, f"gain of {k!r}")
+            elif k in names:
+                out[k] = number(v, f"gain of {k!r}")
+            else:
+                raise UsageError(f"gains: unknown name {k!r} for scene {scene.name}; the gains are {order}")
+        return out
+    if any("=" in p for p in parts):
+        raise UsageError(f"gains: mix of name=K and plain numbers in {text!r}; use one form")
+    if len(parts) == 1:
+        return number(parts[0], "value")
+    if len(parts) != len(names):
+        raise UsageError(
+            f"gains: scene {scene.name} takes 1 or {len(names)} gains in the order {order}, got {len(parts)}"
+        )
+    return {n: number(p, f"gain of {n!r}") for n, p in zip(names, parts)}
+
+
+def check_scheme(scheme, scene):
+    """Raise :class:`UsageError` unless ``scheme`` is available for ``scene``."""
+    if scheme is None:
+        return
+    if scheme in SCHEMES or scheme in scene.extra_schemes:
+        return
+    if scheme.startswith("scipy:"):
+        method = scheme.split(":", 1)[1]
+        if method in SCIPY_METHODS:
+            return
+        raise UsageError(f"scheme: unknown solve_ivp method {method!r}; choose scipy:{'|scipy:'.join(SCIPY_METHODS)}")
+    choices = sorted(SCHEMES) + list(scene.extra_schemes) + ["scipy:METHOD"]
+    raise UsageError(f"scheme: {scheme!r} is not available for scene {scene.name}; choose one of {', '.join(choices)}")
+
+
+def _fmt(x):
+    return f"{x:.3e}"
+
+
+def report(result, file=sys.stdout):
+    """The short human-readable report of ``liefi run``."""
+    scene = _scenes.get(result.scene)
+    w = file.write
+    w(f"{result.scene}: {scene.title} (paper {scene.paper}), variant {result.variant}\n")
+    w(
+        f"  scheme {result.scheme}, dt {result.dt:g}, t in [0, {result.t_final:g}], {result.steps} steps, "
+        f"{result.rhs_evaluations} field evaluations\n"
+    )
+    w(f"  CPU time {result.cpu_seconds:.3f} s\n")
+    if result.gains and result.scheme != "dla":
+        w("  gains " + ", ".join(f"{k}={v:g}" for k, v in result.gains.items()) + "\n")
+    ref = "exact solution" if result.reference == "exact" else "numerical reference (DOP853)"
+    w(f"  max |error| against the {ref}:\n")
+    width = max([len(k) for k in list(result.max_error) + list(result.max_drift)] + [4])
+    for k, v in result.max_error.items():
+        w(f"    {k:<{width}}  {_fmt(v)}\n")
+    w("  max drift |I(t) - I(0)|:\n")
+    for k, v in result.max_drift.items():
+        w(f"    {k:<{width}}  {_fmt(v)}\n")
+
+
+# --------------------------------------------------------------------------------------
+# commands
+# --------------------------------------------------------------------------------------
+def cmd_list(args):
+    rows = []
+    for name in _scenes.names():
+        try:
+            s = _scenes.get(name)
+        except ImportError as exc:
+            rows.append((name, f"(not available: {exc})", "", ""))
+            continue
+        rows.append((name, s.title, s.paper, ", ".join(s.variants)))
+        if args.verbose:
+            try:
+                order = ",".join(gain_names(s))
+                order_cfg = ",".join(gain_names(s, configuration=True))
+            except Exception as exc:  # noqa: BLE001 - listing must not die on one scene
+                order = order_cfg = f"? ({exc})"
+            extra = f", also {','.join(s.extra_schemes)}" if s.extra_schemes else ""
+            rows.append(("", f"dt {s.dt:g}, t_final {s.t_final:g}, scheme {s.scheme}{extra}, "
+                             f"reference {s.reference}", "", ""))
+            rows.append(("", f"gains {s.gains}; --gains order: {order}"
+                             + (f" (with --configuration: {order_cfg})" if order_cfg != order else ""), "", ""))
+    w0 = max(len(r[0]) for r in rows)
+    w1 = max(len(r[1]) for r in rows if r[2] or r[3]) if any(r[2] for r in rows) else 0
+    w2 = max([len(r[2]) for r in rows] + [0])
+    for r in rows:
+        if r[2] or r[3]:
+            print(f"{r[0]:<{w0}}  {r[1]:<{w1}}  {r[2]:<{w2}}  variants: {r[3]}".rstrip())
+        else:
+            print(f"{r[0]:<{w0}}  {r[1]}".rstrip())
+    return 0
+
+
+def cmd_run(args):
+    scene = _scenes.get(args.scene)
+    variant = scene.variant(args.variant)
+    check_scheme(args.scheme, scene)
+    configuration = True if args.configuration else None
+    if args.plot:
+        from . import plotting
+
+        if plotting.needs_configuration(scene.name):
+            configuration = True
+    gains = parse_gains(args.gains, scene, variant, configuration)
+    result = scene.run(
+        dt=args.dt,
+        t_final=args.t_final,
+        scheme=args.scheme,
+        gains=gains,
+        variant=variant,
+        configuration=configuration,
+    )
+    if not all(math.isfinite(v) for v in list(result.max_error.values()) + list(result.max_drift.values())):
+        raise IntegrationError(
+            f"run of {scene.name} produced non-finite errors or drifts; reduce dt or the gains", 0.0, 0, None, []
+        )
+    out = result.to_dict()
+    out["configuration"] = bool(configuration) if configuration is not None else scene.needs_configuration()
+    if args.plot:
+        from . import plotting
+
+        sections = None
+        if scene.name == "oscillator":
+            sections = _poincare(result)
+        plotting.plot_run(result, args.plot, title=scene.title, sections=sections)
+        out["plot"] = args.plot
+    if args.json:
+        print(json.dumps(out))
+    else:
+        report(result)
+        if args.plot:
+            print(f"  figure written to {args.plot}")
+    return 0
+
+
+def _poincare(result):
+    """``oscillator.poincare_section(result)`` if the module provides it."""
+    import importlib
+
+    mod = importlib.import_module("liefi.scenes.oscillator")
+    fn = getattr(mod, "poincare_section", None)
+    return None if fn is None else fn(result)
+
+
+def cmd_reproduce(args):
+    from . import reproduce
+
+    only = None
+    if args.only:
+        only = [s.strip() for s in args.only.split(",") if s.strip()]
+        unknown = [s for s in only if s not in _scenes.REGISTRY]
+        if unknown:
+            raise UsageError(f"only: unknown scene(s) {unknown}; choose from {_scenes.names()}")
+    if not (math.isfinite(args.t_final_scale) and args.t_final_scale > 0):
+        raise UsageError(f"t-final-scale: must be a positive number, got {args.t_final_scale!r}")
+    summary = reproduce.reproduce(args.out, only=only, t_final_scale=args.t_final_scale)
+    print(reproduce.markdown_table(summary))
+    return 1 if summary["failures"] else 0
+
+
+# --------------------------------------------------------------------------------------
+# parser
+# --------------------------------------------------------------------------------------
+def _positive_float(what):
+    def conv(s):
+        try:
+            v = float(s)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{s!r} is not a number") from None
+        if not (math.isfinite(v) and v > 0):
+            raise argparse.ArgumentTypeError(f"{what} must be a positive number, got {s!r}")
+        return v
+
+    return conv
+
+
+def build_parser():
+    p = _Parser(
+        prog="liefi",
+        description="Feedback integrators for nonholonomic systems: the paper's experiments (Section 3).",
+    )
+    sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+
+    pl = sub.add_parser("list", help="the scenes, one line each (name, title, paper section, variants)")
+    pl.add_argument("-v", "--verbose", action="store_true", help="also the paper's settings and the --gains order")
+
+    pr = sub.add_parser(
+        "run",
+        help="run one scene at the paper's settings unless told otherwise",
+        description=(
+            "Run one scene at the paper's settings unless told otherwise; report the error against the "
+            "exact (or numerical reference) solution, the drift of every invariant and the CPU time."
+        ),
+        epilog=(
+            "--gains: one number sets every gain; a comma list K1,K2,... sets them in the order of the "
+            "integrator's invariant_names (penalty, then J_1..J_K, then energy, then the scene's own "
+            "invariants; 'penalty' only with --configuration on a group with an embedding, e.g. suslov: "
+            "J_1,energy, with --configuration penalty,J_1,energy); name=K,... sets named gains and keeps "
+            "the paper's value for the rest (constraints=K sets every J_i). 'liefi list -v' prints each "
+            "scene's order. Errors exit with code 2."
+        ),
+    )
+    pr.add_argument("scene", metavar="SCENE", help="scene name (see 'liefi list')")
+    pr.add_argument("--dt", type=_positive_float("dt"), default=None, help="step (default: the paper's)")
+    pr.add_argument("--t-final", type=_positive_float("t-final"), default=None, dest="t_final",
+                    help="final time (default: the paper's)")
+    pr.add_argument("--scheme", default=None,
+                    help="euler|heun|midpoint|rk3|rk4|dla (oscillator)|scipy:METHOD (default: the paper's)")
+    pr.add_argument("--gains", default=None, metavar="K|K1,K2,...|name=K,...",
+                    help="feedback gains (default: the paper's); order: the integrator's invariant_names, see below")
+    pr.add_argument("--variant", default=None, help="variant name (default: the scene's first)")
+    pr.add_argument("--configuration", action="store_true", help="integrate the group element too")
+    pr.add_argument("--json", action="store_true", help="print one JSON object")
+    pr.add_argument("--plot", default=None, metavar="FILE.png",
+                    help="write the scene's figure(s) to FILE.png (integrates the configuration if needed)")
+
+    pp = sub.add_parser(
+        "reproduce",
+        help="run every experiment of the paper and write its figures and a summary table",
+        description=(
+            "Run every scene and variant at the paper's settings (the oscillator with the feedback integrator "
+            "and the DLA scheme on [0,200] and the Poincaré sections on [0,400]); write the paper's figures as "
+            "PNG and summary.md / summary.json to DIR. Exit code 1 if an experiment failed."
+        ),
+    )
+    pp.add_argument("--out", default="./liefi-out", metavar="DIR", help="output directory (default ./liefi-out)")
+    pp.add_argument("--only", default=None, metavar="SCENE[,SCENE]", help="run only these scenes")
+    pp.add_argument("--t-final-scale", type=float, default=1.0, dest="t_final_scale", metavar="S",
+                    help="(for tests) multiply every horizon by S, e.g. 0.01 for a quick smoke run")
+    return p
+
+
+def main(argv=None):
+    """Entry point of ``liefi`` / ``python -m liefi``; returns the exit code."""
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+        if args.command is None:
+            parser.print_help(sys.stderr)
+            return 2
+        return {"list": cmd_list, "run": cmd_run, "reproduce": cmd_reproduce}[args.command](args)
+    except UsageError as exc:
+        print(f"liefi: error: {exc}", file=sys.stderr)
+        return 2
+    except SystemExit as exc:  # --help
+        return exc.code if isinstance(exc.code, int) else 0
+    except (ValueError, ArithmeticError, RuntimeError, OSError, ImportError) as exc:
+        # ValueError: bad scene / variant / dt ...; IntegrationError (an ArithmeticError): a
+        # diverging run; RuntimeError: solve_ivp or the reference failed; OSError: --plot path.
+        msg = " ".join(str(exc).split()) or type(exc).__name__
+        print(f"liefi: error: {msg}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

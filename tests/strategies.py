@@ -1,0 +1,343 @@
+"""Shared hypothesis strategies, random systems and independent oracles for the property tests.
+
+Every property test that is about "any group" is parametrized over :data:`GROUPS`
+(and every test about "any system" over :data:`SPACES`, which is derived from
+``GROUPS``): a new group gets the whole suite by being added to ``GROUPS``.
+
+Random data are drawn from a ``numpy`` generator seeded by hypothesis, so a
+failing example is reproducible from the seed hypothesis prints.  The
+*structure* (number of constraints ``K``, shape dimension ``n``, batch shape,
+orthonormal or general constraints) is drawn by hypothesis directly.
+
+The systems are the paper's three kinds (Section 2):
+
+* ``lie``: ``LieGroupPhaseSpace(G)`` with a constant locked inertia and constant
+  constraint vectors (``(sys:LiePoisson)``);
+* ``cotangent``: ``CotangentBundle(n)`` with ``x``-dependent metric, constraints
+  and potential (``(original:nonholo)``);
+* ``bundle``: ``TrivialPrincipalBundle(G, n)`` with ``x``-dependent data
+  (``(sys:QG:trivial)``).
+
+The ``x``-dependent data are batch-first and complex-step safe:
+``m(x) = M0 + sin(x.c1) S1 + cos(x.c2) S2`` (SPD by construction), rows of
+``E(x) = E0 + sin(x.d) E1`` (independent by construction, *not* orthonormal
+for ``m``), ``U(x) = 1/2 x.Q x + a sin(x.b)``.  With ``orthonormal=True`` the
+rows are Gram--Schmidt orthonormalized in ``m(x)`` by analytic operations
+(no conjugation), so the Gram matrix is the identity for every ``x``.
+
+The oracles at the bottom compute ``h``, ``h~`` and ``J`` straight from the
+data by the general formulas of Remark ``(remark:nonhol:general)``, with complex
+arithmetic allowed, so their gradients can be taken by complex step
+independently of :mod:`liefi.reduction`.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from dataclasses import dataclass, field
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, settings
+from hypothesis import strategies as st
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+from liefi import CotangentBundle, LieGroupPhaseSpace, NonholonomicSystem, TrivialPrincipalBundle  # noqa: E402
+from liefi.groups import S1, SE2, SO2, SO3, Rn  # noqa: E402
+
+# ---------------------------------------------------------------------------
+# the one list of groups
+# ---------------------------------------------------------------------------
+
+#: Every group liefi ships, in the embeddings the paper uses.  Add a group here
+#: and every group, bracket, extension and Lyapunov test runs on it.
+GROUPS = [
+    pytest.param(SO3(), id="SO3"),
+    pytest.param(SE2(), id="SE2"),
+    pytest.param(SE2(S1()), id="SE2(S1)"),
+    pytest.param(SO2(), id="SO2"),
+    pytest.param(S1(), id="S1"),
+    pytest.param(Rn(2), id="R2"),
+    pytest.param(SE2() * S1(), id="SE2xS1"),
+    pytest.param(SO3() * Rn(1), id="SO3xR1"),
+]
+
+
+def _spaces():
+    out = []
+    for p in GROUPS:
+        (G,) = p.values
+        out.append(pytest.param(("lie", G), id=f"lie-{p.id}"))
+    for p in GROUPS:
+        (G,) = p.values
+        out.append(pytest.param(("bundle", G), id=f"bundle-{p.id}"))
+    out.append(pytest.param(("cotangent", None), id="cotangent"))
+    return out
+
+
+#: ``(kind, group)`` for every system kind over every group (one cotangent entry).
+SPACES = _spaces()
+
+#: Batch shapes every batch-first function is checked on.
+BATCH_SHAPES = st.sampled_from([(), (3,), (2, 2)])
+
+#: Seeds for the numpy generator.
+SEEDS = st.integers(0, 2**32 - 1)
+
+#: Settings of the property tests (about 25 examples, no deadline: the first
+#: call of a test compiles nothing but may import scipy).
+PROPERTY = settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+
+
+# ---------------------------------------------------------------------------
+# numeric helpers
+# ---------------------------------------------------------------------------
+
+STEP = 1e-30
+
+
+def cs_grad(fun, z):
+    """Gradient of a batch-first scalar (or ``(..., K)``) function by complex step.
+
+    Returns shape ``(..., nz)`` for a scalar function and ``(..., K, nz)`` for a
+    vector one.  Exact to rounding for analytic ``fun``.
+    """
+    z = np.asarray(z, dtype=float)
+    nz = z.shape[-1]
+    zc = z[..., None, :] + (1j * STEP) * np.eye(nz)  # (..., nz, nz): one probe per row
+    f = np.asarray(fun(zc)).imag / STEP  # (..., nz) or (..., nz, K)
+    if f.ndim == z.ndim:  # scalar function
+        return f
+    return np.swapaxes(f, -1, -2)
+
+
+def central_grad(fun, z, h=1e-4):
+    """Fourth-order central-difference gradient of a real batch-first scalar function."""
+    z = np.asarray(z, dtype=float)
+    nz = z.shape[-1]
+    out = np.empty(z.shape)
+    scale = np.maximum(1.0, np.abs(z))
+    for k in range(nz):
+        dz = np.zeros(z.shape)
+        dz[..., k] = h * scale[..., k]
+        f = lambda s: np.asarray(fun(z + s * dz))  # noqa: E731
+        out[..., k] = (8 * (f(1) - f(-1)) - (f(2) - f(-2))) / (12 * h * scale[..., k])
+    return out
+
+
+def rel_err(a, b, scale=None):
+    """``max |a - b| / scale`` with ``scale = max(1e-300, max|b|)`` by default."""
+    a, b = np.asarray(a), np.asarray(b)
+    if scale is None:
+        scale = np.max(np.abs(b), initial=0.0)
+    return float(np.max(np.abs(a - b), initial=0.0) / max(float(scale), 1e-300))
+
+
+def dot(a, b):
+    return np.einsum("...i,...i->...", a, b)
+
+
+# ---------------------------------------------------------------------------
+# random data
+# ---------------------------------------------------------------------------
+
+
+def random_spd(rng, D, spread=1.0):
+    """A symmetric positive definite ``D x D`` matrix with eigenvalues in ``[0.5, 0.5 + 2 spread]``-ish."""
+    Q, _ = np.linalg.qr(rng.normal(size=(D, D)))
+    lam = 0.5 + spread * rng.uniform(0.0, 2.0, size=D)
+    return (Q * lam) @ Q.T
+
+
+def random_constraints(rng, K, D):
+    """``K`` independent, non-orthonormal rows: ``T Q[:K]`` with ``T`` unit lower triangular plus noise.
+
+    Their singular values lie in ``[~0.4, ~2.5]``, so every Gram matrix with a
+    well-conditioned metric is well conditioned.
+    """
+    if K == 0:
+        return np.zeros((0, D))
+    Q, _ = np.linalg.qr(rng.normal(size=(D, D)))
+    T = np.diag(rng.uniform(0.6, 1.6, size=K)) + 0.4 * np.tril(rng.uniform(-1, 1, size=(K, K)), -1)
+    return T @ Q[:K]
+
+
+def _smin(A):
+    return np.linalg.svd(A, compute_uv=False).min() if A.size else 1.0
+
+
+def gram_schmidt(E, m):
+    """Orthonormalize the rows of ``E`` (``(..., K, D)``) in the metric ``m`` (``(..., D, D)``).
+
+    Analytic in ``E`` and ``m`` (no conjugation, no ``abs``): complex-step safe.
+    """
+    K = E.shape[-2]
+    rows = []
+    for i in range(K):
+        r = E[..., i, :]
+        for q in rows:
+            r = r - np.einsum("...i,...ij,...j->...", r, m, q)[..., None] * q
+        nrm = np.sqrt(np.einsum("...i,...ij,...j->...", r, m, r))
+        rows.append(r / nrm[..., None])
+    if not rows:
+        return E
+    return np.stack(rows, -2)
+
+
+@dataclass
+class Case:
+    """A random system with the raw (complex-safe) data it was built from."""
+
+    kind: str
+    system: NonholonomicSystem
+    metric: object  #: batch-first m(x), complex safe (constant: returns the array)
+    constraints: object  #: batch-first E(x), rows e_i
+    potential: object  #: batch-first U(x)
+    orthonormal: bool
+    constant_gram: bool  #: Gram matrix C = E m E^T independent of x
+    rng: np.random.Generator = field(repr=False)
+
+    @property
+    def space(self):
+        return self.system.space
+
+    @property
+    def K(self):
+        return self.system.K
+
+    def random_state(self, shape=(), scale=1.0):
+        """Random reduced states ``z = (x, mu, p_x)`` of shape ``shape + (nz,)``."""
+        return scale * self.rng.normal(size=tuple(shape) + (self.space.nz,))
+
+    def constrained_state(self, shape=(), scale=1.0):
+        """Random states on the constraint set ``J = 0`` (projected along ``m``)."""
+        return self.system.project(self.random_state(shape, scale))
+
+
+def build_case(kind, group, rng, K, n, orthonormal=False):
+    """Build a random :class:`Case` of the given kind (see module docstring)."""
+    if kind == "lie":
+        space = LieGroupPhaseSpace(group)
+        n = 0
+    elif kind == "cotangent":
+        space = CotangentBundle(n)
+    elif kind == "bundle":
+        space = TrivialPrincipalBundle(group, n)
+    else:  # pragma: no cover
+        raise ValueError(kind)
+    D = space.D
+    M0 = random_spd(rng, D)
+    E0 = random_constraints(rng, K, D)
+
+    if n == 0:
+        m_const = M0
+        E_const = gram_schmidt(E0, M0) if orthonormal else E0
+        system = NonholonomicSystem(space, m_const, E_const if K else None)
+        return Case(
+            kind, system, lambda x: m_const, lambda x: E_const, lambda x: 0.0 * np.sum(x, -1),
+            orthonormal, True, rng,
+        )
+
+    lmin = np.linalg.eigvalsh(M0).min()
+    S1_ = rng.normal(size=(D, D))
+    S1_ = S1_ + S1_.T
+    S2_ = rng.normal(size=(D, D))
+    S2_ = S2_ + S2_.T
+    S1_ *= 0.2 * lmin / np.linalg.norm(S1_, 2)
+    S2_ *= 0.2 * lmin / np.linalg.norm(S2_, 2)
+    c1, c2, d = rng.normal(size=(3, n))
+    E1 = rng.normal(size=(K, D))
+    if K:
+        E1 *= 0.3 * _smin(E0) / np.linalg.norm(E1, 2)
+    Qp = random_spd(rng, n, 0.5)
+    a, b = rng.normal(), rng.normal(size=n)
+
+    def metric(x):
+        s = np.sin(x @ c1)[..., None, None]
+        c = np.cos(x @ c2)[..., None, None]
+        return M0 + s * S1_ + c * S2_
+
+    def raw_constraints(x):
+        return E0 + np.sin(x @ d)[..., None, None] * E1
+
+    if orthonormal:
+
+        def constraints(x):
+            return gram_schmidt(raw_constraints(x), metric(x))
+
+    else:
+        constraints = raw_constraints
+
+    def potential(x):
+        return 0.5 * np.einsum("...i,ij,...j->...", x, Qp, x) + a * np.sin(x @ b)
+
+    system = NonholonomicSystem(space, metric, constraints if K else None, potential)
+    return Case(kind, system, metric, constraints, potential, orthonormal, orthonormal or K == 0, rng)
+
+
+@st.composite
+def cases(draw, spec, *, min_K=0, orthonormal=None, max_n=2):
+    """A random :class:`Case` for ``spec = (kind, group)`` (an entry of :data:`SPACES`).
+
+    ``K`` runs from ``min_K`` to ``D - 1``; ``orthonormal`` None draws it.
+    """
+    kind, group = spec
+    if kind == "lie":
+        n = 0
+        D = group.dim
+    elif kind == "cotangent":
+        n = draw(st.integers(1, 3))
+        D = n
+    else:
+        n = draw(st.integers(1, max_n))
+        D = group.dim + n
+    K = draw(st.integers(min(min_K, D - 1), D - 1))
+    orth = draw(st.booleans()) if orthonormal is None else orthonormal
+    seed = draw(SEEDS)
+    return build_case(kind, group, np.random.default_rng(seed), K, n, orth)
+
+
+# ---------------------------------------------------------------------------
+# independent oracles (Remark remark:nonhol:general), complex-step safe
+# ---------------------------------------------------------------------------
+
+
+def _solve(A, b):
+    return np.linalg.solve(A, b[..., None])[..., 0]
+
+
+def oracle(case, z):
+    """``(h, h~, J)`` at ``z`` from the raw data: ``h = 1/2 P.m^-1 P + U``,
+    ``J = E P``, ``C = E m E^T``, ``h~ = h - 1/2 J.C^-1 J`` (``(def:H:tilde:general)``)."""
+    n = case.space.n
+    x, P = z[..., :n], z[..., n:]
+    m = np.broadcast_to(case.metric(x), P.shape[:-1] + P.shape[-1:] * 2)
+    U = case.potential(x)
+    h = 0.5 * dot(P, _solve(m, P)) + U
+    K = case.K
+    if K == 0:
+        return h, h, np.zeros(P.shape[:-1] + (0,), dtype=P.dtype)
+    E = np.broadcast_to(case.constraints(x), P.shape[:-1] + (K, P.shape[-1]))
+    J = np.einsum("...kj,...j->...k", E, P)
+    C = E @ m @ np.swapaxes(E, -1, -2)
+    ht = h - 0.5 * dot(J, _solve(C, J))
+    return h, ht, J
+
+
+def oracle_h(case):
+    return lambda z: oracle(case, z)[0]
+
+
+def oracle_ht(case):
+    return lambda z: oracle(case, z)[1]
+
+
+def oracle_J(case):
+    return lambda z: oracle(case, z)[2]
+
+
+def oracle_gram(case, x):
+    E, m = case.constraints(x), case.metric(x)
+    return E @ m @ np.swapaxes(E, -1, -2)
