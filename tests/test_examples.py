@@ -1,0 +1,28 @@
+"""The README's examples run and conserve what the theory says they conserve."""
+
+import importlib.util
+import pathlib
+
+import numpy as np
+import pytest
+
+EXAMPLES = pathlib.Path(__file__).resolve().parent.parent / "examples"
+
+
+def load(name):
+    spec = importlib.util.spec_from_file_location(name, EXAMPLES / f"{name}.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+@pytest.mark.parametrize("name", ["user_system", "new_group"])
+def test_readme_example_conserves_invariants(name, capsys):
+    v = load(name).main(t_final=1.0)
+    for k in v:
+        if k.startswith("J_"):
+            assert np.abs(v[k]).max() < 1e-10, k
+    assert np.ptp(v["h~"]) < 1e-10
+    assert np.ptp(v["h"]) < 1e-10
+    if "penalty" in v:
+        assert v["penalty"].max() < 1e-20
