@@ -45,6 +45,15 @@ class NonholonomicSystem:
         complex step is used.
     sample : array_like (n,), optional
         A shape point at which the data are checked (default ``x = 0``).
+    orthonormalize : bool
+        Replace the constraint rows by the orthonormal ones spanning the same
+        constraint set, ``e' = L^{-1} e`` with ``C = L L^T`` the Gram matrix
+        (Cholesky, derived from the data, exact to rounding).  The constraint set
+        is unchanged; the extension is then the paper's main-text one, for which
+        ``h`` is a first integral everywhere.  Without it (the general form of
+        Remark ``(remark:nonhol:general)``), ``h~`` and every ``J_i`` are first
+        integrals everywhere but ``h = h~ + 1/2 J^T C^{-1} J`` is one only where
+        the Gram matrix ``C(x)`` is constant or on the constraint set.
     check : bool
         Check the data at ``sample`` (symmetry, positive definiteness,
         independence, complex-step safety).  Default True.
@@ -67,6 +76,7 @@ class NonholonomicSystem:
         constraints_derivative=None,
         potential_gradient=None,
         sample=None,
+        orthonormalize: bool = False,
         check: bool = True,
     ):
         if not isinstance(space, PhaseSpace):
@@ -88,9 +98,21 @@ class NonholonomicSystem:
         K = constraints.shape[0] if not callable(constraints) else None
         if K is None:
             probe = np.asarray(constraints(np.zeros(n) if sample is None else np.asarray(sample, float)))
-            probe = np.atleast_2d(probe) if probe.ndim == 1 else probe
+            if probe.ndim == 1:  # one constraint returned as (..., D): make it (..., 1, D)
+                one = constraints
+                constraints = lambda x: np.asarray(one(x))[..., None, :]  # noqa: E731
+                probe = probe[None, :]
             K = probe.shape[-2]
         self.K = K
+        self.orthonormalized = bool(orthonormalize)
+        if orthonormalize and K:
+            if constraints_derivative is not None:
+                raise ValueError(
+                    "constraints_derivative: not supported with orthonormalize=True (the "
+                    "orthonormal rows are differentiated by complex step); pass orthonormal "
+                    "constraints and their derivative instead"
+                )
+            constraints = _orthonormalized(constraints, metric, n, K, D)
         self.metric = DataFunction(metric, (D, D), n, "metric", metric_derivative, sample)
         self.constraints = DataFunction(constraints, (K, D), n, "constraints", constraints_derivative, sample)
         self.potential = DataFunction(
@@ -195,6 +217,34 @@ class NonholonomicSystem:
     def reconstruction(self, g, z, *, extended=True):
         """``g'`` in the group's embedding, see :func:`liefi.reduction.reconstruction`."""
         return _red.reconstruction(self, g, z, extended=extended)
+
+
+def _cholesky(C):
+    """Lower-triangular ``L`` with ``L L^T = C`` by plain arithmetic (complex-step safe:
+    ``np.linalg.cholesky`` conjugates complex input, which breaks the complex step)."""
+    K = C.shape[-1]
+    L = [[None] * K for _ in range(K)]
+    for i in range(K):
+        for j in range(i + 1):
+            s = C[..., i, j] - sum((L[i][k] * L[j][k] for k in range(j)), 0.0)
+            L[i][j] = np.sqrt(s) if i == j else s / L[j][j]
+    zero = np.zeros_like(C[..., 0, 0])
+    return np.stack([np.stack([L[i][j] if j <= i else zero for j in range(K)], -1) for i in range(K)], -2)
+
+
+def _orthonormalized(constraints, metric, n, K, D):
+    """Constraint rows made orthonormal for the metric: ``e' = L^{-1} e``, ``L L^T = E m E^T``."""
+
+    def rows(x):
+        E = constraints(x) if callable(constraints) else np.asarray(constraints, float)
+        E = np.broadcast_to(E, np.shape(x)[:-1] + (K, D)) if n else E
+        m = metric(x) if callable(metric) else np.asarray(metric, float)
+        C = E @ m @ np.swapaxes(E, -1, -2)
+        return np.linalg.solve(_cholesky(C), E)
+
+    if not callable(constraints) and not callable(metric):
+        return rows(np.zeros(n))
+    return rows
 
 
 def _checked_inverse(m, name):

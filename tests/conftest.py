@@ -1,18 +1,13 @@
-"""Test configuration: make ``liefi`` and ``tests/strategies.py`` importable, and a hypothesis profile.
+"""Test configuration: make ``liefi`` and ``tests/strategies.py`` importable.
 
-``HYPOTHESIS_PROFILE=thorough`` runs every property test on 10x more examples.
+The number of hypothesis examples per property test is set in
+``tests/strategies.py`` (environment variable ``LIEFI_MAX_EXAMPLES``, default 25).
 """
 
 import os
 import sys
 
-from hypothesis import settings
-
 _ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 for _p in (_ROOT, os.path.join(_ROOT, "tests")):
     if _p not in sys.path:
         sys.path.insert(0, _p)
-
-settings.register_profile("thorough", max_examples=250, deadline=None)
-if os.environ.get("HYPOTHESIS_PROFILE"):
-    settings.load_profile(os.environ["HYPOTHESIS_PROFILE"])

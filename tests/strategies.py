@@ -46,6 +46,7 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 from liefi import CotangentBundle, LieGroupPhaseSpace, NonholonomicSystem, TrivialPrincipalBundle  # noqa: E402
 from liefi.groups import S1, SE2, SO2, SO3, Rn  # noqa: E402
+from liefi.reduction import evaluate as _evaluate  # noqa: E402
 
 # ---------------------------------------------------------------------------
 # the one list of groups
@@ -86,9 +87,20 @@ BATCH_SHAPES = st.sampled_from([(), (3,), (2, 2)])
 #: Seeds for the numpy generator.
 SEEDS = st.integers(0, 2**32 - 1)
 
-#: Settings of the property tests (about 25 examples, no deadline: the first
-#: call of a test compiles nothing but may import scipy).
-PROPERTY = settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+#: Examples per property test; ``LIEFI_MAX_EXAMPLES=250 pytest tests`` for a thorough run.
+MAX_EXAMPLES = int(os.environ.get("LIEFI_MAX_EXAMPLES", "25"))
+
+#: Settings of the cheap property tests (algebra, brackets): ~25 examples, no deadline.
+PROPERTY = settings(max_examples=MAX_EXAMPLES, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+
+#: Settings of the tests that build a random system per example (~10-20 ms each,
+#: a third of it hypothesis' own bookkeeping): half as many examples per
+#: parametrization.  Each such test runs over the 17 entries of ``SPACES``, so a
+#: property is still checked on ~200 random systems per run, within the suite's
+#: one-minute budget.
+SYSTEM_PROPERTY = settings(
+    max_examples=max(1, MAX_EXAMPLES // 2), deadline=None, suppress_health_check=[HealthCheck.too_slow]
+)
 
 
 # ---------------------------------------------------------------------------
@@ -137,6 +149,18 @@ def rel_err(a, b, scale=None):
 
 def dot(a, b):
     return np.einsum("...i,...i->...", a, b)
+
+
+def field_scale(case, z):
+    """Size of the terms that cancel in ``X~``: ``|B dh~| + |lambda~| |e^flat|`` (``X~`` itself may
+    vanish identically, e.g. for ``K = D - 1`` on a Lie group)."""
+    t = _evaluate(case.system, z)
+    s = np.linalg.norm(case.space.hamiltonian_vector_field(z, t.dht), axis=-1)
+    s = s + np.linalg.norm(case.space.hamiltonian_vector_field(z, t.dh), axis=-1)
+    if case.K:
+        lam = np.abs(case.system.extended_multipliers(z))
+        s = s + np.einsum("...k,...k->...", lam, np.linalg.norm(t.Eflat, axis=-1))
+    return s
 
 
 # ---------------------------------------------------------------------------
@@ -288,12 +312,14 @@ def cases(draw, spec, *, min_K=0, orthonormal=None, max_n=2):
         n = 0
         D = group.dim
     elif kind == "cotangent":
-        n = draw(st.integers(1, 3))
+        n = draw(st.integers(max(1, min_K + 1), 3))
         D = n
     else:
         n = draw(st.integers(1, max_n))
         D = group.dim + n
-    K = draw(st.integers(min(min_K, D - 1), D - 1))
+    if min_K > D - 1:
+        pytest.skip(f"D = {D}: no room for {min_K} constraint(s) (K <= D - 1)")
+    K = draw(st.integers(min_K, D - 1))
     orth = draw(st.booleans()) if orthonormal is None else orthonormal
     seed = draw(SEEDS)
     return build_case(kind, group, np.random.default_rng(seed), K, n, orth)

@@ -21,7 +21,7 @@ class Rn(LieGroup):
         self.dim = self.config_dim = self.n
         self.matrix_dim = self.n + 1
         self.algebra_names = tuple(f"p_{i + 1}" for i in range(self.n))
-        self.config_names = tuple(f"x_{i + 1}" for i in range(self.n))
+        self.config_names = tuple(f"r_{i + 1}" for i in range(self.n))
 
     def __repr__(self):
         return f"Rn({self.n})"

@@ -23,7 +23,14 @@ class SO2(MatrixLieGroup):
     dim = 1
     matrix_dim = 2
     orthogonal = True
-    algebra_names = ("Pi_theta",)
+
+    def __init__(self, name: str = "theta"):
+        #: name of the angle: momentum ``Pi_<name>``; matrix entries ``R11 ... R22``
+        self.name = str(name)
+        self.algebra_names = (f"Pi_{self.name}",)
+
+    def __repr__(self):
+        return "SO2()" if self.name == "theta" else f"SO2({self.name!r})"
 
     def hat(self, xi):
         w = np.asarray(xi)[..., 0]
@@ -42,7 +49,7 @@ class SO2(MatrixLieGroup):
 
 
 class S1(LieGroup):
-    """S^1 in the angle chart: one number ``theta``, ``theta' = xi``, no penalty.
+    """S^1 in the angle chart: one number ``theta`` (or ``name``), ``theta' = xi``, no penalty.
 
     The same group as :class:`SO2`; only the embedding differs (a chart, not an
     embedding in Euclidean space, so nothing needs to be kept on the group).
@@ -51,8 +58,16 @@ class S1(LieGroup):
     dim = 1
     config_dim = 1
     matrix_dim = 2
-    algebra_names = ("Pi_theta",)
-    config_names = ("theta",)
+
+    def __init__(self, name: str = "theta"):
+        #: name of the angle (configuration ``<name>``, momentum ``Pi_<name>``)
+        self.name = str(name)
+        self.algebra_names = (f"Pi_{self.name}",)
+        self.config_names = (self.name,)
+
+    def __repr__(self):
+        return "S1()" if self.name == "theta" else f"S1({self.name!r})"
+
     hat = SO2.hat
     vee = SO2.vee
     exp = SO2.exp

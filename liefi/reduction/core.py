@@ -47,6 +47,12 @@ class Terms:
     Cinv: np.ndarray  #: (..., K, K) inverse Gram matrix
 
 
+def _state(z):
+    """``z`` as a float array, or kept complex (for a complex step through liefi's functions)."""
+    z = np.asarray(z)
+    return z if np.iscomplexobj(z) else z.astype(float, copy=False)
+
+
 def small_inverse(C):
     """Inverse of a batch of small matrices; closed forms for 1x1 and 2x2 (the common K).
 
@@ -69,7 +75,19 @@ def evaluate(system, z) -> Terms:
     """Compute :class:`Terms` at the reduced states ``z`` (shape ``(..., nz)``)."""
     sp = system.space
     n, d, D, K = sp.n, sp.d, sp.D, system.K
-    z = np.asarray(z, dtype=float)
+    z = np.asarray(z)
+    if np.iscomplexobj(z):
+        # A complex step through liefi's own functions (e.g. an Invariant built from
+        # system.extended_hamiltonian): exact when the data do not depend on x; with
+        # x-dependent data it would nest two complex steps, which is not exact.
+        if n and not (system.constant and system.potential.constant):
+            raise TypeError(
+                "z: complex input (a complex step through liefi's functions) is supported "
+                "only for systems whose data do not depend on x; give the Invariant an "
+                "explicit grad= instead"
+            )
+    else:
+        z = z.astype(float, copy=False)
     x, P = z[..., :n], z[..., n:]
     batch = z.shape[:-1]
 
@@ -167,18 +185,18 @@ def gram_matrix(system, x):
 def multipliers(system, z):
     """``lambda_i = sum_l {h, J_l} C_{li}`` (``(lambda:general)``, ``(red:lambda)``, ``(def:lambda:QG:trivial)``)."""
     t = evaluate(system, z)
-    return _multipliers(system, np.asarray(z, float), t.dh, t.dJ, t.Cinv)
+    return _multipliers(system, _state(z), t.dh, t.dJ, t.Cinv)
 
 
 def extended_multipliers(system, z):
     """``lambda~_i = sum_l {h~, J_l} C_{li}`` (``(lambda:tilde:general)``, ``(def:reduced:lambda:tilde)``)."""
     t = evaluate(system, z)
-    return _multipliers(system, np.asarray(z, float), t.dht, t.dJ, t.Cinv)
+    return _multipliers(system, _state(z), t.dht, t.dJ, t.Cinv)
 
 
 def constrained_vector_field(system, z):
     """The constrained field ``(original:nonholo)`` (meaningful on ``J = 0``), reduced."""
-    z = np.asarray(z, float)
+    z = _state(z)
     t = evaluate(system, z)
     lam = _multipliers(system, z, t.dh, t.dJ, t.Cinv)
     return _field(system, z, t.dh, lam, t.Eflat)
@@ -190,7 +208,7 @@ def extended_vector_field(system, z):
     Defined on the whole phase space; ``h~``, every ``J_i`` and ``h`` are first
     integrals of it, and it equals the constrained field on ``J = 0``.
     """
-    z = np.asarray(z, float)
+    z = _state(z)
     t = evaluate(system, z)
     lam = _multipliers(system, z, t.dht, t.dJ, t.Cinv)
     return _field(system, z, t.dht, lam, t.Eflat)
@@ -202,7 +220,7 @@ def project(system, z):
     The closest point of ``{J = 0}`` in the kinetic-energy norm ``<P, m^{-1} P>``
     (at fixed ``x``).
     """
-    z = np.asarray(z, float)
+    z = _state(z)
     t = evaluate(system, z)
     n = system.space.n
     if not system.K:

@@ -156,9 +156,10 @@ class Scene:
             ) from None
 
     def needs_configuration(self):
-        """True when a compared variable is a configuration number."""
-        cfg = set(self.system.space.group.config_names)
-        return any(v in cfg for v in self.error_variables)
+        """True when a compared variable is not a reduced-state name (a configuration
+        number, or an observable computed from the configuration)."""
+        reduced = set(self.system.state_names)
+        return any(v not in reduced for v in self.error_variables)
 
     def integrator(self, variant=None, *, gains=None, configuration=None, y0=None):
         """The :class:`~liefi.FeedbackIntegrator` of this scene and variant."""
@@ -211,21 +212,25 @@ class Scene:
         max_saved=20000,
         rtol=1e-9,
         atol=1e-12,
+        check_stability=True,
+        adaptive=None,
     ) -> RunResult:
         """Run the scene at its settings unless told otherwise.
 
-        ``scheme`` is a liefi scheme name (``euler``, ``heun``, ``rk4``...),
+        ``scheme`` is a liefi scheme name (``euler``, ``heun``, ``rk4``...), a
+        stiff-safe split scheme (``imex-euler``, ``imex-rk4``: :mod:`liefi.stiff`),
         ``"scipy:METHOD"`` (``solve_ivp`` with ``rtol``/``atol``), or one of the
-        scene's ``extra_schemes`` (e.g. ``"dla"``).
+        scene's ``extra_schemes`` (e.g. ``"dla"``).  ``gains="auto"``: chosen from
+        ``dt`` and the Hessian of ``V`` and adapted along the run.
+        ``check_stability`` and ``adaptive`` are passed to
+        :meth:`liefi.FeedbackIntegrator.run` (:mod:`liefi.stability`).
         """
+        from ..stability import positive_number
+
         v = self.variant(variant) if not isinstance(variant, Variant) else variant
-        dt = float(self.dt if dt is None else dt)
-        T = float(self.t_final if t_final is None else t_final)
+        dt = positive_number(self.dt if dt is None else dt, "dt", "the step must be a positive number")
+        T = positive_number(self.t_final if t_final is None else t_final, "t_final", "must be a positive number")
         scheme = self.scheme if scheme is None else scheme
-        if not np.isfinite(dt) or dt <= 0:
-            raise ValueError(f"dt: the step must be a positive number, got {dt!r}")
-        if not np.isfinite(T) or T <= 0:
-            raise ValueError(f"t_final: must be a positive number, got {T!r}")
         n_steps = int(round(T / dt))
         if save_every is None:
             save_every = max(1, n_steps // max_saved)
@@ -237,6 +242,14 @@ class Scene:
             from scipy.integrate import solve_ivp
 
             method = scheme.split(":", 1)[1]
+            from scipy.integrate._ivp.ivp import METHODS
+
+            if method not in METHODS:
+                raise ValueError(f"scheme: unknown solve_ivp method {method!r}; choose scipy:{'|'.join(METHODS)}")
+            if getattr(fi, "gains_mode", "fixed") == "auto":
+                from ..stability import auto_gains
+
+                fi = fi.with_gains(auto_gains(fi, dt, "euler"))
             t_eval = np.linspace(0.0, T, min(n_steps, max_saved) + 1)
             start = time.process_time()
             sol = solve_ivp(fi.fun, (0.0, T), fi.y0, method=method, t_eval=t_eval, rtol=rtol, atol=atol)
@@ -247,7 +260,9 @@ class Scene:
                 raise FloatingPointError(f"solve_ivp({method}) returned non-finite values on {self.name!r}")
             t, Y, names, steps, nfev = sol.t, sol.y, fi.names, int(sol.t.size), int(sol.nfev)
         else:
-            sol = fi.run(dt, T, scheme, save_every=save_every)
+            sol = fi.run(dt, T, scheme, save_every=save_every, check_stability=check_stability, adaptive=adaptive)
+            if getattr(sol, "stability", None) is not None and sol.stability.gains:
+                fi = fi.with_gains(sol.stability.gains)  # report the gains the run started with
             t, Y, names, cpu, steps, nfev = sol.t, sol.y, sol.names, sol.cpu_seconds, sol.steps, sol.rhs_evaluations
         return self._result(v, str(scheme), dt, T, fi, t, Y, names, cpu, steps, nfev)
 
@@ -271,7 +286,8 @@ class Scene:
                 if k == "energy":
                     continue
                 if k == "penalty":
-                    invariants["orthogonality"] = 2.0 * np.sqrt(np.maximum(val, 0.0))
+                    if fi.use_penalty:
+                        invariants["orthogonality"] = 2.0 * np.sqrt(np.maximum(val, 0.0))
                 else:
                     invariants[k] = np.asarray(val)
         max_drift = {}

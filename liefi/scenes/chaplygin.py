@@ -33,11 +33,12 @@ the sign is wrong (and, for that ``V``, the factor: the gradient is
 gradient from the paper: the group supplies the penalty
 ``k0/4 ||R^T R - I||_F^2`` (:meth:`liefi.groups.SO2.penalty`) together with its
 gradient ``k0 R (R^T R - I)``, and :class:`~liefi.FeedbackIntegrator` adds
-``-k0 R (R^T R - I)`` to ``R'``.  This is correct by construction (the
-gradient of the function actually penalized; tested against finite
-differences in the group tests) and has the printed magnitude with the
-opposite, contracting sign.  The gain is the integrator's ``"penalty"`` gain
-(``k0``).
+``-k0 R (R^T R - I)`` to ``R'``.  This is correct by construction: it is
+the gradient of the function actually penalized (checked against its
+complex-step derivative in ``tests/test_group_axioms.py``; the printed sign
+is shown to diverge in ``tests/test_scenes_a.py``).  It has the printed
+magnitude with the opposite, contracting sign.  The gain is the
+integrator's ``"penalty"`` gain (``k0``).
 
 Simulation settings.  The paper gives none for the sleigh, so liefi chooses
 ``m = 1``, ``I = 1``, ``a = 0.5`` (``I + m a^2 = 1.25``); start at the

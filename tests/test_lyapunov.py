@@ -1,0 +1,329 @@
+"""The Lyapunov function of a feedback integrator (Section 2.4, assumption A1).
+
+``V(y) = k0 penalty(g) + sum_i kJ_i/2 J_i^2 + kE/2 (E(z) - E0)^2 + sum_u k_u/2 (I_u(z) - I_u0)^2``
+with ``E = h~`` (``energy="extended"``) or ``h`` (``"original"``).  Lemma
+``(lemma1:Suslov)`` generalized: ``grad V . X = 0`` everywhere, where ``X`` is the
+extended field with reconstruction, because every penalized quantity is a first
+integral of ``X`` (and ``R^T R`` evolves by a commutator along ``R' = R hat xi``,
+so ``||R^T R - I||`` is conserved too).  Hence ``dV/dt = -grad V . A grad V <= 0``
+along the feedback field ``X - A grad V``.
+
+Runs over every system kind and group, with and without the configuration,
+both energies, built-in and user invariants (given as complex-step-safe
+functions, or with an explicit gradient).
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.integrate import solve_ivp
+
+from liefi import CotangentBundle, FeedbackIntegrator, Invariant, LieGroupPhaseSpace, NonholonomicSystem
+from liefi.groups import SO3, S1, Rn
+from liefi.reduction import evaluate
+from liefi.schemes import integrate
+from strategies import (
+    BATCH_SHAPES,
+    SPACES,
+    SYSTEM_PROPERTY,
+    cases,
+    cs_grad,
+    field_scale,
+    oracle,
+    rel_err,
+)
+
+TOL = 1e-10
+
+
+def _user_invariants(case, with_explicit_grad):
+    """Functions of first integrals of the extended field are first integrals."""
+
+    def smooth(z):
+        h, ht, J = oracle(case, z)
+        return ht**2 + (np.sum(J, -1) if case.K else 0.0)
+
+    out = [Invariant("ht2_plus_sumJ", smooth)]
+    if with_explicit_grad and case.K:
+        sys_ = case.system
+        out.append(Invariant("J1_explicit", lambda z: oracle(case, z)[2][..., 0], lambda z: evaluate(sys_, z).dJ[..., 0, :]))
+    return out
+
+
+def _build(data, spec, *, energy=None, configuration=None, user=None):
+    """A random system, a FeedbackIntegrator on it with random positive gains, and its start ``y0``."""
+    kind = spec[0]
+    energy = data.draw(st.sampled_from(["extended", "original"])) if energy is None else energy
+    # h is a first integral of the extended field only for a constant Gram matrix
+    # (see test_extension_theorems.test_original_hamiltonian_drift_with_varying_gram)
+    orth = None if (kind == "lie" or energy == "extended") else True
+    case = data.draw(cases(spec, orthonormal=orth))
+    configuration = data.draw(st.booleans()) if configuration is None else configuration
+    user = data.draw(st.booleans()) if user is None else user
+    G = case.space.group
+    rng = case.rng
+    parts = []
+    if configuration and G.config_dim:
+        parts.append(G.random_config(rng))
+    parts.append(case.constrained_state())
+    y0 = np.concatenate(parts)
+    invariants = ["constraints", "energy"] + (_user_invariants(case, True) if user else [])
+    probe = FeedbackIntegrator(case.system, y0, invariants=invariants, energy=energy, configuration=configuration)
+    gains = {k: float(rng.uniform(0.5, 3.0)) for k in probe.invariant_names}
+    fi = FeedbackIntegrator(case.system, y0, invariants=invariants, energy=energy, configuration=configuration, gains=gains)
+    return case, fi, y0
+
+
+def _random_y(case, fi, shape, off=0.1):
+    """Random states: configuration near (not on) the group, arbitrary reduced state."""
+    rng = case.rng
+    parts = []
+    if fi.nc:
+        G = case.space.group
+        parts.append(G.random_config(rng, shape) + off * rng.normal(size=tuple(shape) + (G.config_dim,)))
+    parts.append(case.random_state(shape))
+    return np.concatenate(parts, -1)
+
+
+def _oracle_V(case, fi):
+    """``V`` written from the definition with the oracle ``h, h~, J`` (complex-step safe)."""
+    G = case.space.group
+    user = {u.name: u for u in fi.user}
+
+    def V(y):
+        g, z = y[..., : fi.nc], y[..., fi.nc :]
+        h, ht, J = oracle(case, z)
+        out = 0.0
+        if "penalty" in fi.gains:
+            out = out + fi.gains["penalty"] * G.penalty(g)
+        for i in range(case.K):
+            if f"J_{i + 1}" in fi.gains:
+                out = out + 0.5 * fi.gains[f"J_{i + 1}"] * J[..., i] ** 2
+        E = ht if fi.energy == "extended" else h
+        out = out + 0.5 * fi.gains["energy"] * (E - fi.targets["energy"]) ** 2
+        for name, u in user.items():
+            out = out + 0.5 * fi.gains[name] * (u.fun(z) - fi.targets[name]) ** 2
+        return out
+
+    return V
+
+
+# ------------------------------------------------------------------------- A1
+@pytest.mark.parametrize("spec", SPACES)
+@SYSTEM_PROPERTY
+@given(data=st.data())
+def test_grad_V_orthogonal_to_extended_field(spec, data):
+    """``(lemma1:Suslov)``, general form: ``grad V . X = 0`` everywhere (off the group, off ``C``),
+    and ``dV/dt = grad V . (X - A grad V) = -grad V . A grad V`` along the feedback field."""
+    case, fi, _ = _build(data, spec)
+    y = _random_y(case, fi, data.draw(BATCH_SHAPES))
+    X = fi.unforced_vector_field(y)
+    gV = fi.grad_lyapunov(y)
+    assert X.shape == y.shape and gV.shape == y.shape
+    z = y[..., fi.nc :]
+    scale = np.linalg.norm(gV, axis=-1) * (np.linalg.norm(X, axis=-1) + field_scale(case, z)) + 1e-300
+    assert np.max(np.abs(np.einsum("...i,...i->...", gV, X)) / scale) < TOL
+    # the feedback field with a general A (positive definite symmetric part)
+    rng = case.rng
+    W = rng.normal(size=(fi.n, fi.n))
+    A = np.eye(fi.n) + 0.5 * (W - W.T) + 0.1 * W @ W.T / fi.n
+    fa = FeedbackIntegrator(case.system, fi.y0, invariants=["constraints", "energy"] + fi.user, energy=fi.energy,
+                            configuration=bool(fi.nc), gains=fi.gains, A=A)
+    F = fa.vector_field(y)
+    np.testing.assert_allclose(F, X - np.einsum("ij,...j->...i", A, gV), rtol=1e-12, atol=1e-12 * np.max(np.abs(F)))
+    dVdt = np.einsum("...i,...i->...", gV, F)
+    want = -np.einsum("...i,ij,...j->...", gV, A, gV)
+    assert np.all(np.abs(dVdt - want) <= TOL * scale + 1e-12 * np.abs(want))
+    assert np.all(want <= 0)
+
+
+@pytest.mark.parametrize("spec", SPACES)
+@SYSTEM_PROPERTY
+@given(data=st.data())
+def test_lyapunov_nonnegative_and_zero_at_start(spec, data):
+    """A1: ``V >= 0`` everywhere; ``V(y0) = 0`` and ``grad V(y0) = 0`` at a start on ``C`` and on the group."""
+    case, fi, y0 = _build(data, spec)
+    V0 = fi.lyapunov(y0)
+    assert np.ndim(V0) == 0
+    assert 0.0 <= V0 < 1e-24
+    assert np.max(np.abs(fi.grad_lyapunov(y0))) < 1e-11
+    y = _random_y(case, fi, data.draw(BATCH_SHAPES), off=0.3)
+    V = fi.lyapunov(y)
+    assert np.shape(V) == y.shape[:-1]
+    assert np.all(V >= 0)
+    vals = fi.invariant_values(y0)
+    for i in range(case.K):
+        assert abs(vals[f"J_{i + 1}"]) < 1e-12
+
+
+@pytest.mark.parametrize("spec", SPACES)
+@SYSTEM_PROPERTY
+@given(data=st.data())
+def test_grad_lyapunov_is_gradient_of_lyapunov(spec, data):
+    """``grad_lyapunov`` equals the complex-step gradient of ``V`` written from its definition
+    (and that ``V`` equals ``lyapunov``), and central differences of ``lyapunov`` itself."""
+    case, fi, _ = _build(data, spec)
+    y = _random_y(case, fi, data.draw(BATCH_SHAPES))
+    V = _oracle_V(case, fi)
+    assert rel_err(fi.lyapunov(y), V(y), np.max(np.abs(V(y)), initial=1e-300)) < 1e-12
+    gV = fi.grad_lyapunov(y)
+    want = cs_grad(V, y)
+    assert rel_err(gV, want, np.max(np.abs(want), initial=1e-300)) < TOL
+    # directional central differences of the public ``lyapunov`` at one state
+    y1, g1 = y.reshape(-1, fi.n)[0], gV.reshape(-1, fi.n)[0]
+    u = case.rng.normal(size=fi.n)
+    s = 1e-3
+    Vs = [fi.lyapunov(y1 + k * s * u) for k in (-2, -1, 1, 2)]
+    fd = (8 * (Vs[2] - Vs[1]) - (Vs[3] - Vs[0])) / (12 * s)
+    assert abs(g1 @ u - fd) < 1e-6 * max(1e-12, np.abs(g1).max() * np.abs(u).max())
+
+
+@pytest.mark.parametrize("spec", SPACES)
+@settings(max_examples=4, deadline=None)
+@given(data=st.data())
+def test_lyapunov_decreases_along_feedback_euler_run(spec, data):
+    """Theorem ``(theorem:general)``: from a perturbed start, ``V`` decreases monotonically along
+    a short explicit-Euler run of the feedback field (``dt`` well inside the stability limit)."""
+    case, fi, y0 = _build(data, spec, user=False)
+    rng = case.rng
+    y1 = y0 + 0.05 * rng.normal(size=y0.shape)
+    V_start = fi.lyapunov(y1)
+    sol = integrate(fi.vector_field, y1, 1e-3, 20, "euler")
+    V = fi.lyapunov(np.moveaxis(sol.y, -1, 0))
+    assert V[0] == pytest.approx(V_start)
+    assert np.all(np.diff(V) <= 1e-12 * V_start)
+    assert V[-1] < V[0]
+
+
+@pytest.mark.parametrize("spec", SPACES)
+@settings(max_examples=2, deadline=None)
+@given(data=st.data())
+def test_fun_works_with_solve_ivp(spec, data):
+    """``fun(t, y)`` is scipy's contract: 1-D ``y`` -> 1-D, ``(n, k)`` -> ``(n, k)`` (vectorized),
+    and ``solve_ivp`` (RK45, vectorized or not) agrees with liefi's RK4."""
+    case, fi, y0 = _build(data, spec, user=False)
+    y0p = y0 + 0.01 * case.rng.normal(size=y0.shape)
+    f1 = fi.fun(0.0, y0p)
+    assert f1.shape == (fi.n,)
+    Y = np.stack([y0p, y0, 2 * y0p], -1)  # (n, 3)
+    fk = fi.fun(0.0, Y)
+    assert fk.shape == (fi.n, 3)
+    np.testing.assert_allclose(fk[:, 0], f1, rtol=1e-14, atol=1e-14 * np.abs(f1).max())
+    T = 0.05
+    ref = integrate(fi.vector_field, y0p, 1e-3, 50, "rk4").y[..., -1]
+    for vec in (False, True):
+        sol = solve_ivp(fi.fun, (0.0, T), y0p, method="RK45", rtol=1e-10, atol=1e-12, vectorized=vec)
+        assert sol.success, sol.message
+        np.testing.assert_allclose(sol.y[:, -1], ref, rtol=1e-7, atol=1e-9 * max(1.0, np.abs(ref).max()))
+
+
+# ------------------------------------------------------------------------- not per spec
+@pytest.mark.parametrize("group", [Rn(2), S1()], ids=["R2", "S1"])
+def test_state_component_invariant(group):
+    """A conserved momentum component named as an invariant (abelian group, no constraint:
+    every momentum is conserved): ``grad V . X = 0`` with it in ``V``."""
+    sys_ = NonholonomicSystem(LieGroupPhaseSpace(group), np.diag(np.arange(1.0, group.dim + 1)))
+    rng = np.random.default_rng(1)
+    y0 = np.concatenate([group.random_config(rng), rng.normal(size=group.dim)])
+    name = sys_.state_names[0]
+    fi = FeedbackIntegrator(sys_, y0, invariants=["energy", name], gains={"energy": 2.0, name: 3.0})
+    assert name in fi.invariant_names
+    y = np.concatenate([group.random_config(rng, (5,)), rng.normal(size=(5, group.dim))], -1)
+    gV, X = fi.grad_lyapunov(y), fi.unforced_vector_field(y)
+    assert np.max(np.abs(np.einsum("...i,...i->...", gV, X))) < 1e-13
+    # d V / d Pi_1 = k_name (Pi_1 - Pi_1(0)) + k_E (h - h0) dh/dPi_1, with dh/dPi_1 = Pi_1 / m_11 = Pi_1
+    P1 = y[..., fi.nc]
+    want = 3.0 * (P1 - y0[fi.nc]) + 2.0 * (fi.invariant_values(y)["energy"] - fi.targets["energy"]) * P1
+    np.testing.assert_allclose(gV[..., fi.nc], want, rtol=1e-13, atol=1e-13)
+
+
+def test_original_energy_lyapunov_with_varying_gram():
+    """``energy="original"`` with ``x``-dependent, non-orthonormal constraints: ``h`` drifts
+    off ``C`` at the rate ``-1/2 w.(dC/dt) w`` (``w = C^-1 J``, see
+    ``test_original_hamiltonian_drift_with_varying_gram``), so ``V`` built on ``h`` would
+    break A1.  liefi refuses it, naming the fix; with ``orthonormalize=True`` (the paper's
+    main-text extension, ``e' = L^{-1} e``) ``h`` is a first integral everywhere and
+    ``grad V . X = 0`` holds again.
+    """
+    def e(x):
+        return np.stack([1.0 + 0.5 * np.sin(x[..., 0]), 0.3 + 0.0 * x[..., 1]], -1)[..., None, :]
+
+    sys_ = NonholonomicSystem(CotangentBundle(2), np.eye(2), e)
+    y0 = sys_.project(np.array([0.1, 0.2, 1.0, 0.5]))
+    with pytest.raises(ValueError, match="energy.*orthonormalize=True"):
+        FeedbackIntegrator(sys_, y0, energy="original")
+
+    ortho = NonholonomicSystem(CotangentBundle(2), np.eye(2), e, orthonormalize=True)
+    assert np.allclose(ortho.gram_matrix(np.array([[0.3, -0.4], [1.2, 0.0]])), 1.0, atol=1e-14)
+    fi = FeedbackIntegrator(ortho, y0, energy="original")
+    rng = np.random.default_rng(5)
+    for y in rng.normal(size=(20, 4)):
+        gV, X = fi.grad_lyapunov(y), fi.unforced_vector_field(y)
+        assert abs(gV @ X) < 1e-12 * np.linalg.norm(gV) * np.linalg.norm(X)
+        t = evaluate(ortho, y)
+        assert abs(t.dh @ X) < 1e-12 * np.linalg.norm(t.dh) * np.linalg.norm(X)
+        # same constraint set: J' = 0 exactly where J = 0
+        assert np.allclose(ortho.constraint_momenta(sys_.project(y)), 0.0, atol=1e-14)
+
+
+def test_user_invariant_named_like_the_paper_keeps_its_target():
+    """The paper calls the Heisenberg system's angular momentum ``J_2`` and penalizes
+    ``k2/2 |J_2 - J_20|^2``.  A user :class:`Invariant` named ``"J_2"`` must get its initial
+    value as target, so that ``V(y0) = 0`` (A1: the start lies in ``V^{-1}(0)``).
+
+    LIBRARY BUG (reported): ``FeedbackIntegrator.__init__`` sets the target of every
+    invariant whose name starts with ``"J_"`` to 0 (``k.startswith("J_")``), so a user
+    invariant called ``J_2`` is silently driven to 0 instead of kept at ``J_20``.
+    """
+    def E(q):
+        return np.stack([-q[..., 1], q[..., 0], 1 + 0 * q[..., 0]], -1)[..., None, :]
+
+    sys_ = NonholonomicSystem(CotangentBundle(3), np.eye(3), E)
+    y0 = sys_.project(np.array([0.3, 0.5, 0.1, 1.0, -0.4, 0.2]))
+    J2 = Invariant("J_2", lambda q: q[..., 0] * q[..., 4] - q[..., 1] * q[..., 3])
+    fi = FeedbackIntegrator(sys_, y0, invariants=("constraints", "energy", J2))
+    assert fi.targets["J_2"] == pytest.approx(J2.fun(y0))
+    assert fi.lyapunov(y0) < 1e-28
+
+
+@pytest.mark.parametrize("spec", SPACES)
+def test_state_names_are_unique(spec):
+    """Every component of ``y = (g, z)`` has its own name, so that ``Solution[name]`` and the
+    components named by an ``IntegrationError`` are unambiguous.
+
+    LIBRARY BUG (reported): for ``TrivialPrincipalBundle(G, n)`` with an ``Rn`` factor in ``G``
+    the group's configuration names ``x_1, ...`` (``Rn.config_names``) collide with the
+    default shape names ``x_1, ...`` (``PhaseSpace.__init__``): e.g. ``bundle-SO3xR1`` has
+    two components called ``x_1``.
+    """
+    kind, G = spec
+    from strategies import build_case
+
+    case = build_case(kind, G, np.random.default_rng(0), 1, 2, False)
+    parts = [G.identity_config()] if G is not None and G.config_dim else []
+    fi = FeedbackIntegrator(case.system, np.concatenate(parts + [case.constrained_state()]))
+    dup = sorted({nm for nm in fi.names if fi.names.count(nm) > 1})
+    assert not dup, f"duplicate component names {dup} in {fi.names}"
+
+
+def test_invariant_built_from_liefi_functions_has_its_gradient():
+    """A user :class:`Invariant` without ``grad`` is differentiated by complex step.  Built from
+    liefi's own ``system.extended_hamiltonian`` (a natural thing to write), its gradient must be
+    ``dh~``, or ``V``'s gradient is wrong.
+
+    LIBRARY BUG (reported): ``liefi.reduction.core.evaluate`` starts with
+    ``np.asarray(z, dtype=float)``, which drops the imaginary part of the complex step (only a
+    ``ComplexWarning``), so ``Invariant.value_and_grad`` silently returns a zero gradient.
+    """
+    sys_ = NonholonomicSystem(LieGroupPhaseSpace(SO3()), np.diag([1.0, 2.0, 3.0]), np.array([[0.0, 0.2, 1.0]]))
+    inv = Invariant("h_tilde_user", sys_.extended_hamiltonian)
+    z = np.array([0.3, -0.5, 0.8])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        _, grad = inv.value_and_grad(z)
+    np.testing.assert_allclose(grad, evaluate(sys_, z).dht, rtol=1e-12, atol=1e-14)

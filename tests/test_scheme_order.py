@@ -1,0 +1,148 @@
+"""Convergence order and stability of liefi's fixed-step schemes (``liefi.schemes.SCHEMES``).
+
+As in diffrax's ``test_ode_order``: the global error at a fixed time is fitted
+against the step on a log-log scale and the slope must be within 0.2 of the
+scheme's declared ``order``, (a) on a linear ODE with exact solution
+``expm(t A) y0`` and (b) on the Suslov feedback integrator (gains 1, the data of
+the paper's Suslov simulation) against the exact solution
+``Pi_1 = -tanh t, Pi_2 = Pi_3 = sech t``: a start on ``V^{-1}(0)`` stays on the
+exact trajectory of the constrained system, so the feedback term must not spoil
+the order.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.linalg import expm
+
+from liefi import FeedbackIntegrator, IntegrationError, LieGroupPhaseSpace, NonholonomicSystem
+from liefi.groups import SO3
+from liefi.schemes import SCHEMES, integrate
+
+SCHEME_NAMES = sorted(SCHEMES)
+
+
+def _slope(dts, errs):
+    return np.polyfit(np.log(dts), np.log(errs), 1)[0]
+
+
+# ------------------------------------------------------------------------ linear ODE
+A_LIN = np.array([[-0.3, 1.0, 0.2], [-1.0, -0.1, 0.5], [0.1, -0.4, -0.2]])
+Y0_LIN = np.array([1.0, -0.5, 0.3])
+
+
+@pytest.mark.parametrize("name", SCHEME_NAMES)
+def test_order_on_linear_ode(name):
+    """``y' = A y``: error at ``t = 1`` ~ ``dt^order``."""
+    sch = SCHEMES[name]
+    exact = expm(A_LIN) @ Y0_LIN
+    Ns = [16, 32, 64, 128]
+    errs = [np.linalg.norm(integrate(lambda y: y @ A_LIN.T, Y0_LIN, 1.0 / N, N, sch).y[..., -1] - exact) for N in Ns]
+    slope = _slope([1.0 / N for N in Ns], errs)
+    assert abs(slope - sch.order) < 0.2, (name, slope, errs)
+
+
+# ------------------------------------------------------------------------ Suslov
+def suslov_feedback(gains=1.0):
+    II = np.array([[1.0, 0, 0], [0, 1, 1], [0, 1, 2]])
+    a = np.array([0.0, 0, 1])
+    e = np.linalg.solve(II, a) / np.sqrt(a @ np.linalg.solve(II, a))
+    sys_ = NonholonomicSystem(LieGroupPhaseSpace(SO3()), II, e)
+    y0 = np.concatenate([np.eye(3).ravel(), [0.0, 1.0, 1.0]])
+    return FeedbackIntegrator(sys_, y0, gains=gains)
+
+
+def suslov_exact(t):
+    return np.array([-np.tanh(t), 1 / np.cosh(t), 1 / np.cosh(t)])
+
+
+def test_suslov_start_is_on_the_zero_set():
+    fi = suslov_feedback()
+    vals = fi.invariant_values(fi.y0)
+    assert vals["J_1"] == pytest.approx(0.0, abs=1e-15)
+    assert vals["h"] == pytest.approx(0.5) and vals["h~"] == pytest.approx(0.5)
+    assert fi.lyapunov(fi.y0) == 0.0
+
+
+@pytest.mark.parametrize("name", SCHEME_NAMES)
+def test_order_on_suslov_feedback_integrator(name):
+    """Feedback integrator of ``(Suslov:FI:tilde)``, gains ``k0 = k1 = k2 = 1``: error of
+    ``Pi(1)`` against the exact solution ~ ``dt^order``."""
+    sch = SCHEMES[name]
+    fi = suslov_feedback()
+    Ns = [20, 40, 80, 160]
+    errs = []
+    for N in Ns:
+        y = integrate(fi.vector_field, fi.y0, 1.0 / N, N, sch).y[..., -1]
+        errs.append(np.linalg.norm(y[9:] - suslov_exact(1.0)))
+    slope = _slope([1.0 / N for N in Ns], errs)
+    assert abs(slope - sch.order) < 0.2, (name, slope, errs)
+
+
+# ------------------------------------------------------------------------ batch-first
+@pytest.mark.parametrize("name", SCHEME_NAMES)
+def test_batch_step_equals_member_steps(name):
+    """Stepping a batch ``(2, 3, n)`` equals stepping each member alone (nonlinear field)."""
+    fi = suslov_feedback(gains={"penalty": 2.0, "J_1": 3.0, "energy": 1.5})
+    rng = np.random.default_rng(7)
+    Y0 = fi.y0 + 0.05 * rng.normal(size=(2, 3, fi.n))
+    sol = integrate(fi.vector_field, Y0, 0.01, 10, name, save_every=5)
+    assert sol.y.shape == (2, 3, fi.n, 3)
+    np.testing.assert_array_equal(sol.t, [0.0, 0.05, 0.1])
+    for idx in np.ndindex(2, 3):
+        one = integrate(fi.vector_field, Y0[idx], 0.01, 10, name, save_every=5)
+        np.testing.assert_allclose(sol.y[idx], one.y, rtol=1e-14, atol=1e-15)
+
+
+# ------------------------------------------------------------------------ blow-up
+def test_integration_error_names_time_and_components():
+    """Euler on ``y' = -L y`` with ``L dt = 3`` (|R| = 2 per step) in component ``a`` only:
+    an ``IntegrationError`` (not NaN) naming the time and the component."""
+    dt = 0.01
+    L = np.array([3.0 / dt, 0.1, 0.2])
+
+    def f(y):
+        return -L * y
+
+    with pytest.raises(IntegrationError) as info:
+        integrate(f, np.array([1.0, 1.0, 1.0]), dt, 5000, "euler", names=("a", "b", "c"))
+    err = info.value
+    assert err.components == ["a"]
+    assert 1000 <= err.step <= 1100  # 2^1024 overflows double precision
+    assert np.all(np.isfinite(err.y))
+    assert err.t == pytest.approx(dt * (err.step - 1))
+    msg = str(err)
+    assert "'a'" in msg and "'b'" not in msg
+    assert f"t={dt * err.step:g}" in msg and f"step {err.step}" in msg
+
+
+def test_integration_error_on_batch_names_components():
+    dt = 0.01
+
+    def f(y):
+        out = -0.1 * y
+        out[1, 2] = -3.0 / dt * y[1, 2]  # one member, one component blows up
+        return out
+
+    with pytest.raises(IntegrationError) as info:
+        integrate(f, np.ones((2, 3)), dt, 3000, "euler", names=("a", "b", "c"))
+    assert info.value.components == ["c"]
+    assert info.value.y.shape == (2, 3)
+
+
+# ------------------------------------------------------------------------ stability polynomial
+@pytest.mark.parametrize("name", SCHEME_NAMES)
+def test_stability_polynomial_at_real_stability_bound(name):
+    """``|R(-beta)| = 1`` at ``beta = real_stability_bound``; ``|R(-x)| <= 1`` on ``[0, beta]``;
+    ``|R| > 1`` just beyond; and ``R(z)`` is the degree-``order`` Taylor polynomial of ``e^z``
+    (``stages == order`` for these explicit schemes)."""
+    sch = SCHEMES[name]
+    beta = sch.real_stability_bound
+    R = lambda x: np.abs(sch.stability_polynomial(np.atleast_1d(np.asarray(x, dtype=complex))))  # noqa: E731
+    assert abs(R(-beta)[0] - 1.0) < 1e-12
+    assert np.all(R(-np.linspace(0, beta, 41)) <= 1 + 1e-12)
+    assert R(-beta * 1.001)[0] > 1.0
+    z = np.array([0.3, -0.7 + 0.2j, 1.1j])
+    taylor = sum(z**k / np.prod(np.arange(1, k + 1)) for k in range(sch.order + 1))
+    np.testing.assert_allclose(sch.stability_polynomial(z), taylor, rtol=1e-14)
