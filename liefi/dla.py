@@ -286,6 +286,67 @@ class DLAIntegrator:
             if A.shape[0] and np.linalg.matrix_rank(self._constant_S) < A.shape[0]:
                 raise ValueError("constraints: the rows of A are linearly dependent.")
 
+    @classmethod
+    def from_system(cls, system):
+        r"""The DLA integrator of a :class:`~liefi.NonholonomicSystem` on :math:`T^*\mathbb R^n`.
+
+        The Lagrangian data are read off the Hamiltonian data:
+        :math:`M` is the system's (constant) metric, :math:`U` its potential
+        (with the system's derivative: analytic if one was given, complex step
+        otherwise), and the velocity constraints are
+        :math:`A(q) = E(q) M`, i.e. :math:`A\dot q = E M M^{-1} p = E p = J`
+        (the rows of :math:`A` are the covectors :math:`e_i^\flat`).  Only the
+        kernel of :math:`A` enters the step, so normalizing the
+        :math:`e_i` does not change the trajectory.
+
+        Parameters
+        ----------
+        system : NonholonomicSystem
+            On a :class:`~liefi.CotangentBundle` with a constant metric.
+
+        Returns
+        -------
+        DLAIntegrator
+
+        Raises
+        ------
+        TypeError
+            If ``system`` is not a :class:`~liefi.NonholonomicSystem`.
+        ValueError
+            If it has a symmetry group (the DLA integrator works in
+            coordinates on :math:`\mathbb R^n`: use a cotangent bundle) or a
+            configuration-dependent metric.
+        """
+        from liefi.phase_space import CotangentBundle
+        from liefi.system import NonholonomicSystem
+
+        if not isinstance(system, NonholonomicSystem):
+            raise TypeError(f"system: expected a liefi.NonholonomicSystem, got {system!r}")
+        if not isinstance(system.space, CotangentBundle):
+            raise ValueError(
+                f"system: the DLA integrator needs a system on a CotangentBundle (coordinates "
+                f"on R^n), got one on {system.space!r}; write the unreduced system on T*Q"
+            )
+        if not system.metric.constant:
+            raise ValueError(
+                "system: the DLA integrator needs a constant metric (mass matrix); this "
+                "system's metric depends on q"
+            )
+        M = np.asarray(system.metric.value, dtype=float)
+        pot, cons = system.potential, system.constraints
+
+        potential = None if pot.constant else pot.fun
+        potential_gradient = None if pot.constant else (lambda q: pot.with_derivative(q)[1])
+        if system.K == 0:
+            constraints = None
+        elif cons.constant:
+            constraints = cons.value @ M
+        else:
+            def constraints(q):
+                return np.asarray(cons(q)) @ M
+
+        return cls(M, potential, constraints, potential_gradient=potential_gradient)
+
     # ------------------------------------------------------------------ pieces
     def _check_q(self, q, name):
         q = _as_real_array(q, name)

@@ -56,6 +56,30 @@ class Invariant:
         return _diff.gradient(self.fun, z)
 
 
+@dataclass(frozen=True)
+class InvariantJet:
+    """Residuals and gradients of the penalized invariants, see :meth:`FeedbackIntegrator.invariant_gradients`."""
+
+    names: tuple  #: the invariants' names (``m``)
+    residual: np.ndarray  #: (..., m) ``I_j(y) - I_j0``
+    grad: np.ndarray  #: (..., m, n) ``dI_j/dy``
+    gains: np.ndarray  #: (m,) ``k_j``
+
+
+def _gram_is_constant(system, z):
+    """Whether the Gram matrix ``C(x)`` has zero ``x``-derivative at ``z`` (exactly, by complex step)."""
+    if system.constant or system.orthonormalized or not system.K:
+        return True
+    x = np.asarray(z, float)[..., : system.space.n]
+
+    def gram(xx):
+        E = system.constraints(xx)
+        return E @ system.metric(xx) @ np.swapaxes(E, -1, -2)
+
+    C, dC = _diff.jacobian(gram, x)
+    return bool(np.max(np.abs(dC), initial=0.0) <= 1e-12 * max(1.0, float(np.max(np.abs(C)))))
+
+
 def momentum_component(system, name):
     """The invariant ``z[name]`` (a momentum component that is conserved, e.g. ``p_phi``)."""
     i = system.state_names.index(name)
@@ -83,9 +107,11 @@ class FeedbackIntegrator:
     invariants : sequence
         Which invariants ``V`` penalizes: ``"constraints"`` (every ``J_i``, target 0),
         ``"energy"`` (``h~`` or ``h`` by ``energy=``), and :class:`Invariant` objects.
-    gains : float or dict
+    gains : float, dict or "auto"
         One number for every gain, or ``{name: k}`` with names ``"J_1"``...,
         ``"energy"``, ``"penalty"``, the invariants' names; ``"constraints"`` sets every ``J_i``.
+        ``"auto"``: chosen by :meth:`run` from ``dt`` and the Hessian of ``V``, and
+        adapted along the run (:func:`liefi.stability.auto_gains`).
     energy : {"extended", "original"}
         Penalize ``h~`` (default, the paper's main choice) or ``h`` (its Remarks).
     configuration : bool
@@ -129,7 +155,9 @@ class FeedbackIntegrator:
         self.n = self.nc + sp.nz
         self.names = (tuple(sp.group.config_names) if self.configuration else ()) + sp.state_names
 
-        y0 = np.asarray(y0, dtype=float)
+        from ._data import as_float_array
+
+        y0 = as_float_array(y0, "y0")
         if y0.shape[-1:] != (self.n,):
             raise ValueError(
                 f"y0: expected a state of {self.n} numbers {self.names}, got shape {y0.shape}"
@@ -158,43 +186,53 @@ class FeedbackIntegrator:
                     f"component name {sp.state_names} or a liefi.Invariant"
                 )
         self.use_penalty = self.configuration and sp.group.penalty_hessian_bound() > 0
+        reserved = {f"J_{i + 1}" for i in range(system.K)} | {"energy", "penalty", "h", "h~"}
+        seen = set()
+        for u in self.user:
+            if u.name in reserved or u.name.startswith("J_") or u.name in seen:
+                raise ValueError(
+                    f"invariants: the name {u.name!r} is taken (reserved: J_<i> for the "
+                    "constraint momenta, energy, penalty, h, h~; names must be unique); "
+                    "rename the invariant (e.g. 'L_z')"
+                )
+            seen.add(u.name)
+            if u.grad is None:
+                _diff.check_complex_step(u.fun, y0[..., self.nc :], f"invariant {u.name!r}")
+        if self.use_energy and energy == "original" and not _gram_is_constant(system, y0[..., self.nc :]):
+            raise ValueError(
+                "energy: 'original' penalizes h, which is a first integral of the extended "
+                "field only where the Gram matrix C = <e_l^flat, e_i> is constant; here C "
+                "depends on x, so V would not be a first integral (assumption A1 fails). "
+                "Use energy='extended' (h~), or build the system with "
+                "NonholonomicSystem(..., orthonormalize=True), for which h is conserved."
+            )
 
         # --- gains ---------------------------------------------------------------
-        names = self.invariant_names
-        if np.isscalar(gains):
-            g = {k: float(gains) for k in names}
-        elif isinstance(gains, dict):
-            g = {}
-            for k, v in gains.items():
-                if k == "constraints":
-                    g.update({f"J_{i + 1}": float(v) for i in range(system.K)})
-                elif k in names:
-                    g[k] = float(v)
-                else:
-                    raise ValueError(f"gains: unknown name {k!r}; the invariants are {names}")
-            missing = [k for k in names if k not in g]
-            if missing:
-                raise ValueError(f"gains: no gain given for {missing}")
-        else:
-            raise TypeError("gains: expected a number or a dict {name: gain}")
-        for k, v in g.items():
-            if not np.isfinite(v) or v < 0:
-                raise ValueError(f"gains: the gain of {k!r} must be a finite non-negative number, got {v!r}")
-        self.gains = g
-        self._kJ = np.array([g[f"J_{i + 1}"] for i in range(system.K)]) if self.use_constraints else None
+        #: "auto": gains chosen from dt and the Hessian of V when a run knows dt
+        #: (liefi.stability.auto_gains); until then unit-rate gains (see below).
+        self.gains_mode = "auto" if isinstance(gains, str) and gains == "auto" else "fixed"
+        self._set_gains(self._parse_gains(1.0 if self.gains_mode == "auto" else gains))
 
         # --- A --------------------------------------------------------------------
         if A is not None:
-            A = np.array(A, dtype=float)
+            A = as_float_array(A, "A")
             if A.shape != (self.n, self.n):
                 raise ValueError(f"A: expected shape ({self.n}, {self.n}), got {A.shape}")
+            if not np.all(np.isfinite(A)):
+                raise ValueError("A: contains non-finite numbers")
             if np.any(np.linalg.eigvalsh(A + A.T) <= 0):
                 raise ValueError("A: its symmetric part A + A^T must be positive definite")
         self.A = A
 
         # --- targets ---------------------------------------------------------------
+        names = self.invariant_names
         vals = self.invariant_values(y0)
-        self.targets = {k: (0.0 if k.startswith("J_") else float(np.asarray(v).reshape(-1)[0]) if np.ndim(v) == 0 or np.size(v) == 1 else np.asarray(v)) for k, v in vals.items() if k in names and k != "penalty"}
+        constraint_names = {f"J_{i + 1}" for i in range(system.K)}
+        self.targets = {
+            k: 0.0 if k in constraint_names else float(np.mean(v))
+            for k, v in vals.items()
+            if k in names and k != "penalty"
+        }
         if targets:
             for k, v in targets.items():
                 if k not in self.targets:
@@ -202,6 +240,65 @@ class FeedbackIntegrator:
                 self.targets[k] = v
         self._eh = self.targets.get("energy", 0.0)
         self._user_targets = [self.targets[u.name] for u in self.user]
+        if self.gains_mode == "auto":
+            # Unit-rate gains (largest eigenvalue of Hess V at y0 equal to 1, every
+            # invariant weighted by 1/|grad I_j|^2); run() scales them to dt.
+            from .stability import unit_rate_gains
+
+            self._set_gains(unit_rate_gains(self, y0))
+
+    # --- gains -----------------------------------------------------------------------
+    def _parse_gains(self, gains):
+        """``gains`` (a number or ``{name: k}``) -> ``{name: k}`` over :attr:`invariant_names`."""
+        names = self.invariant_names
+        K = self.system.K
+
+        def number(v, what):
+            try:
+                x = float(v)
+            except (TypeError, ValueError):
+                raise ValueError(
+                    f"gains: {what} must be a number (or gains='auto'), got {v!r}"
+                ) from None
+            if not np.isfinite(x) or x < 0:
+                raise ValueError(f"gains: {what} must be a finite non-negative number, got {v!r}")
+            return x
+
+        if isinstance(gains, str) or np.isscalar(gains):
+            g = {k: number(gains, "the gain") for k in names}
+        elif isinstance(gains, dict):
+            g = {}
+            for k, v in gains.items():
+                if k == "constraints":
+                    g.update({f"J_{i + 1}": number(v, "the gain of 'constraints'") for i in range(K)})
+                elif k in names:
+                    g[k] = number(v, f"the gain of {k!r}")
+                else:
+                    raise ValueError(f"gains: unknown name {k!r}; the invariants are {names}")
+            missing = [k for k in names if k not in g]
+            if missing:
+                raise ValueError(f"gains: no gain given for {missing}")
+        else:
+            raise TypeError(f"gains: expected a number, a dict {{name: gain}} or 'auto', got {gains!r}")
+        return g
+
+    def _set_gains(self, g):
+        self.gains = dict(g)
+        self._kJ = np.array([g[f"J_{i + 1}"] for i in range(self.system.K)]) if self.use_constraints else None
+
+    def with_gains(self, gains):
+        """A copy with other (fixed) gains; same system, invariants, targets and ``A``.
+
+        ``gains`` as in the constructor (a number or ``{name: k}``; not ``"auto"``).
+        Used by the adaptive runs of :mod:`liefi.stability`, which change the gains
+        along a run: the zero set of ``V`` -- the invariant set -- does not depend on them.
+        """
+        import copy
+
+        new = copy.copy(self)
+        new.gains_mode = "fixed"
+        new._set_gains(self._parse_gains(gains))
+        return new
 
     # --- bookkeeping ---------------------------------------------------------------
     @property
@@ -238,6 +335,47 @@ class FeedbackIntegrator:
         for u in self.user:
             out[u.name] = u.value_and_grad(z)[0]
         return out
+
+    def invariant_gradients(self, y):
+        """Residuals and gradients of the penalized invariants (all but the penalty) at ``y``.
+
+        Returns an :class:`InvariantJet` with ``names`` (``m`` names, in the order
+        of :attr:`invariant_names` without ``"penalty"``), ``residual``
+        ``(..., m)`` = ``I_j(y) - I_j0``, ``grad`` ``(..., m, n)`` = ``dI_j/dy``
+        (zero on the group block) and ``gains`` ``(m,)``.  Then
+        ``grad V = sum_j k_j r_j grad I_j + k0 grad P`` and, on the zero set of
+        ``V``, ``Hess V = sum_j k_j grad I_j grad I_j^T + k0 Hess P``: its largest
+        eigenvalue is that of the small Gram matrix
+        ``G_ij = sqrt(k_i k_j) grad I_i . grad I_j`` (:mod:`liefi.stability`).
+        """
+        y = np.asarray(y, dtype=float)
+        g, z = self.split(y)
+        t = _core.evaluate(self.system, z)
+        batch = y.shape[:-1]
+        names, res, grads = [], [], []
+        if self.use_constraints:
+            for i in range(self.system.K):
+                names.append(f"J_{i + 1}")
+                res.append(t.J[..., i])
+                grads.append(t.dJ[..., i, :])
+        if self.use_energy:
+            E, dE = (t.ht, t.dht) if self.energy == "extended" else (t.h, t.dh)
+            names.append("energy")
+            res.append(E - self._eh)
+            grads.append(dE)
+        for u, tgt in zip(self.user, self._user_targets):
+            val, grad = u.value_and_grad(z)
+            names.append(u.name)
+            res.append(val - tgt)
+            grads.append(grad)
+        m = len(names)
+        r = np.zeros(batch + (m,))
+        D = np.zeros(batch + (m, self.n))
+        for j in range(m):
+            r[..., j] = np.broadcast_to(res[j], batch)
+            D[..., j, self.nc :] = np.broadcast_to(grads[j], batch + (self.n - self.nc,))
+        k = np.array([self.gains[nm] for nm in names], dtype=float)
+        return InvariantJet(tuple(names), r, D, k)
 
     # --- V and its gradient -----------------------------------------------------------
     def _parts(self, y):
@@ -318,28 +456,46 @@ class FeedbackIntegrator:
         return self.vector_field(y)
 
     # --- running ------------------------------------------------------------------
-    def run(self, dt, t_final, scheme="euler", *, y0=None, save_every=1, check_every=1):
+    def run(self, dt, t_final, scheme="euler", *, y0=None, save_every=1, check_every=1, backend="numpy",
+            check_stability=True, adaptive=None, monitor_every=None):
         """Integrate from ``y0`` (default: the one given at construction) to ``t_final``.
 
         Returns a :class:`~liefi.schemes.Solution`; raises
         :class:`~liefi.schemes.IntegrationError` naming the time and components
         if the run produces non-finite numbers.
+
+        ``backend``: ``"numpy"`` (default, the reference implementation),
+        ``"numba"`` or ``"auto"``: the same field generated as scalar code from
+        the system's data and the whole loop compiled (:mod:`liefi.compiled`;
+        agrees with numpy to 1e-12).  When numba is missing or a datum cannot
+        be traced, a :class:`liefi.compiled.CompilationWarning` says so and the
+        numpy path runs.
+
+        ``scheme``: a tableau of :mod:`liefi.schemes` (``"euler"``, ``"rk4"``, ...)
+        or a stiff-safe split scheme of :mod:`liefi.stiff` (``"imex-euler"``,
+        ``"imex-heun"``, ``"imex-rk4"``: stable for any gain).
+
+        Stability (:mod:`liefi.stability`).  ``check_stability`` (default True):
+        before the run, estimate ``dt * lambda_max(A Hess V)`` along a cheap pilot
+        of the extended field and compare it with the scheme's stability bound;
+        warn (:class:`liefi.stability.LiefiStabilityWarning`, with the largest
+        safe ``dt`` and gain) at or past the limit, refuse (``ValueError``) 10x
+        past it; during the run, stop with
+        :class:`liefi.stability.StabilityError` when the invariants' drift
+        explodes past the limit.  ``adaptive``: rescale the gains along the run so
+        that ``dt * lambda_max`` stays at the scheme's optimal value (default: on
+        for ``gains="auto"``, off otherwise; with fixed gains it only lowers them).
+        ``monitor_every``: steps between two checks (default: adaptive).  The
+        solution carries the report as ``solution.stability``.
         """
-        if not np.isfinite(t_final) or t_final <= 0:
-            raise ValueError(f"t_final: must be a positive finite time, got {t_final!r}")
-        if not np.isfinite(dt) or dt <= 0:
-            raise ValueError(f"dt: the step must be a positive finite number, got {dt!r}")
+        from .stability import guarded_run, positive_number
+
+        t_final = positive_number(t_final, "t_final", "must be a positive finite time")
+        dt = positive_number(dt, "dt", "the step must be a positive finite number")
         n_steps = int(round(t_final / dt))
-        if abs(n_steps * dt - t_final) > 1e-9 * t_final:
+        if n_steps < 1 or abs(n_steps * dt - t_final) > 1e-9 * t_final:
             raise ValueError(f"t_final: {t_final} is not a whole number of steps dt={dt}")
-        sch = get_scheme(scheme)
-        return integrate(
-            self.vector_field,
-            self.y0 if y0 is None else y0,
-            dt,
-            n_steps,
-            sch,
-            save_every=save_every,
-            names=self.names,
-            check_every=check_every,
+        return guarded_run(
+            self, dt, n_steps, scheme, y0=y0, save_every=save_every, check_every=check_every,
+            backend=backend, check_stability=check_stability, adaptive=adaptive, monitor_every=monitor_every,
         )

@@ -271,24 +271,23 @@ def test_original_energy_lyapunov_with_varying_gram():
         assert np.allclose(ortho.constraint_momenta(sys_.project(y)), 0.0, atol=1e-14)
 
 
-def test_user_invariant_named_like_the_paper_keeps_its_target():
+def test_user_invariant_keeps_its_target_and_J_names_are_reserved():
     """The paper calls the Heisenberg system's angular momentum ``J_2`` and penalizes
-    ``k2/2 |J_2 - J_20|^2``.  A user :class:`Invariant` named ``"J_2"`` must get its initial
-    value as target, so that ``V(y0) = 0`` (A1: the start lies in ``V^{-1}(0)``).
-
-    LIBRARY BUG (reported): ``FeedbackIntegrator.__init__`` sets the target of every
-    invariant whose name starts with ``"J_"`` to 0 (``k.startswith("J_")``), so a user
-    invariant called ``J_2`` is silently driven to 0 instead of kept at ``J_20``.
+    ``k2/2 |J_2 - J_20|^2``: a user :class:`Invariant` gets its initial value as target,
+    so that ``V(y0) = 0`` (A1: the start lies in ``V^{-1}(0)``).  liefi reserves the names
+    ``J_<i>`` for constraint momenta (target 0), so the user's must be named otherwise.
     """
     def E(q):
         return np.stack([-q[..., 1], q[..., 0], 1 + 0 * q[..., 0]], -1)[..., None, :]
 
     sys_ = NonholonomicSystem(CotangentBundle(3), np.eye(3), E)
     y0 = sys_.project(np.array([0.3, 0.5, 0.1, 1.0, -0.4, 0.2]))
-    J2 = Invariant("J_2", lambda q: q[..., 0] * q[..., 4] - q[..., 1] * q[..., 3])
-    fi = FeedbackIntegrator(sys_, y0, invariants=("constraints", "energy", J2))
-    assert fi.targets["J_2"] == pytest.approx(J2.fun(y0))
+    Lz = Invariant("L_z", lambda q: q[..., 0] * q[..., 4] - q[..., 1] * q[..., 3])
+    fi = FeedbackIntegrator(sys_, y0, invariants=("constraints", "energy", Lz))
+    assert fi.targets["L_z"] == pytest.approx(Lz.fun(y0))
     assert fi.lyapunov(y0) < 1e-28
+    with pytest.raises(ValueError, match="invariants: the name 'J_2' is taken"):
+        FeedbackIntegrator(sys_, y0, invariants=("constraints", Invariant("J_2", Lz.fun)))
 
 
 @pytest.mark.parametrize("spec", SPACES)

@@ -9,45 +9,64 @@ constraint ``p . e = p_z - y p_x + x p_y = 0`` with the **non-normalized**
 constrained motion is a straight line, ``q = q_0 + p_0 t``
 (:func:`liefi.scenes.exact.heisenberg`).
 
-``V`` penalizes, as in the paper,
+``V`` penalizes
 
 .. math:: V = \frac{k_1}{2} J_1^2 + \frac{k_2}{2} (J_2 - J_{20})^2
-          + \frac{k_3}{2} (H - H_0)^2,
+          + \frac{k_3}{2} (\tilde H - \tilde H_0)^2,
 
-with ``J_1 = p . e`` (``"J_1"``), the *original* energy ``H = |p|^2/2``
-(``energy="original"``) and the angular momentum ``J_2 = x p_y - y p_x``, a
-:class:`~liefi.Invariant` called ``"L_z"`` (not ``"J_2"``: liefi reserves
-``J_i`` for constraint momenta, whose target is 0).
+with ``J_1 = p . e`` (``"J_1"``), the angular momentum ``J_2 = x p_y - y p_x``,
+a :class:`~liefi.Invariant` called ``"L_z"`` (not ``"J_2"``: liefi reserves
+``J_i`` for constraint momenta, whose target is 0), and the *extended* energy
+``H~ = |p|^2/2 - J_1^2 / (2 |e|^2)`` where the paper writes ``H``.
+
+Why ``H~`` and not the paper's ``H``: the paper integrates ``q' = p, p' = 0``
+(its "extended" system is the original one, since ``lambda = 0``
+everywhere), of which ``H`` is a first integral everywhere.  liefi integrates
+its derived extended field (the general form of Remark
+``(remark:nonhol:general)``: ``e`` is not normalized), which agrees with it on
+``J_1 = 0`` and keeps ``H~``, ``J_1`` and ``J_2`` everywhere -- but not
+``H = H~ + J_1^2 / (2 |e|^2)``, because the Gram matrix ``|e|^2 = 1 + x^2 + y^2``
+varies with ``q`` (the paper's Remark claims the Corollary
+``(H:intermsof:Htilde:pe)`` carries over; it does only for constant ``C``).
+With ``H`` the assumption A1 would fail off the constraint set, and
+:class:`~liefi.FeedbackIntegrator` refuses ``energy="original"`` here.  ``H~``
+equals ``H`` on the constraint set and so do their gradients, so ``V`` has
+the same zero set and the same Hessian there (the same stiffness) as the
+paper's.  The alternative -- ``orthonormalize=True``, which replaces ``e`` by
+``e/|e|`` so that ``H`` is conserved -- would change ``J_1`` to
+``p . e/|e|`` and with it the paper's ``V``.
 
 Notes
 -----
-* The paper integrates ``q' = p, p' = 0`` (its "extended" system is the
-  original one, since ``lambda = 0`` everywhere).  liefi integrates its
-  derived extended field, which agrees with it on ``J_1 = 0``.  Off the
-  constraint set ``J_1`` and ``L_z`` are still first integrals of it, but
-  ``H = h~ + J_1^2 / (2 |e|^2)`` is not (``|e|`` varies with ``q``; the
-  Corollary ``(H:intermsof:Htilde:pe)`` needs ``C`` constant); the defect is
-  ``O(J_1^2)`` and invisible in the runs.
 * Euler maps a point of ``V^{-1}(0)`` exactly onto the next point of the
   straight line (``J_1``, ``L_z`` and ``H`` are conserved exactly by the
   Euler step of ``q' = p, p' = 0``), so any error comes from rounding
   amplified by the feedback term.  The zero set of ``V`` is not compact and the
-  Hessian of ``V`` grows like ``k |q|^2``: explicit Euler becomes unstable once
-  ``dt * k * (1 + 2|q|^2)`` exceeds about 2.
+  Hessian of ``V`` grows like ``k (x^2 + y^2)`` (``|grad J_1|^2 = 1 + x^2 + y^2
+  + p_x^2 + p_y^2``, ``|grad J_2|^2 = x^2 + y^2 + p_x^2 + p_y^2``): explicit
+  Euler becomes unstable once ``dt k (1 + 2(x^2 + y^2))`` exceeds about 2.
 
 Variants (``Variant.options`` holds the start):
 
-* ``special``: ``q_0 = (1, 0, 0)``, ``p_0 = (0, 1, -1)``.  Every product in
-  ``J_1``, ``L_z`` and their gradients along this line is exact in floating
-  point, so ``V`` stays exactly 0 and no rounding error seeds the instability:
-  the run is exact (to the rounding of ``y += dt p_y``) at any gain.
+* ``special``: ``q_0 = (1, 0, 0)``, ``p_0 = (0, 1/2, -1/2)``.  Along this
+  line ``x = 1`` and ``p_x = 0`` stay exact, so every product in ``J_1``,
+  ``L_z``, ``H`` and their gradients is exact in floating point: ``V`` stays
+  exactly 0, no rounding error seeds the instability, and the run is exact
+  (to the rounding of ``y += dt p_y``) at any gain -- even past Euler's
+  stability bound (run with ``check_stability=False`` there).
 * ``generic``: ``q_0 = (1, 1/2, 0)``, ``p_0 = (0.3, 0.4, -0.25)`` (``x, y,
   p_x, p_y`` all nonzero; ``p_z`` from the constraint).  With the default
-  gains 10 and ``t_final = 10`` the run is bounded (``|q| < 6``, stiffness
-  ``dt k (1 + 2|q|^2) < 1``); with gains 100 and ``t_final = 20`` Euler loses
-  stability around ``t ~ 10`` and the run stops with
-  :class:`liefi.IntegrationError` (NOTES: "diverges after t ~ 5" for a start
-  with ``|p| ~ 1``).  Adaptive gains are the stability work's business.
+  gains 10 and ``t_final = 10`` the run is bounded and exact to ~1e-12
+  (``dt k (1 + 2(x^2 + y^2)) < 1`` all along).  With gains 100 Euler crosses
+  its stability bound at ``t ~ 4.3`` (``x^2 + y^2 ~ 10``) and leaves the
+  straight line (NOTES: "diverges after t ~ 5").  It does not overflow: each
+  burst of the unstable mode throws the state back inside the stable region,
+  so an unguarded run (``check_stability=False``) returns a *finite, wrong*
+  trajectory.  liefi's stability guard (:mod:`liefi.stability`) therefore
+  refuses ``t_final = 20`` up front (``ValueError``) and stops
+  ``t_final = 10`` at ``t ~ 4.6`` with a :class:`liefi.IntegrationError`
+  (``StabilityError``) naming the time and the invariant.  Adaptive gains are
+  the stability work's business.
 
 The paper leaves the simulation to the reader: liefi uses Euler,
 ``dt = 1e-3``, every gain 10, ``t`` in ``[0, 10]``.
@@ -82,14 +101,12 @@ class Heisenberg(Scene):
     variants = {
         "special": Variant(
             "special",
-            "start q=(1,0,0), p=(0,1,-1): V stays exactly 0, Euler is exact",
-            energy="original",
-            options={"q0": (1.0, 0.0, 0.0), "p0": (0.0, 1.0, -1.0)},
+            "start q=(1,0,0), p=(0,1/2,-1/2): V stays exactly 0, Euler is exact",
+            options={"q0": (1.0, 0.0, 0.0), "p0": (0.0, 0.5, -0.5)},
         ),
         "generic": Variant(
             "generic",
             "start q=(1,1/2,0), p=(0.3,0.4,-0.25): bounded at gains 10 on [0,10]",
-            energy="original",
             options={"q0": (1.0, 0.5, 0.0), "p0": (0.3, 0.4, -0.25)},
         ),
     }
