@@ -41,7 +41,7 @@ class _Parser(argparse.ArgumentParser):
     """argparse, but a usage error is one line on stderr (raised, turned into exit 2 by main)."""
 
     def error(self, message):
-        raise UsageError(f"{self.prog}: {message} (see '{self.prog} --help')")
+        raise UsageError(f"{message} (see '{self.prog} --help')")
 
 
 # --------------------------------------------------------------------------------------
@@ -71,7 +71,8 @@ def parse_gains(text, scene, variant=None, configuration=None):
 
     ``"K"`` sets every gain; ``"K1,K2,..."`` sets the gains in the order of the
     integrator's ``invariant_names``; ``"name=K,..."`` sets the named gains and
-    keeps the scene's value for the others (``constraints=K`` sets every ``J_i``).
+    keeps the scene's value for the others (``constraints=K`` sets every ``J_i``);
+    ``"auto"`` lets the library choose them from ``dt`` (``gains="auto"``).
     """
     if text is None:
         return None
@@ -89,6 +90,8 @@ def parse_gains(text, scene, variant=None, configuration=None):
             raise UsageError(f"gains: {what} must be a finite non-negative number, got {s!r}")
         return v
 
+    if text == "auto":  # chosen by the library from dt and Hess V (liefi.stability)
+        return "auto"
     if not text or any(not p for p in parts):
         raise UsageError(f"gains: empty entry in {text!r}; give K, K1,K2,... (order {order}) or name=K,...")
     if all("=" in p for p in parts):
@@ -115,18 +118,31 @@ def parse_gains(text, scene, variant=None, configuration=None):
     return {n: number(p, f"gain of {n!r}") for n, p in zip(names, parts)}
 
 
+def available_schemes(scene):
+    """Scheme names ``liefi run SCENE --scheme`` accepts (besides ``scipy:METHOD``)."""
+    names = list(SCHEMES)
+    try:  # stiff-safe split schemes, where the library has them
+        from .stiff import SPLIT_SCHEMES
+
+        names += [n for n in SPLIT_SCHEMES if n not in names]
+    except ImportError:
+        pass
+    return names + [n for n in scene.extra_schemes if n not in names]
+
+
 def check_scheme(scheme, scene):
     """Raise :class:`UsageError` unless ``scheme`` is available for ``scene``."""
     if scheme is None:
         return
-    if scheme in SCHEMES or scheme in scene.extra_schemes:
+    names = available_schemes(scene)
+    if scheme in names:
         return
     if scheme.startswith("scipy:"):
         method = scheme.split(":", 1)[1]
         if method in SCIPY_METHODS:
             return
         raise UsageError(f"scheme: unknown solve_ivp method {method!r}; choose scipy:{'|scipy:'.join(SCIPY_METHODS)}")
-    choices = sorted(SCHEMES) + list(scene.extra_schemes) + ["scipy:METHOD"]
+    choices = names + ["scipy:METHOD"]
     raise UsageError(f"scheme: {scheme!r} is not available for scene {scene.name}; choose one of {', '.join(choices)}")
 
 
@@ -134,10 +150,10 @@ def _fmt(x):
     return f"{x:.3e}"
 
 
-def report(result, file=sys.stdout):
+def report(result, file=None):
     """The short human-readable report of ``liefi run``."""
     scene = _scenes.get(result.scene)
-    w = file.write
+    w = (file or sys.stdout).write
     w(f"{result.scene}: {scene.title} (paper {scene.paper}), variant {result.variant}\n")
     w(
         f"  scheme {result.scheme}, dt {result.dt:g}, t in [0, {result.t_final:g}], {result.steps} steps, "
@@ -233,12 +249,11 @@ def cmd_run(args):
 
 
 def _poincare(result):
-    """``oscillator.poincare_section(result)`` if the module provides it."""
-    import importlib
+    """The Poincaré sections of an oscillator run and of its reference (or ``None``)."""
+    from .reproduce import oscillator_sections
 
-    mod = importlib.import_module("liefi.scenes.oscillator")
-    fn = getattr(mod, "poincare_section", None)
-    return None if fn is None else fn(result)
+    sec, ref = oscillator_sections(result)
+    return None if sec is None else (sec, ref)
 
 
 def cmd_reproduce(args):
@@ -295,8 +310,8 @@ def build_parser():
             "integrator's invariant_names (penalty, then J_1..J_K, then energy, then the scene's own "
             "invariants; 'penalty' only with --configuration on a group with an embedding, e.g. suslov: "
             "J_1,energy, with --configuration penalty,J_1,energy); name=K,... sets named gains and keeps "
-            "the paper's value for the rest (constraints=K sets every J_i). 'liefi list -v' prints each "
-            "scene's order. Errors exit with code 2."
+            "the paper's value for the rest (constraints=K sets every J_i); 'auto' lets the library choose "
+            "them from dt. 'liefi list -v' prints each scene's order. Errors exit with code 2."
         ),
     )
     pr.add_argument("scene", metavar="SCENE", help="scene name (see 'liefi list')")
@@ -304,8 +319,9 @@ def build_parser():
     pr.add_argument("--t-final", type=_positive_float("t-final"), default=None, dest="t_final",
                     help="final time (default: the paper's)")
     pr.add_argument("--scheme", default=None,
-                    help="euler|heun|midpoint|rk3|rk4|dla (oscillator)|scipy:METHOD (default: the paper's)")
-    pr.add_argument("--gains", default=None, metavar="K|K1,K2,...|name=K,...",
+                    help="euler|heun|midpoint|rk3|rk4|imex-euler|imex-heun|imex-rk4|dla (oscillator)|"
+                         "scipy:METHOD (METHOD: " + "|".join(SCIPY_METHODS) + "; default: the paper's)")
+    pr.add_argument("--gains", default=None, metavar="K|K1,K2,...|name=K,...|auto",
                     help="feedback gains (default: the paper's); order: the integrator's invariant_names, see below")
     pr.add_argument("--variant", default=None, help="variant name (default: the scene's first)")
     pr.add_argument("--configuration", action="store_true", help="integrate the group element too")
@@ -331,7 +347,23 @@ def build_parser():
 
 def main(argv=None):
     """Entry point of ``liefi`` / ``python -m liefi``; returns the exit code."""
+    import warnings
+
     parser = build_parser()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("default")
+        code = _main(parser, argv)
+    if code == 0:  # on failure the error line says it all
+        seen = set()
+        for w in caught:
+            msg = " ".join(str(w.message).split())
+            if msg not in seen:
+                seen.add(msg)
+                print(f"liefi: warning: {w.category.__name__}: {msg}", file=sys.stderr)
+    return code
+
+
+def _main(parser, argv):
     try:
         args = parser.parse_args(argv)
         if args.command is None:
@@ -341,6 +373,11 @@ def main(argv=None):
     except UsageError as exc:
         print(f"liefi: error: {exc}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # e.g. `liefi list | head`: stop quietly
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 1
     except SystemExit as exc:  # --help
         return exc.code if isinstance(exc.code, int) else 0
     except (ValueError, ArithmeticError, RuntimeError, OSError, ImportError) as exc:

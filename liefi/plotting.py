@@ -58,16 +58,27 @@ def needs_configuration(scene_name: str) -> bool:
     return scene_name in _NEEDS_CONFIGURATION
 
 
+_GREEK = {"Pi", "theta", "phi", "psi", "lambda", "mu", "xi", "alpha", "omega", "Omega"}
+
+
+def _tex_word(w):
+    if w == "phi":
+        return r"\varphi"
+    return "\\" + w if w in _GREEK else w
+
+
 def label(name: str) -> str:
-    """Mathtext for a variable or invariant name (``"Pi_1"`` -> ``$\\Pi_1$``)."""
+    """Mathtext for a variable or invariant name (``"Pi_theta_2"`` -> ``$\\Pi_{\\theta,2}$``)."""
     if name in _LABELS:
         return f"${_LABELS[name]}$"
-    if name.startswith("J_"):
-        return f"$J_{{{name[2:]}}}$"
-    if "_" in name:
-        base, sub = name.split("_", 1)
-        return f"${base}_{{{sub}}}$"
-    return f"${name}$" if len(name) == 1 else name
+    if name in ("energy", "penalty", "constraints"):
+        return name
+    if name.endswith("~"):
+        return f"$\\tilde {{{label(name[:-1]).strip('$')}}}$"
+    base, *subs = name.split("_")
+    if not subs:
+        return f"${_tex_word(base)}$" if (len(base) == 1 or base in _GREEK) else name
+    return f"${_tex_word(base)}_{{{','.join(_tex_word(w) for w in subs)}}}$"
 
 
 # --------------------------------------------------------------------------------------
@@ -103,15 +114,26 @@ def _drift(name, values):
     return np.abs(values - values[0])
 
 
-def _logplot(ax, t, values, **kw):
-    """``semilogy`` of ``|values|`` with exact zeros masked; says so if all are zero."""
+def _logplot(ax, t, values, *, label=None, **kw):
+    """``semilogy`` of ``|values|`` with exact zeros masked.
+
+    A series that is identically zero cannot be drawn on a log axis: it gets a
+    legend entry ``... = 0`` (with a label) or a note in the panel (without).
+    """
     a = np.abs(np.asarray(values, float))
     shown = np.where(a > _TINY, a, np.nan)
     if np.all(np.isnan(shown)):
-        ax.plot(t, a, **kw)
-        ax.text(0.5, 0.5, "identically 0", transform=ax.transAxes, ha="center", va="center", color="gray")
+        if label is not None:
+            ax.plot([], [], label=f"{label} $\\equiv 0$", **dict(kw, ls=":"))
+        else:
+            ax.text(0.5, 0.5, "identically 0", transform=ax.transAxes, ha="center", va="center", color="gray")
         return
-    ax.semilogy(t, shown, **kw)
+    ax.plot(t, shown, label=label, **kw)
+    if label is None and log_span(a[1:] if a.size > 1 else a) < 1.0:
+        # less than a decade (t = 0 excluded): a linear axis reads better
+        ax.ticklabel_format(axis="y", style="sci", scilimits=(-2, 2))
+        return
+    ax.set_yscale("log")
 
 
 def _run_caption(result):
@@ -122,7 +144,7 @@ def _run_caption(result):
     if scheme != "dla" and result.gains:
         vals = sorted(set(result.gains.values()))
         gains = f", gains {vals[0]:g}" if len(vals) == 1 else ", gains " + ", ".join(
-            f"{label(k)}: {v:g}" if k.startswith("J_") else f"{k}: {v:g}" for k, v in result.gains.items()
+            f"{label(k)}: {v:g}" for k, v in result.gains.items()
         )
     return f"{name}, {step} = {result.dt:g}, $0 \\leq t \\leq {result.t_final:g}${gains}"
 
@@ -177,7 +199,7 @@ def suslov_integrals(result, fig=None, *, tag=""):
     for ax, (k, ylabel) in zip(axes, panels):
         ax.set_xlabel("$t$")
         ax.set_ylabel(ylabel)
-        ax.grid(alpha=0.3, which="both")
+        ax.grid(alpha=0.3)
         if k not in result.invariants:
             ax.text(0.5, 0.5, f"{k} not available\n(integrate the configuration)", transform=ax.transAxes,
                     ha="center", va="center", color="gray")
@@ -203,23 +225,39 @@ def _exact_of(result, name):
 
 
 def knife_cycloid(result, fig=None, *, tag=""):
-    """``figure:knife_cycloid``: ``(x(t), y(t))`` numerical and exact; ``y`` horizontal, as in the paper."""
-    fig = _figure(fig, 11, 3.6)
-    axes = fig.subplots(1, 2, sharex=True, sharey=True)
+    """``figure:knife_cycloid``: ``(x(t), y(t))`` numerical and exact; ``y`` horizontal, as in the paper.
+
+    A third panel overlays both over the last two arches (``t >= t_final - 4 pi``), where
+    the numerical error is largest.
+    """
+    fig = _figure(fig, 13, 3.8)
+    axes = fig.subplots(1, 3, gridspec_kw={"width_ratios": [2, 2, 1.3]})
     x, y = _get(result, "x"), _get(result, "y")
     xe, ye = _exact_of(result, "x"), _exact_of(result, "y")
-    for ax, (xx, yy, what, color) in zip(axes, ((x, y, "feedback integrator", "C0"), (xe, ye, "exact solution", "C1"))):
+    for ax, (xx, yy, what, color) in zip(axes[:2], ((x, y, "feedback integrator", "C0"), (xe, ye, "exact solution", "C1"))):
+        ax.set_xlabel("$y$")
+        ax.set_ylabel("$x$")
+        ax.grid(alpha=0.3)
+        ax.set_title(what, fontsize=10)
         if xx is None or yy is None:
             ax.text(0.5, 0.5, f"{what}: not available", transform=ax.transAxes, ha="center")
             continue
         ax.plot(yy, xx, lw=0.6, color=color)
-        ax.set_title(what, fontsize=10)
-        ax.set_xlabel("$y$")
-        ax.set_ylabel("$x$")
-        ax.grid(alpha=0.3)
+    ax = axes[2]
+    if x is not None and xe is not None:
+        last = result.t >= result.t[-1] - 4 * np.pi
+        ax.plot(ye[last], xe[last], lw=2.5, color="C1", alpha=0.6, label="exact")
+        ax.plot(y[last], x[last], lw=0.9, color="C0", label="feedback integrator")
+        ax.set_ylim(top=1.45 * max(np.max(x[last]), np.max(xe[last])))
+        ax.legend(fontsize=8, loc="upper center", ncol=1, framealpha=0.9)
+    ax.set_title("both, last two arches", fontsize=10)
+    ax.set_xlabel("$y$")
+    ax.set_ylabel("$x$")
+    ax.grid(alpha=0.3)
     fig.suptitle(
         r"Fig. figure:knife_cycloid: knife edge trajectory $(x(t), y(t))$ ($y$ and $x$ swapped), "
-        r"exact $x = (1-\cos t)/2$, $y = (t - \sin t)/2$ (NOTES slip 1)" + tag + "\n" + _run_caption(result),
+        r"exact $x = (1-\cos t)/2$, $y = (t - \sin t)/2$" "\n"
+        r"(the paper prints $x = 1-\cos t$, $\varphi = t$: NOTES.md slip 1)" + tag + "\n" + _run_caption(result),
         fontsize=10,
     )
     return fig
@@ -232,7 +270,7 @@ def knife_errors(result, fig=None, *, tag=""):
     for ax, k in zip(axes, ("x", "y", "phi")):
         ax.set_xlabel("$t$")
         ax.set_ylabel(rf"$|\Delta {_LABELS.get(k, k)}|$")
-        ax.grid(alpha=0.3, which="both")
+        ax.grid(alpha=0.3)
         if k not in result.errors:
             ax.text(0.5, 0.5, f"no {k}", transform=ax.transAxes, ha="center")
             continue
@@ -253,7 +291,7 @@ def knife_integrals(result, fig=None, *, tag=""):
     for ax, (k, ylabel) in zip(axes, panels):
         ax.set_xlabel("$t$")
         ax.set_ylabel(ylabel)
-        ax.grid(alpha=0.3, which="both")
+        ax.grid(alpha=0.3)
         if k in result.invariants:
             vals = result.invariants[k]
         elif _get(result, k) is not None:
@@ -324,43 +362,47 @@ def oscillator_poincare(runs, fig=None, *, tag=""):
     """``figure:Poincare:FI``: one row per run (FI, DLA): ``y(t)``, snapshots in the ``xz`` plane
     and in the ``z p_z`` (DLA: ``z v_z``) plane when ``y`` crosses 0 upwards.
 
-    ``runs`` is a list of ``(result, sections)`` with ``sections`` a dict holding at least
-    ``x, z, p_z`` (or ``v_z``) arrays at the crossings (from ``oscillator.poincare_section``).
+    ``runs`` is a list of ``(result, sections)`` or ``(result, sections, reference_sections)``;
+    ``sections`` holds ``x, z, p_z`` at the crossings (``oscillator.poincare_section``).  The
+    reference sections (the same crossings of the reference solution), when given, are drawn
+    underneath in gray: not in the paper, but they show what the snapshots should look like.
     """
     fig = _figure(fig, 12, 3.4 * len(runs) + 0.4)
     axes = np.asarray(fig.subplots(len(runs), 3, squeeze=False))
-    for i, (r, sec) in enumerate(runs):
+    for i, run in enumerate(runs):
+        r, sec = run[0], run[1] or {}
+        ref = run[2] if len(run) > 2 else None
         dla = r.scheme == "dla"
+        color = "C3" if dla else "C0"
         what = "first-order DLA" if dla else "feedback integrator (Euler)"
         a0, a1, a2 = axes[i]
         y = _get(r, "y")
         if y is not None:
-            a0.plot(r.t, y, lw=0.5, color="C3" if dla else "C0")
+            a0.plot(r.t, y, lw=0.5, color=color)
         a0.set_xlabel("$t$")
         a0.set_ylabel("$y$")
         a0.set_title(f"{what}: $y(t)$", fontsize=9)
         a0.grid(alpha=0.3)
-        sec = sec or {}
-        x, z = sec.get("x"), sec.get("z")
-        pz_key = "p_z" if "p_z" in sec else ("v_z" if "v_z" in sec else None)
-        mom = "v_z" if dla else "p_z"
-        n = 0 if z is None else len(z)
-        if x is not None and z is not None:
-            a1.plot(x, z, ".", ms=3, color="C3" if dla else "C0")
-        a1.set_xlabel("$x$")
-        a1.set_ylabel("$z$")
+        mom = "v" if dla else "p"
+        n = len(sec.get("z", ()))
+        for ax, (u, v, xl, yl) in ((a1, ("x", "z", "$x$", "$z$")), (a2, ("z", "p_z", "$z$", f"${mom}_z$"))):
+            if ref is not None and u in ref and v in ref:
+                ax.plot(ref[u], ref[v], "o", ms=5, mfc="none", mec="0.6", mew=0.8, label="reference (DOP853)")
+            if u in sec and v in sec:
+                ax.plot(sec[u], sec[v], ".", ms=4, color=color, label=what)
+            ax.set_xlabel(xl)
+            ax.set_ylabel(yl)
+            ax.grid(alpha=0.3)
         a1.set_title(f"snapshots in the $xz$ plane ({n} crossings)", fontsize=9)
-        a1.grid(alpha=0.3)
-        if z is not None and pz_key is not None:
-            a2.plot(z, sec[pz_key], ".", ms=3, color="C3" if dla else "C0")
-        a2.set_xlabel("$z$")
-        a2.set_ylabel(f"${mom[0]}_z$")
-        a2.set_title(f"snapshots in the $z{mom[0]}_z$ plane", fontsize=9)
-        a2.grid(alpha=0.3)
-    T = max(r.t_final for r, _ in runs) if runs else 0
+        a2.set_title(f"snapshots in the $z{mom}_z$ plane", fontsize=9)
+        if ref is not None:
+            a2.legend(fontsize=7, loc="center", framealpha=0.8)
+    T = max(run[0].t_final for run in runs) if runs else 0
+    rows = " / ".join("DLA" if run[0].scheme == "dla" else "feedback integrator" for run in runs)
     fig.suptitle(
         r"Fig. figure:Poincare:FI: nonholonomic oscillator, Poincaré section $y = 0$, $\dot y > 0$; "
-        f"rows: feedback integrator / DLA, $0 \\leq t \\leq {T:g}$" + tag,
+        + (f"rows: {rows}, " if len(runs) > 1 else "")
+        + f"$0 \\leq t \\leq {T:g}$" + tag,
         fontsize=10,
     )
     return fig
@@ -375,23 +417,28 @@ def generic(result, fig=None, *, title=None, tag=""):
     a0, a1 = fig.subplots(1, 2, sharex=True)
     ref = "exact solution" if result.reference == "exact" else "numerical reference (DOP853, tol 1e-12)"
     for i, (k, err) in enumerate(result.errors.items()):
-        _logplot(a0, result.t, err, lw=0.8, label=label(k), color=f"C{i % 10}")
+        _logplot(a0, result.t, err, lw=0.8, label=label(k), color=f"C{i % 10}", ls="-" if i % 2 == 0 else "--")
     a0.set_title(f"error against the {ref}", fontsize=9)
     a0.set_xlabel("$t$")
     a0.set_ylabel(r"$|z(t) - z_{\rm ref}(t)|$")
-    a0.grid(alpha=0.3, which="both")
+    a0.grid(alpha=0.3)
     if result.errors:
         a0.legend(fontsize=8, ncol=2)
     for i, (k, val) in enumerate(result.invariants.items()):
-        _logplot(a1, result.t, _drift(k, val), lw=0.8, label=label(k), color=f"C{i % 10}")
+        _logplot(a1, result.t, _drift(k, val), lw=0.8, label=label(k), color=f"C{i % 10}", ls="-" if i % 2 == 0 else "--")
     a1.set_title(r"drift $|I(t) - I(0)|$ ($|J_i(t)|$ for the constraints)", fontsize=9)
     a1.set_xlabel("$t$")
     a1.set_ylabel(r"$|\Delta I|$")
-    a1.grid(alpha=0.3, which="both")
+    a1.grid(alpha=0.3)
+    drifts = [_drift(k, v) for k, v in result.invariants.items()]
+    for ax, series in ((a0, list(result.errors.values())), (a1, drifts)):
+        if series and all(np.all(np.abs(np.asarray(v)) <= _TINY) for v in series):
+            ax.text(0.5, 0.5, "all identically 0", transform=ax.transAxes, ha="center", va="center", color="gray")
+            ax.set_yticks([])
     if result.invariants:
         a1.legend(fontsize=8, ncol=2)
     head = title or f"{result.scene}"
-    fig.suptitle(f"{head}, variant {result.variant}{tag} (no figure in the paper)\n{_run_caption(result)}", fontsize=10)
+    fig.suptitle(f"{head}, variant {result.variant} (no figure in the paper)\n{_run_caption(result)}", fontsize=10)
     return fig
 
 
@@ -402,7 +449,8 @@ def scene_figures(result, *, title=None, sections=None):
     """The figures of one run: a list of ``(key, draw)`` with ``draw(fig)`` drawing into a figure.
 
     ``key`` is the paper's figure label (``"figure:Suslov_Pi_exact"``) or ``"generic"``.
-    For the oscillator, ``sections`` is the output of ``oscillator.poincare_section(result)``.
+    For the oscillator, ``sections`` is ``oscillator.poincare_section(result)`` or the pair
+    ``(sections, reference_sections)`` of :func:`liefi.reproduce.oscillator_sections`.
     """
     s = result.scene
     if s == "suslov":
@@ -421,20 +469,21 @@ def scene_figures(result, *, title=None, sections=None):
             ("figure:oscillator", lambda f: oscillator_integrals(
                 None if result.scheme == "dla" else result, result if result.scheme == "dla" else None, f)),
         ]
-        if sections is not None:
-            figs.append(("figure:Poincare:FI", lambda f: oscillator_poincare([(result, sections)], f)))
+        if sections is not None:  # (sections, reference sections) or sections
+            run = (result, *sections) if isinstance(sections, tuple) else (result, sections)
+            figs.append(("figure:Poincare:FI", lambda f: oscillator_poincare([run], f)))
         return figs
     return [("generic", lambda f: generic(result, f, title=title))]
 
 
-_HEIGHTS = {"figure:oscillator": 7.5, "figure:Poincare:FI": 3.8, "generic": 4.0}
+_HEIGHTS = {"figure:oscillator": 7.5, "figure:Poincare:FI": 3.8, "figure:knife_cycloid": 4.2, "generic": 4.0}
 
 
 def plot_run(result, path, *, title=None, sections=None):
     """Write every figure of ``result`` (see :func:`scene_figures`) stacked into one PNG."""
     figs = scene_figures(result, title=title, sections=sections)
     heights = [_HEIGHTS.get(k, 3.5) for k, _ in figs]
-    width = 11 if result.scene != "oscillator" else 12
+    width = {"oscillator": 12, "knife-edge": 13}.get(result.scene, 11)
     fig = _new_figure(width, sum(heights))
     subs = fig.subfigures(len(figs), 1, height_ratios=heights) if len(figs) > 1 else [fig]
     for sub, (_, draw) in zip(np.atleast_1d(subs), figs):

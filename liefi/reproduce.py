@@ -3,10 +3,12 @@
 What runs (each at the scene's own ``dt``, ``t_final``, scheme and gains, i.e. the paper's):
 
 * every scene and every variant of :data:`liefi.scenes.REGISTRY`;
-* the nonholonomic oscillator twice more per variant: the DLA scheme on the same
-  horizon ``[0, 200]`` (``figure:oscillator``: left column FI, right column DLA),
-  and both the feedback integrator (Euler) and DLA on ``[0, 400]`` for the
-  Poincaré sections (``figure:Poincare:FI``);
+* the nonholonomic oscillator also with the DLA scheme on the same horizon
+  ``[0, 200]`` (``figure:oscillator``: left column FI, right column DLA), and
+  both the feedback integrator (Euler) and DLA on ``[0, 400]`` (every step
+  saved) for the Poincaré sections (``figure:Poincare:FI``); the DLA runs do
+  not depend on the variant (it only changes ``V``), so they run once and each
+  variant's figures reuse them;
 * the Suslov runs integrate the rotation matrix (``figure:Suslov_integrals``
   plots ``||R^T R - I||``).
 
@@ -34,6 +36,7 @@ import os
 import sys
 import time
 import traceback
+import warnings
 
 from . import scenes as _scenes
 
@@ -86,7 +89,8 @@ class _Runner:
         self.figures = []
         self.count = 0
 
-    def run(self, scene, variant, *, scheme=None, t_final=None, configuration=None, experiment="paper"):
+    def run(self, scene, variant, *, scheme=None, t_final=None, configuration=None, experiment="paper",
+            save_every=None):
         """Run one experiment; returns the result or None (failure recorded)."""
         scheme = scheme or scene.scheme
         T = _horizon(scene.t_final if t_final is None else t_final, scene.dt, self.scale)
@@ -95,7 +99,11 @@ class _Runner:
         _log(f"{tag} ...")
         start = time.perf_counter()
         try:
-            result = scene.run(scheme=scheme, t_final=T, variant=variant, configuration=configuration)
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                result = scene.run(
+                    scheme=scheme, t_final=T, variant=variant, configuration=configuration, save_every=save_every
+                )
         except Exception as exc:  # noqa: BLE001 - record and go on with the other experiments
             row = _failed_row(scene.name, variant, scheme, T, experiment, exc)
             self.rows.append(row)
@@ -104,6 +112,11 @@ class _Runner:
             return None
         wall = time.perf_counter() - start
         row = _row(result, experiment, wall)
+        msgs = list(dict.fromkeys(f"{w.category.__name__}: {' '.join(str(w.message).split())}" for w in caught))
+        if msgs:
+            row["warnings"] = msgs
+            for m in msgs:
+                _log(f"  warning: {m}")
         self.rows.append(row)
         worst = max(result.max_error.values(), default=float("nan"))
         _log(f"{tag} done: CPU {result.cpu_seconds:.2f} s, wall {wall:.2f} s, max |error| {worst:.3e}")
@@ -132,13 +145,28 @@ class _Runner:
         return path
 
 
-def _oscillator(runner, scene, variant, default_variant):
+def _oscillator(runner, scene, variant, default_variant, dla_cache):
+    """``figure:oscillator`` (FI and DLA on the paper's horizon) and ``figure:Poincare:FI``
+    (both on [0, 400], every step saved).  The DLA does not depend on the variant (which
+    only changes ``V``): it runs once per start and horizon and is reused."""
+    import importlib
+
+    import numpy as np
+
     from . import plotting
 
+    has_dla = "dla" in scene.extra_schemes
+    start_key = tuple(np.asarray(scene.initial_state(scene.variant(variant)), float).round(15))
+
+    def dla_run(t_final, experiment, save_every=None):
+        key = (start_key, t_final)
+        if key not in dla_cache:
+            dla_cache[key] = runner.run(scene, variant, scheme="dla", t_final=t_final, experiment=experiment,
+                                        save_every=save_every)
+        return dla_cache[key]
+
     fi = runner.run(scene, variant, scheme="euler", experiment="figure:oscillator")
-    dla = None
-    if "dla" in scene.extra_schemes:
-        dla = runner.run(scene, variant, scheme="dla", experiment="figure:oscillator")
+    dla = dla_run(None, "figure:oscillator") if has_dla else None
     runs = [r for r in (fi, dla) if r is not None]
     if runs:
         runner.figure(
@@ -147,29 +175,53 @@ def _oscillator(runner, scene, variant, default_variant):
             _figure_file("figure:oscillator", scene.name, variant, default_variant),
             [r._row for r in runs],
         )
-    import importlib
 
-    section = getattr(importlib.import_module("liefi.scenes.oscillator"), "poincare_section", None)
     long = []
-    for scheme in ("euler", "dla") if dla is not None or "dla" in scene.extra_schemes else ("euler",):
-        r = runner.run(scene, variant, scheme=scheme, t_final=POINCARE_T_FINAL, experiment="figure:Poincare:FI")
+    # every step saved: the crossings y = 0 are interpolated between saved points
+    fi_long = runner.run(scene, variant, scheme="euler", t_final=POINCARE_T_FINAL,
+                         experiment="figure:Poincare:FI", save_every=1)
+    dla_long = dla_run(POINCARE_T_FINAL, "figure:Poincare:FI", save_every=1) if has_dla else None
+    for r in (fi_long, dla_long):
         if r is None:
             continue
         try:
-            sec = section(r) if section is not None else None
+            sec, ref = oscillator_sections(r)
         except Exception as exc:  # noqa: BLE001
-            sec = None
-            msg = f"poincare_section({scheme}): {type(exc).__name__}: {exc}"
+            sec = ref = None
+            msg = f"poincare_section({r.scheme}): {type(exc).__name__}: {exc}"
             _log("  " + msg)
             runner.failures.append({"figure": "figure:Poincare:FI", "status": "failed", "error": msg})
-        long.append((r, sec))
+        long.append((r, sec, ref))
     if long:
         runner.figure(
             "figure:Poincare:FI",
             lambda f: plotting.oscillator_poincare(long, f, tag=_tag(variant, default_variant)),
             _figure_file("figure:Poincare:FI", scene.name, variant, default_variant),
-            [r._row for r, _ in long],
+            [r._row for r, _, _ in long],
         )
+
+
+def oscillator_sections(result):
+    """``(sections, reference_sections)`` of an oscillator run (``figure:Poincare:FI``).
+
+    ``sections`` is ``liefi.scenes.oscillator.poincare_section(result)``; the reference
+    sections apply the same function to the reference solution at the saved times
+    (``data - error``: no extra integration), or are ``None`` when the run lacks errors.
+    """
+    import importlib
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    section = getattr(importlib.import_module("liefi.scenes.oscillator"), "poincare_section", None)
+    if section is None:
+        return None, None
+    sec = section(result)
+    if not all(n in result.errors for n in result.names):
+        return sec, None
+    Y = np.stack([np.asarray(result[n]) - np.asarray(result.errors[n]) for n in result.names])
+    ref = section(SimpleNamespace(t=result.t, y=Y, names=result.names))
+    return sec, ref
 
 
 def _tag(variant, default_variant):
@@ -198,9 +250,10 @@ def reproduce(out="./liefi-out", *, only=None, t_final_scale=1.0):
             continue
         variants = list(scene.variants) or [None]
         default_variant = variants[0]
+        dla_cache = {}
         for variant in variants:
             if name == "oscillator":
-                _oscillator(runner, scene, variant, default_variant)
+                _oscillator(runner, scene, variant, default_variant, dla_cache)
                 continue
             cfg = True if plotting.needs_configuration(name) else None
             r = runner.run(scene, variant, configuration=cfg)
@@ -282,6 +335,13 @@ def markdown_table(summary):
         + (f", t_final scaled by {summary['t_final_scale']:g}" if summary["t_final_scale"] != 1 else "")
         + "."
     )
+    warned = [r for r in summary["runs"] if r.get("warnings")]
+    if warned:
+        lines.append("")
+        lines.append("Warnings:")
+        for r in warned:
+            for w in r["warnings"]:
+                lines.append(f"- {r['scene']} / {r['variant']} / {r['scheme']}: {w[:300]}{'...' if len(w) > 300 else ''}")
     figs = [f for f in summary["failures"] if "figure" in f]
     if figs:
         lines.append("")
