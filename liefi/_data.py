@@ -7,6 +7,15 @@ import numpy as np
 from . import _diff
 
 
+def as_float_array(value, name):
+    """``np.array(value, dtype=float)``, or a ``ValueError`` naming ``name`` (strings, ragged lists ...)."""
+    try:
+        with np.errstate(all="ignore"):
+            return np.array(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name}: expected an array of real numbers, got {value!r} ({exc})") from None
+
+
 class DataFunction:
     """A datum of a system (metric, constraints, potential) as a function of ``x``.
 
@@ -35,7 +44,7 @@ class DataFunction:
         self.constant = not callable(value)
         self._derivative = derivative
         if self.constant:
-            v = np.array(value, dtype=float)
+            v = as_float_array(value, name)
             if v.shape != self.shape:
                 raise ValueError(f"{name}: expected shape {self.shape}, got {v.shape}")
             if not np.all(np.isfinite(v)):
@@ -91,6 +100,25 @@ class DataFunction:
         return _diff.jacobian(self.fun, x)
 
     def check_differentiable(self, x):
-        """Raise a named error if the complex-step derivative is wrong at ``x``."""
-        if not self.constant and self._derivative is None and self.n:
+        """Raise a named error if the derivative (complex-step or supplied) is wrong at ``x``."""
+        if self.constant or not self.n:
+            return
+        if self._derivative is None:
             _diff.check_complex_step(self.fun, x, self.name)
+            return
+        x = np.asarray(x, dtype=float)
+        given = np.asarray(self._derivative(x), float)
+        h = 1e-6 * np.maximum(1.0, np.abs(x))
+        cols = []
+        for k in range(self.n):
+            dx = np.zeros_like(x)
+            dx[..., k] = h[..., k]
+            cols.append((np.asarray(self.fun(x + dx), float) - np.asarray(self.fun(x - dx), float)) / (2 * h[..., k]))
+        fd = np.stack(cols, axis=x.ndim - 1)
+        scale = max(1.0, float(np.max(np.abs(fd), initial=0.0)))
+        if given.shape != fd.shape or not np.allclose(given, fd, rtol=1e-5, atol=1e-5 * scale):
+            raise ValueError(
+                f"{'potential_gradient' if self.name == 'potential' else self.name + '_derivative'}: the supplied derivative disagrees with finite differences "
+                f"at x = {x} (expected shape {fd.shape}, got {given.shape}); check it, or omit it "
+                "to let liefi differentiate by complex step"
+            )

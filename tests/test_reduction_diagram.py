@@ -43,7 +43,7 @@ BATCH = 3
 WORST: dict = {}
 
 SETTINGS = settings(
-    max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much]
+    max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much]
 )
 
 
@@ -230,7 +230,7 @@ def random_systems(draw, case):
     for xi in q[:, d:] if n else [np.zeros(0)]:
         E = constraints(xi) if callable(constraints) else constraints
         m = metric(xi) if callable(metric) else metric
-        assume(K == 0 or np.linalg.cond(E @ m @ E.T) < 1e8)
+        assume(K == 0 or np.linalg.cond(E @ m @ E.T) < 1e6)
     reduced = NonholonomicSystem(case.space(), metric, constraints if K else None, potential, sample=q[0, d:])
     return reduced, q, p
 
@@ -271,6 +271,9 @@ def check_functions(case, reduced, unreduced, pi, q, p):
     _close(unreduced.extended_hamiltonian(Z), reduced.extended_hamiltonian(z), case, "h~ o pi = H~")
     _close(unreduced.hamiltonian(Z), reduced.hamiltonian(z), case, "h o pi = H")
     _close(unreduced.constraint_momenta(Z), reduced.constraint_momenta(z), case, "J o pi = J")
+    CQ = unreduced.gram_matrix(q)
+    C = np.broadcast_to(reduced.gram_matrix(z[..., : reduced.space.n]), CQ.shape)  # unbatched if constant
+    _close(CQ, C, case, "C o pi = C (Gram)")
     _close(unreduced.extended_multipliers(Z), reduced.extended_multipliers(z), case, "lambda~ o pi = Lambda~")
     _close(unreduced.multipliers(Z), reduced.multipliers(z), case, "lambda o pi = Lambda")
 
@@ -287,18 +290,19 @@ def check_extended_field(case, reduced, unreduced, pi, q, p):
 
 
 def check_constrained_field(case, reduced, unreduced, pi, q, p):
-    """On ``C``: ``T pi . X(q, p) = (g . dh/dmu, X_red(z))``, and ``lambda = lambda~`` there."""
+    """On ``C``: ``T pi . X(q, p) = (g . dh/dmu, X_red(z))`` and ``lambda o pi = Lambda``."""
     N = q.shape[-1]
     Zc = unreduced.project(np.concatenate([q, p], -1))
     qc, pc = _split(Zc, N)
     g, z = pi(qc, pc)
+    # on C up to the rounding of the projection (Gram matrices with condition up to 1e6 are drawn)
     J = reduced.constraint_momenta(z)
-    assert np.max(np.abs(J), initial=0.0) <= 1e-12 * max(1.0, np.max(np.abs(z)))
+    assert np.max(np.abs(J), initial=0.0) <= 1e-8 * max(1.0, np.max(np.abs(z)))
     qdot, pdot = _split(unreduced.constrained_vector_field(Zc), N)
     gdot, zdot = pi.push(qc, pc, qdot, pdot)
     _close(zdot, reduced.constrained_vector_field(z), case, "on C: T pi X = X_red")
     _close(gdot, reduced.reconstruction(g, z, extended=False), case, "on C: T pi X = g.dh/dmu")
-    _close(unreduced.extended_multipliers(Zc), reduced.multipliers(z), case, "on C: lambda~ o pi = Lambda")
+    _close(unreduced.multipliers(Zc), reduced.multipliers(z), case, "on C: lambda o pi = Lambda")
 
 
 # ----------------------------------------------------------------------------- the diagram, random data
@@ -499,6 +503,42 @@ def test_extension_commutes_with_reduction_paper_systems(name, data):
     check_constrained_field(label, reduced, unreduced, pi, q, p)
     for arrow, (actual, desired) in oracles(q, p, unreduced, pi).items():
         _close(actual, desired, label, arrow)
+
+
+@pytest.mark.parametrize("case", CASES, ids=str)
+@SETTINGS
+@given(data=st.data())
+def test_unreduced_data_derivatives_match_complex_step(case, data):
+    """The chain-rule ``dM/dq``, ``de_i/dq``, ``dU/dq`` of :func:`unreduce` equal a complex step of ``M``, ``e_i``, ``U``.
+
+    (liefi does not check analytic derivatives itself; the random data here are
+    complex-step safe, so the composite functions can be complex-stepped directly.)
+    """
+    reduced, q, p = data.draw(random_systems(case))
+    unreduced, _ = _build(case, reduced, q)
+    for datum in (unreduced.metric, unreduced.constraints, unreduced.potential):
+        if datum.constant:
+            continue
+        _, analytic = datum.with_derivative(q)
+        _, cs = _diff.jacobian(datum.fun, q)
+        _close(analytic, cs, case, f"d{datum.name}/dq (chain rule = complex step)")
+
+
+@SETTINGS
+@given(data=st.data())
+def test_extension_commutes_with_reduction_orthonormalized(data):
+    """``orthonormalize=True`` upstairs and downstairs: same rows, Gram = I on both levels."""
+    case = CASES[5]
+    reduced, q, p = data.draw(random_systems(case))
+    assume(reduced.K > 0)
+    ortho = NonholonomicSystem(
+        case.space(), reduced.metric.fun, reduced.constraints.fun, reduced.potential.fun, sample=q[0, 3:], orthonormalize=True
+    )
+    unreduced, pi = _build(case, ortho, q)
+    assert unreduced.orthonormalized
+    _close(unreduced.gram_matrix(q), np.broadcast_to(np.eye(ortho.K), (BATCH, ortho.K, ortho.K)), case, "orthonormal: C_Q = I")
+    check_functions(case, ortho, unreduced, pi, q, p)
+    check_extended_field(case, ortho, unreduced, pi, q, p)
 
 
 # ----------------------------------------------------------------------------- errors

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from functools import cached_property
+
 import numpy as np
 
 from .base import LieGroup
@@ -36,7 +38,7 @@ class ProductGroup(LieGroup):
     def _parts(self, a, offsets):
         return [a[..., offsets[i] : offsets[i + 1]] for i in range(len(self.factors))]
 
-    @property
+    @cached_property
     def structure_constants(self):
         C = np.zeros((self.dim,) * 3)
         for i, f in enumerate(self.factors):

@@ -220,6 +220,8 @@ def unreduce(system, chart, chart_jacobian, *, names=None, sample=None, check: b
         On ``CotangentBundle(d + n)``, state ``(q, p)``; its data are functions
         of ``q`` with exact derivatives (chain rule through ``T(s)`` and the
         reduced data's own derivatives), so liefi needs no complex step of them.
+        Its constraint rows are orthonormal exactly when the reduced ones are
+        (``orthonormalized`` is carried over).
     to_reduced : LeftTrivialization
         ``to_reduced(q, p) -> (g, z)`` and ``to_reduced.push(q, p, q', p') ->
         (g', z')``; ``to_reduced.lift(s, z)`` is a right inverse.
@@ -338,6 +340,8 @@ def unreduce(system, chart, chart_jacobian, *, names=None, sample=None, check: b
         sample=q0,
         check=check,
     )
+    # the Gram matrix is invariant (E_Q M E_Q^T = E m E^T): orthonormal rows stay orthonormal
+    unreduced.orthonormalized = bool(getattr(system, "orthonormalized", False))
     return unreduced, pi
 
 
