@@ -19,7 +19,6 @@ from scipy.integrate import solve_ivp
 import liefi
 from liefi.groups import S1, SE2
 from liefi.reduction import full_vector_field
-from liefi.scenes.roller_racer import momenta_on_constraint_set
 
 # --- data (parameters chosen by liefi; the paper gives none) -------------------------
 m, I1, I2, d1, d2 = 1.0, 1.0, 0.5, 1.0, 0.5
@@ -51,7 +50,7 @@ def main(t_final=10.0, dt=1e-3, gains=100.0, scheme="euler"):
     print("state:", space.config_names[:3], "+", system.state_names)
 
     # start: pose 0, phi = pi/4, Pi_theta = 1, p_phi = 1/2; (Pi_x, Pi_y) solved from J = 0
-    z = momenta_on_constraint_set(system, [np.pi / 4], {"Pi_theta": 1.0, "p_phi": 0.5})
+    z = system.complete_momenta([np.pi / 4], {"Pi_theta": 1.0, "p_phi": 0.5})
     y0 = np.concatenate([np.zeros(3), z])
     print("J(z0) =", system.constraint_momenta(z), " h(z0) =", system.hamiltonian(z))
 

@@ -20,7 +20,6 @@ from liefi import IntegrationError, scenes
 from liefi.dla import DLAIntegrator
 from liefi.scenes.base import Variant
 from liefi.scenes.oscillator import poincare_section
-from liefi.scenes.roller_racer import momenta_on_constraint_set
 
 EXAMPLES = pathlib.Path(__file__).resolve().parent.parent / "examples"
 
@@ -57,9 +56,9 @@ def test_roller_racer_data(racer):
     assert sys.hamiltonian(z0) > 0  # the theorem's h~_0 > 0
 
 
-def test_momenta_on_constraint_set_rejects_wrong_count(racer):
+def test_complete_momenta_rejects_wrong_count(racer):
     with pytest.raises(ValueError, match="give 2 of the momenta"):
-        momenta_on_constraint_set(racer.system, [0.3], {"Pi_theta": 1.0})
+        racer.system.complete_momenta([0.3], {"Pi_theta": 1.0})
 
 
 @pytest.mark.parametrize("variant", ["extended", "original"])

@@ -48,38 +48,6 @@ from ..system import NonholonomicSystem
 from .base import Scene, Variant
 
 
-def momenta_on_constraint_set(system, x, known):
-    """Complete a momentum so that it lies on the constraint set ``E(x) P = 0``.
-
-    Parameters
-    ----------
-    system : NonholonomicSystem
-    x : array_like (n,)
-        Shape point.
-    known : dict
-        ``{momentum name: value}`` for ``D - K`` of the momentum components; the
-        remaining ``K`` are solved from the ``K`` linear constraints.
-
-    Returns
-    -------
-    ndarray (nz,)
-        The reduced state ``z = (x, P)`` with ``J(z) = 0``.
-    """
-    sp = system.space
-    names = sp.momentum_names
-    unknown = [i for i, s in enumerate(names) if s not in known]
-    if len(unknown) != system.K or set(known) - set(names):
-        raise ValueError(
-            f"known: give {sp.D - system.K} of the momenta {names}; the other {system.K} "
-            "are solved from the constraints"
-        )
-    x = np.asarray(x, float)
-    E = np.asarray(system.constraints(x), float)
-    P = np.array([known.get(s, 0.0) for s in names], float)
-    P[unknown] = np.linalg.solve(E[:, unknown], -E @ P)
-    return np.concatenate([x, P])
-
-
 class RollerRacer(Scene):
     name = "roller-racer"
     title = "Roller racer on SE(2) x S^1"
@@ -128,7 +96,7 @@ class RollerRacer(Scene):
         return False
 
     def initial_state(self, variant):
-        z0 = momenta_on_constraint_set(self.system, [self.phi0], self.momenta0)
+        z0 = self.system.complete_momenta([self.phi0], self.momenta0)
         return np.concatenate([np.asarray(self.pose0, float), z0])
 
 
