@@ -7,6 +7,8 @@
                     [--gains K | --gains K1,K2,... | --gains name=K,...] [--variant NAME]
                     [--configuration] [--json] [--plot FILE.png]
     liefi reproduce [--out DIR] [--only SCENE[,SCENE]] [--t-final-scale S]
+    liefi stability SCENE [--scheme S] [--gains K1,K2,...] [--plot FILE.png] [--estimate] [--json]
+    liefi bench SCENE|all [--t-final T] [--out DIR] [--scheduler ADDR] [--quick] [--long-horizon T]
 
 ``liefi run`` runs one scene at the paper's settings unless told otherwise and
 reports its error against the exact (or numerical reference) solution, the
@@ -224,6 +226,7 @@ def cmd_run(args):
         gains=gains,
         variant=variant,
         configuration=configuration,
+        backend=args.backend,
     )
     if not all(math.isfinite(v) for v in list(result.max_error.values()) + list(result.max_drift.values())):
         raise IntegrationError(
@@ -325,6 +328,8 @@ def build_parser():
                     help="feedback gains (default: the paper's); order: the integrator's invariant_names, see below")
     pr.add_argument("--variant", default=None, help="variant name (default: the scene's first)")
     pr.add_argument("--configuration", action="store_true", help="integrate the group element too")
+    pr.add_argument("--backend", default=None, choices=("auto", "numba", "numpy"),
+                    help="numpy (reference) or the compiled engine (numba); default auto when numba is installed")
     pr.add_argument("--json", action="store_true", help="print one JSON object")
     pr.add_argument("--plot", default=None, metavar="FILE.png",
                     help="write the scene's figure(s) to FILE.png (integrates the configuration if needed)")
@@ -342,25 +347,53 @@ def build_parser():
     pp.add_argument("--only", default=None, metavar="SCENE[,SCENE]", help="run only these scenes")
     pp.add_argument("--t-final-scale", type=float, default=1.0, dest="t_final_scale", metavar="S",
                     help="(for tests) multiply every horizon by S, e.g. 0.01 for a quick smoke run")
+
+    from . import bench as _bench
+    from . import stability as _stability
+
+    ps = sub.add_parser(
+        "stability",
+        help="stability limit of a scene and its measured map in the (dt, gain) plane",
+        description=(
+            "Estimate the stability limit at the scene's settings (largest eigenvalue of Hess V against the "
+            "scheme's real stability bound) and measure the bounded region in the (dt, gain) plane by a sweep."
+        ),
+    )
+    _stability.add_arguments(ps)
+    pb = sub.add_parser(
+        "bench",
+        help="work-precision: error and drift against CPU time for every method on a scene",
+        description=(
+            "Run every applicable method (feedback integrator, no feedback, constrained equations with "
+            "solve_ivp, projection, DLA) over a range of steps or tolerances; write a CSV and PNG diagrams."
+        ),
+    )
+    _bench.add_arguments(pb)
     return p
 
 
 def main(argv=None):
-    """Entry point of ``liefi`` / ``python -m liefi``; returns the exit code."""
+    """Entry point of ``liefi`` / ``python -m liefi``; returns the exit code.
+
+    Warnings (e.g. a step at or past the stability limit) are printed on stderr
+    the moment they are raised -- before the run they are about -- once each.
+    """
     import warnings
 
     parser = build_parser()
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("default")
-        code = _main(parser, argv)
-    if code == 0:  # on failure the error line says it all
-        seen = set()
-        for w in caught:
-            msg = " ".join(str(w.message).split())
-            if msg not in seen:
-                seen.add(msg)
-                print(f"liefi: warning: {w.category.__name__}: {msg}", file=sys.stderr)
-    return code
+    seen = set()
+
+    def show(message, category, *args, **kwargs):
+        msg = " ".join(str(message).split())
+        msg = msg[len("liefi: "):] if msg.startswith("liefi: ") else msg
+        if msg not in seen:
+            seen.add(msg)
+            print(f"liefi: warning: {category.__name__}: {msg}", file=sys.stderr, flush=True)
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("always")
+        warnings.showwarning = show
+        return _main(parser, argv)
 
 
 def _main(parser, argv):
@@ -369,6 +402,14 @@ def _main(parser, argv):
         if args.command is None:
             parser.print_help(sys.stderr)
             return 2
+        if args.command == "stability":
+            from .stability import command
+
+            return command(args)
+        if args.command == "bench":
+            from .bench import run_from_args
+
+            return run_from_args(args)
         return {"list": cmd_list, "run": cmd_run, "reproduce": cmd_reproduce}[args.command](args)
     except UsageError as exc:
         print(f"liefi: error: {exc}", file=sys.stderr)

@@ -492,6 +492,11 @@ class FeedbackIntegrator:
 
         t_final = positive_number(t_final, "t_final", "must be a positive finite time")
         dt = positive_number(dt, "dt", "the step must be a positive finite number")
+        if t_final / dt > 1e10:
+            raise ValueError(
+                f"dt: {dt!r} with t_final = {t_final!r} means {t_final / dt:.3g} steps (more than 1e10); "
+                "take a larger dt or a shorter t_final"
+            )
         n_steps = int(round(t_final / dt))
         if n_steps < 1 or abs(n_steps * dt - t_final) > 1e-9 * t_final:
             raise ValueError(f"t_final: {t_final} is not a whole number of steps dt={dt}")

@@ -83,10 +83,15 @@ def get_scheme(scheme) -> ExplicitRungeKutta:
     """A scheme from its name (``"euler"``, ``"heun"``, ``"midpoint"``, ``"rk3"``, ``"rk4"``) or itself."""
     if isinstance(scheme, ExplicitRungeKutta):
         return scheme
+    if callable(getattr(scheme, "step", None)) and hasattr(scheme, "stages") and hasattr(scheme, "name"):
+        return scheme  # a stepper object, e.g. a split scheme of liefi.stiff bound to an integrator
     try:
         return SCHEMES[str(scheme).lower()]
     except KeyError:
-        raise ValueError(f"scheme: unknown scheme {scheme!r}; choose one of {sorted(SCHEMES)}") from None
+        raise ValueError(
+            f"scheme: unknown scheme {scheme!r}; choose one of {sorted(SCHEMES)} "
+            "(or, with a FeedbackIntegrator, 'imex-euler', 'imex-heun', 'imex-rk4')"
+        ) from None
 
 
 class IntegrationError(FloatingPointError):

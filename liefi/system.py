@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._data import DataFunction
+from ._data import DataFunction, as_float_array
 from . import reduction as _red
 from .phase_space import PhaseSpace
 
@@ -91,13 +91,27 @@ class NonholonomicSystem:
                         "data must be constant arrays (a G-invariant Hamiltonian has constant "
                         "locked inertia and no potential)"
                     )
+        if sample is not None:
+            sample = as_float_array(sample, "sample")
+            if sample.shape != (n,) or not np.all(np.isfinite(sample)):
+                raise ValueError(
+                    f"sample: expected a shape point of {n} finite numbers (x), got {sample.tolist()!r}"
+                )
         if constraints is None:
             constraints = np.zeros((0, D))
         elif not callable(constraints):
-            constraints = np.atleast_2d(np.asarray(constraints, dtype=float))
+            constraints = np.atleast_2d(as_float_array(constraints, "constraints"))
         K = constraints.shape[0] if not callable(constraints) else None
         if K is None:
-            probe = np.asarray(constraints(np.zeros(n) if sample is None else np.asarray(sample, float)))
+            x_probe = np.zeros(n) if sample is None else sample
+            try:
+                probe = np.asarray(constraints(x_probe))
+            except Exception as exc:  # noqa: BLE001 -- user code: say which datum failed
+                raise ValueError(f"constraints: calling it at x = {x_probe} failed: {exc!r}") from exc
+            if probe.ndim == 0:
+                raise ValueError(
+                    f"constraints: expected the constraint vectors as rows, shape (K, {D}), got a scalar"
+                )
             if probe.ndim == 1:  # one constraint returned as (..., D): make it (..., 1, D)
                 one = constraints
                 constraints = lambda x: np.asarray(one(x))[..., None, :]  # noqa: E731
@@ -209,6 +223,32 @@ class NonholonomicSystem:
     def projected_vector_field(self, z):
         """Extended field at the projection, see :func:`liefi.reduction.projected_vector_field`."""
         return _red.projected_vector_field(self, z)
+
+    def complete_momenta(self, x, known):
+        """The reduced state on the constraint set with the given momentum components.
+
+        ``known`` maps ``D - K`` momentum names (``space.momentum_names``) to values;
+        the other ``K`` components are solved from the ``K`` linear constraints
+        ``E(x) P = 0``.  Returns ``z = (x, P)`` with ``J(z) = 0``.
+        """
+        names = self.space.momentum_names
+        unknown = [i for i, s in enumerate(names) if s not in known]
+        if len(unknown) != self.K or set(known) - set(names):
+            raise ValueError(
+                f"known: give {self.space.D - self.K} of the momenta {names}; the other "
+                f"{self.K} are solved from the constraints"
+            )
+        x = np.asarray(x, float)
+        E = np.asarray(self.constraints(x), float)
+        P = np.array([known.get(s, 0.0) for s in names], float)
+        A = E[:, unknown]
+        if np.linalg.cond(A) > 1e12:
+            raise ValueError(
+                f"known: the constraints do not determine {[names[i] for i in unknown]} at "
+                f"x = {x}; give other components"
+            )
+        P[unknown] = np.linalg.solve(A, -E @ P)
+        return np.concatenate([x, P])
 
     def project(self, z):
         """Projection onto ``J = 0``, see :func:`liefi.reduction.project`."""

@@ -226,3 +226,28 @@ def test_oscillator_dla_and_plot(capsys, tmp_path):
     code, out, err = run_cli(capsys, "run", "oscillator", "--t-final", "7", "--plot", str(png))
     assert code == 0, err
     assert png.stat().st_size > 10_000
+
+
+def test_stability_warning_is_printed_before_the_run(capsys):
+    """Issue 5's must-show: past the limit liefi warns on stderr *before* running, with the safe dt."""
+    from liefi.cli import main
+
+    code = main(["run", "knife-edge", "--gains", "1100", "--t-final", "10", "--json"])
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert lines and "LiefiStabilityWarning" in lines[0]
+    assert "Largest safe dt" in lines[0] and "largest safe gain" in lines[0]
+    assert "liefi: liefi:" not in err
+    assert code in (0, 2)
+
+
+def test_stability_and_bench_commands(capsys, tmp_path):
+    import json
+
+    from liefi.cli import main
+
+    assert main(["stability", "suslov", "--estimate", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["scene"] == "suslov" and 0 < out["estimate"]["ratio"] < 1
+    assert main(["bench", "no-such-scene"]) == 2
+    assert "scene" in capsys.readouterr().err

@@ -214,6 +214,7 @@ class Scene:
         atol=1e-12,
         check_stability=True,
         adaptive=None,
+        backend=None,
     ) -> RunResult:
         """Run the scene at its settings unless told otherwise.
 
@@ -224,17 +225,28 @@ class Scene:
         ``dt`` and the Hessian of ``V`` and adapted along the run.
         ``check_stability`` and ``adaptive`` are passed to
         :meth:`liefi.FeedbackIntegrator.run` (:mod:`liefi.stability`).
+        ``backend``: ``"numpy"``, ``"numba"`` or ``"auto"`` (:mod:`liefi.compiled`);
+        default ``"auto"`` when numba is installed (``liefi[fast]``), else ``"numpy"``.
         """
+        if backend is None:
+            import importlib.util
+
+            backend = "auto" if importlib.util.find_spec("numba") is not None else "numpy"
         from ..stability import positive_number
 
         v = self.variant(variant) if not isinstance(variant, Variant) else variant
         dt = positive_number(self.dt if dt is None else dt, "dt", "the step must be a positive number")
         T = positive_number(self.t_final if t_final is None else t_final, "t_final", "must be a positive number")
         scheme = self.scheme if scheme is None else scheme
+        if T / dt > 1e10:
+            raise ValueError(
+                f"dt: {dt!r} with t_final = {T!r} means {T / dt:.3g} steps (more than 1e10); take a larger dt"
+            )
         n_steps = int(round(T / dt))
         if save_every is None:
             save_every = max(1, n_steps // max_saved)
         fi = self.integrator(v, gains=gains, configuration=configuration)
+        self._check_start(fi, v)
 
         if scheme in self.extra_schemes:
             t, Y, names, cpu, steps, nfev = self.run_extra(scheme, v, dt, T, save_every, fi)
@@ -260,11 +272,30 @@ class Scene:
                 raise FloatingPointError(f"solve_ivp({method}) returned non-finite values on {self.name!r}")
             t, Y, names, steps, nfev = sol.t, sol.y, fi.names, int(sol.t.size), int(sol.nfev)
         else:
-            sol = fi.run(dt, T, scheme, save_every=save_every, check_stability=check_stability, adaptive=adaptive)
+            sol = fi.run(
+                dt, T, scheme, save_every=save_every, check_stability=check_stability, adaptive=adaptive,
+                backend=backend,
+            )
             if getattr(sol, "stability", None) is not None and sol.stability.gains:
                 fi = fi.with_gains(sol.stability.gains)  # report the gains the run started with
             t, Y, names, cpu, steps, nfev = sol.t, sol.y, sol.names, sol.cpu_seconds, sol.steps, sol.rhs_evaluations
         return self._result(v, str(scheme), dt, T, fi, t, Y, names, cpu, steps, nfev)
+
+    def _check_start(self, fi, v, rtol=1e-9):
+        """The reference solution is the *constrained* motion: the start must be on ``J = 0``."""
+        if not self.system.K:
+            return
+        from ..stability import drift_scales
+
+        J = np.atleast_1d(np.asarray(self.system.constraint_momenta(fi.split(fi.y0)[1]), float))
+        sc = drift_scales(fi)
+        rel = max(abs(float(J[i])) / sc.get(f"J_{i + 1}", 1.0) for i in range(self.system.K))
+        if not rel <= rtol:
+            raise ValueError(
+                f"initial state: the start of {self.name!r} (variant {v.name!r}) is off the constraint set "
+                f"(J = {np.round(J, 12).tolist()}), but the scene compares with the constrained motion from it; "
+                "put it on the set, e.g. z = scene.system.project(z), or solve the constraints for some momenta"
+            )
 
     def run_extra(self, scheme, variant, dt, T, save_every, fi):
         """Run a scene-specific scheme; returns ``(t, Y, names, cpu, steps, nfev)``."""

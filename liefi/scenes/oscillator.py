@@ -105,8 +105,16 @@ class Oscillator(Scene):
         n = self.system.space.n
         y0 = np.asarray(self.initial_state(variant), float)
         n_steps = int(round(T / dt))
-        start = time.process_time()
         q0, q1 = dla.initial_pair(y0[:n], y0[n:], dt)
+        import importlib.util
+
+        if importlib.util.find_spec("numba") is not None:
+            # the same DLA step generated from the data and compiled (bitwise equal to liefi.dla)
+            from .. import compiled
+
+            t, q, p, cpu, updates = compiled.compile_dla(self.system).run(q0, q1, dt, n_steps, save_every=save_every)
+            return t, np.concatenate([q, p], 0), self.system.state_names, cpu, updates, updates
+        start = time.process_time()
         res = dla.run(q0, q1, dt, n_steps, save_every)
         cpu = time.process_time() - start
         Y = np.concatenate([res.q, res.p], 0)

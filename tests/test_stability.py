@@ -1,0 +1,289 @@
+"""The stability machinery (:mod:`liefi.stability`, :mod:`liefi.stiff`) against its defining facts.
+
+* The Hessian of ``V`` on its zero set is ``sum_j k_j grad I_j grad I_j^T + k0 Hess P``:
+  its largest eigenvalue from the small Gram matrix equals the one of the full
+  (finite-difference) Hessian, on random systems of every kind.
+* The knife edge at the paper's settings sits exactly on Euler's limit
+  (``dt lambda_max = 2`` at ``t = pi``, NOTES item 3); ten percent more gain warns,
+  ten times past the limit is refused, and a run past the limit stops with a
+  named error instead of returning O(1) drift.
+* The Suslov map: runs stay finite up to ``dt k ~ 1`` (the constraint mode,
+  ``|e|^2 = 2``), accurate up to the estimate ``dt k = 2/2.618``.
+* Automatic and adaptive gains; the split scheme is stable at any gain.
+
+Everything here is fast (numpy backend, short horizons); the battery and the
+maps of every scene are ``@pytest.mark.slow``.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+import liefi
+from liefi import scenes
+from liefi.feedback import FeedbackIntegrator
+from liefi.schemes import SCHEMES, IntegrationError
+from liefi import stability as S
+from liefi import stiff
+from liefi.scenes import exact as _exact
+
+from strategies import PROPERTY, SPACES, cases
+
+
+@pytest.fixture(autouse=True)
+def _slow_only_when_asked(request):
+    """``@pytest.mark.slow`` tests run only with ``-m slow`` (the battery, every map, t = 1000)."""
+    if request.node.get_closest_marker("slow") and "slow" not in (request.config.getoption("-m") or ""):
+        pytest.skip("slow: run with -m slow")
+
+
+def knife_state(t):
+    ke = scenes.get("knife-edge")
+    ref = _exact.knife_edge(np.atleast_1d(t), m=1, J=1, g=1, alpha=np.pi / 6, p_phi0=0.5, x0=0, y0=0, phi0=0, v0=0)
+    return np.stack([ref[n] for n in ke.integrator().names], -1)
+
+
+# --- schemes ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", sorted(SCHEMES))
+def test_declared_real_stability_bound_is_that_of_the_stability_polynomial(name):
+    sch = SCHEMES[name]
+    assert S.real_stability_bound(sch) == pytest.approx(sch.real_stability_bound, abs=1e-9)
+
+
+def test_optimal_rate_minimizes_the_stability_function():
+    assert S.optimal_rate("euler") == pytest.approx(1.0)  # R(-x) = 1 - x: the stiff mode removed in one step
+    assert S.optimal_rate("heun") == pytest.approx(1.0)
+    x = S.optimal_rate("rk4")
+    R = np.abs(SCHEMES["rk4"].stability_polynomial(-np.linspace(0, 2.785, 300)))
+    assert abs(SCHEMES["rk4"].stability_polynomial(np.array([-x]))[0]) <= R.min() + 1e-6
+    assert math.isinf(S.resolve_scheme("imex-euler")[1])
+
+
+def test_stable_dt_of_complex_spectrum_uses_the_polynomial():
+    mu = np.array([1.0 + 1.0j, 1.0 - 1.0j])
+    dt = S.stable_dt("euler", mu)
+    assert abs(1 - dt * mu[0]) == pytest.approx(1.0, abs=1e-9)  # on the boundary of Euler's disc
+    assert S.stable_dt("euler", np.array([4.0])) == pytest.approx(0.5)
+
+
+# --- the Hessian of V on its zero set ------------------------------------------------------
+
+
+@pytest.mark.parametrize("spec", [p for p in SPACES if p.id in ("cotangent", "lie-SO3", "bundle-SE2xS1", "lie-SO2")])
+@given(data=st.data())
+@PROPERTY
+def test_gram_eigenvalue_equals_largest_eigenvalue_of_hessian_on_invariant_set(spec, data):
+    case = data.draw(cases(spec, min_K=1))
+    rng = case.rng
+    z = case.constrained_state()
+    G = case.space.group
+    g = G.random_config(rng) if G.config_dim else np.zeros(0)
+    fi0 = FeedbackIntegrator(case.system, np.concatenate([g, z]))
+    gains = {k: float(rng.uniform(0.5, 3.0)) for k in fi0.invariant_names}
+    fi = fi0.with_gains(gains)
+    y = fi.y0  # on V^{-1}(0): every residual vanishes
+    lam_gram = S.stiffness(fi, y).lam
+    lam_full = S.stiffness(fi, y, exact=True).lam
+    assert lam_gram == pytest.approx(lam_full, rel=1e-5, abs=1e-6)
+
+
+def test_penalty_hessian_has_eigenvalues_two_and_zero_on_the_group():
+    G = liefi.groups.SO3()
+    R = G.random_config(np.random.default_rng(1))
+    ev = np.sort(np.linalg.eigvalsh(stiff.penalty_hessian(G, R)))
+    assert ev[:3] == pytest.approx(0.0, abs=1e-12)  # skew directions R W: tangent to the group
+    assert ev[3:] == pytest.approx(2.0, abs=1e-12)  # symmetric directions R S
+
+
+def test_knife_edge_paper_settings_sit_exactly_on_eulers_limit_at_t_pi():
+    """NOTES item 3: lambda_max(Hess V) = k (1 + v^2) = 2k where the speed v = 1, i.e. t = pi."""
+    fi = scenes.get("knife-edge").integrator()
+    st_ = S.stiffness(fi, knife_state([0.0, np.pi]))
+    assert st_.lam[0] == pytest.approx(1000 * (3 + np.sqrt(5)) / 4)  # (1.5 + sqrt(1.25))/2 at t = 0
+    assert 1e-3 * st_.lam[1] == pytest.approx(2.0, rel=1e-12)
+    assert st_.dominant[1] == "J_1"
+
+
+# --- warnings, refusals, errors -------------------------------------------------------------
+
+
+def test_estimate_finds_the_limit_along_the_run_not_at_the_start():
+    fi = scenes.get("knife-edge").integrator()
+    est = S.estimate(fi, 1e-3, "euler", t_final=4.0)
+    assert est.lam0 * 1e-3 == pytest.approx(1.309, abs=1e-3)
+    assert est.ratio == pytest.approx(1.0, abs=2e-3) and est.verdict == "limit"
+    assert est.t_max == pytest.approx(np.pi, abs=0.05)
+
+
+def test_knife_edge_with_ten_percent_more_gain_warns_with_safe_dt_and_gain():
+    fi = scenes.get("knife-edge").integrator(gains=1100.0)
+    with pytest.warns(S.LiefiStabilityWarning) as rec:
+        est = S.check(fi, 1e-3, "euler", t_final=4.0)
+    msg = str(rec[0].message)
+    assert est.verdict == "beyond"
+    assert "2.2 exceeds the stability bound 2 of euler" in msg
+    assert "Largest safe dt at these gains: 0.0009091" in msg
+    assert "largest safe gain at dt = 0.001: 1000" in msg
+    assert issubclass(S.LiefiStabilityWarning, UserWarning)
+
+
+def test_run_ten_times_past_the_limit_is_refused():
+    fi = scenes.get("suslov").integrator(gains=1e5)
+    with pytest.raises(ValueError, match="check_stability=False"):
+        fi.run(1e-3, 0.01)
+
+
+def test_run_past_the_limit_stops_instead_of_returning_drift():
+    """Suslov at dt k = 0.9: finite numbers, but O(1) drift -- must end in a named error."""
+    fi = scenes.get("suslov").integrator(gains=100.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", S.LiefiStabilityWarning)
+        with pytest.raises(S.StabilityError, match="drift of .* after dt\\*lambda_max exceeded") as info:
+            fi.run(0.009, 0.009 * 1000)
+    assert isinstance(info.value, IntegrationError) and info.value.t > 0
+
+
+def test_non_finite_failure_reports_stiffness_and_safe_dt():
+    fi = scenes.get("suslov").integrator(gains=100.0)
+    with pytest.raises(IntegrationError, match=r"dt\*lambda_max = .* exceeds .*Largest safe dt there: 0.007"):
+        fi.run(0.012, 0.012 * 500, check_stability=False)
+
+
+def test_in_run_warning_when_the_stiffness_grows_past_the_pilot():
+    """Heisenberg: lambda grows like |q|^2; a pilot limited to a tiny budget cannot see it, the monitor does."""
+    h = scenes.get("heisenberg")
+    fi = h.integrator("generic", gains=10.0)
+    est = S.estimate(fi, 1e-2, "euler", t_final=40.0)
+    assert est.t_max == pytest.approx(40.0) and est.lam > 10 * est.lam0
+
+
+# --- segmented runs --------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("save_every", [1, 7, 150, 333, 1000])
+def test_guarded_run_is_bit_identical_to_the_plain_run(save_every):
+    fi = scenes.get("suslov").integrator()
+    a = fi.run(1e-3, 1.2, save_every=save_every, monitor_every=97)
+    b = fi.run(1e-3, 1.2, save_every=save_every, check_stability=False)
+    assert np.array_equal(a.t, b.t) and np.array_equal(a.y, b.y)
+    assert a.t[-1] == pytest.approx(1.2) and a.stability.monitors > 0
+
+
+def test_adaptive_with_fixed_gains_only_lowers_them():
+    fi = scenes.get("knife-edge").integrator(gains=1000.0)
+    sol = fi.run(1e-3, 0.5, adaptive=True)
+    rep = sol.stability
+    assert all(v <= 1000.0 + 1e-9 for g in [rep.gains] + rep.gain_history for v in g.values())
+    assert rep.max_ratio <= 0.55  # dt lambda_max held at Euler's optimum 1 (ratio 1/2)
+
+
+# --- automatic gains --------------------------------------------------------------------------
+
+
+def test_unit_rate_and_auto_gains():
+    fi = scenes.get("knife-edge").integrator()
+    unit = fi.with_gains(S.unit_rate_gains(fi))
+    assert S.stiffness(unit, fi.y0).lam == pytest.approx(1.0)
+    auto = fi.with_gains(S.auto_gains(fi, 1e-3, "euler"))
+    assert 1e-3 * S.stiffness(auto, fi.y0).lam == pytest.approx(1.0)  # Bae & Chang: k = 1/(dt L)
+    fa = scenes.get("knife-edge").integrator(gains="auto")
+    assert fa.gains_mode == "auto" and S.stiffness(fa, fa.y0).lam == pytest.approx(1.0)
+
+
+def test_heisenberg_generic_runs_with_adaptive_auto_gains_where_fixed_gains_are_refused():
+    h = scenes.get("heisenberg")
+    with pytest.raises(ValueError, match="dt\\*lambda_max"):
+        h.run(variant="generic", gains=10.0, dt=1e-2, t_final=100.0)
+    r = h.run(variant="generic", gains="auto", dt=1e-2, t_final=100.0)
+    assert max(r.max_drift.values()) < 1e-9
+    assert max(r.max_error.values()) < 1e-9
+
+
+# --- the stiff-safe scheme -------------------------------------------------------------------------
+
+
+def test_feedback_step_is_backward_euler_on_a_linear_gradient_flow():
+    """V = k/2 (a.y)^2: the step multiplies the residual by 1/(1 + dt k |a|^2), for any k."""
+    sysm = liefi.NonholonomicSystem(liefi.CotangentBundle(1), np.eye(1))
+    a = np.array([0.0, 1.0])
+    inv = liefi.Invariant("a.y", lambda z: z[..., 1], lambda z: np.broadcast_to(a, np.shape(z)))
+    fi = FeedbackIntegrator(sysm, np.array([0.0, 1.0]), invariants=(inv,), gains=1e9)
+    y = np.array([0.0, 3.0])
+    yn = stiff.feedback_step(fi, y, 0.1)
+    assert yn[1] - 1.0 == pytest.approx(2.0 / (1 + 0.1 * 1e9))
+
+
+def test_split_scheme_is_stable_at_any_gain():
+    ke = scenes.get("knife-edge")
+    with pytest.raises(ValueError):
+        ke.run(gains=1e6, dt=1e-2, t_final=1.0)
+    for scheme in ("imex-euler", "imex-rk4"):
+        r = ke.run(gains=1e6, dt=1e-2, t_final=1.0, scheme=scheme)
+        assert max(r.max_drift.values()) < 1e-8
+    r = ke.run(gains=1e6, dt=1e-2, t_final=1.0, scheme="imex-rk4")
+    assert max(r.max_error.values()) < 1e-9  # RK4 on X, projection-like feedback
+
+
+def test_scipy_implicit_solvers_run_through_scene_run():
+    r = scenes.get("knife-edge").run(scheme="scipy:Radau", t_final=1.0, gains=1e4, rtol=1e-8, atol=1e-10)
+    assert max(r.max_drift.values()) < 1e-6
+
+
+# --- the map -----------------------------------------------------------------------------------------
+
+
+def test_suslov_map_reproduces_dt_k_one_and_the_estimate():
+    m = S.stability_map("suslov", gains=[100.0], t_final=3.0, tol=0.02, backend="numpy")
+    b = m.boundaries[0]
+    assert 0.97 <= b.dt_finite * 100 <= 1.03  # finite up to dt k = 1: the constraint mode, k |e|^2 = 2k
+    assert b.dt_estimate * 100 == pytest.approx(4 / (3 + math.sqrt(5)), rel=1e-3)  # 2 / 2.618
+    assert b.dt_accurate >= 0.98 * b.dt_estimate  # accurate at least up to the estimate
+    assert b.finite[1] / b.finite[0] <= 1.02 + 1e-9
+    assert "| 100 |" in m.table()
+
+
+def test_map_accepts_any_executor():
+    with ThreadPoolExecutor(2) as ex:
+        m = S.stability_map("suslov", gains=[100.0, 300.0], t_final=0.5, tol=0.1, backend="numpy", executor=ex)
+    assert [b.gain for b in m.boundaries] == [100.0, 300.0]
+    assert all(b.finite[0] is not None and b.finite[1] is not None for b in m.boundaries)
+
+
+def test_plot_stability_map(tmp_path):
+    pytest.importorskip("matplotlib")
+    m = S.stability_map("suslov", gains=[100.0], t_final=0.5, tol=0.1, backend="numpy")
+    S.plot_stability_map(m, tmp_path / "m.png")
+    assert (tmp_path / "m.png").stat().st_size > 1000
+
+
+# --- slow: the whole battery, the maps, the must-show run -------------------------------------------------
+
+
+@pytest.mark.slow
+def test_battery_has_no_silent_drift_and_no_crash():
+    res = S.run_battery(quick=True)
+    bad = [r for r in res if r.outcome in ("SILENT DRIFT", "CRASH")]
+    assert not bad, S.battery_table(bad)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", scenes.names())
+def test_stability_map_of_every_scene(name):
+    m = S.stability_map(name, gains=[10.0, 100.0, 1000.0], t_final=2.0, tol=0.05)
+    for b in m.boundaries:
+        assert b.finite[0] is not None
+
+
+@pytest.mark.slow
+def test_heisenberg_generic_auto_t1000():
+    r = scenes.get("heisenberg").run(variant="generic", gains="auto", t_final=1000.0)
+    assert max(r.max_drift.values()) < 1e-6
