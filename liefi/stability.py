@@ -972,8 +972,10 @@ def _segment_runner(fi, sch, dt, backend, names):
     split = isinstance(sch, _stiff.LinearlyImplicitSplit)
     if backend not in ("numpy", "numba", "auto"):
         raise ValueError(f"backend: expected 'numpy', 'numba' or 'auto', got {backend!r}")
-    if split and backend != "numpy":
+    if split and backend == "numba":
         raise ValueError(f"backend: the split scheme {sch.name!r} runs on numpy only; pass backend='numpy'")
+    if split:
+        state["backend"] = backend = "numpy"  # "auto": the split schemes have no compiled path
 
     def run(fi_cur, y, n, s0, save_every, check_every):
         t0 = s0 * dt

@@ -296,6 +296,12 @@ def _checked_inverse(m, name):
         ) from None
     if np.max(np.abs(m - m.T), initial=0) > 1e-12 * max(1.0, np.abs(m).max()):
         raise ValueError(f"{name}: not symmetric; pass (m + m.T) / 2 if that is what you meant")
+    cond = np.linalg.cond(m)
+    if not np.isfinite(cond) or cond > 1e14:
+        raise ValueError(
+            f"{name}: numerically singular (condition number {cond:.3g}); every inertia/mass "
+            "must be positive and of comparable scale to machine precision"
+        )
     return np.linalg.inv(m)
 
 
