@@ -383,12 +383,8 @@ class FeedbackIntegrator:
         y = np.asarray(y, dtype=float)
         g, z = self.split(y)
         sys = self.system
-        zf = _core.project(sys, z) if self.field == "projected" else z
-        t = _core.evaluate(sys, zf)
-        lam = _core._multipliers(sys, zf, t.dht, t.dJ, t.Cinv)
-        zdot = _core._field(sys, zf, t.dht, lam, t.Eflat)
-        if zf is not z:
-            t = _core.evaluate(sys, z)
+        # the field (at the projection for field="projected") and the terms at z for V
+        zdot, xi, t = _core.field_terms(sys, z, kind=self.field)
 
         V = 0.0
         gz = 0.0
@@ -412,8 +408,6 @@ class FeedbackIntegrator:
 
         if self.configuration:
             G = sys.space.group
-            n, d = sys.space.n, sys.space.d
-            xi = t.dht[..., n : n + d] if zf is z else _core.evaluate(sys, zf).dht[..., n : n + d]
             gdot = G.config_rate(g, xi)
             X = np.concatenate([np.broadcast_to(gdot, y.shape[:-1] + gdot.shape[-1:]), zdot], -1)
             if self.use_penalty:

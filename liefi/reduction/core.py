@@ -221,13 +221,41 @@ def project(system, z):
     (at fixed ``x``).
     """
     z = _state(z)
-    t = evaluate(system, z)
-    n = system.space.n
+    return _project_with(system, z, evaluate(system, z))
+
+
+def _project_with(system, z, t):
+    """:func:`project` from the terms ``t = evaluate(system, z)`` already at hand."""
     if not system.K:
         return z
+    n = system.space.n
     w = np.einsum("...kl,...l->...k", t.Cinv, t.J)
     P = z[..., n:] - np.einsum("...k,...kj->...j", w, t.Eflat)
     return np.concatenate([z[..., :n], P], -1)
+
+
+def field_terms(system, z, *, kind="extended", terms=None):
+    """The reduced field and the body velocity in one pass: ``(zdot, xi, t_z)``.
+
+    ``kind``: ``"extended"``, ``"constrained"`` or ``"projected"`` (the extended
+    field at :func:`project` ``(z)``).  ``t_z`` are the terms *at z* (what a
+    Lyapunov function needs), so a caller evaluates the system once for the
+    extended field and twice for the projected one.  ``terms``: ``evaluate(system, z)``
+    if the caller already has it.
+    """
+    if kind not in ("extended", "constrained", "projected"):
+        raise ValueError(f"kind: expected 'extended', 'constrained' or 'projected', got {kind!r}")
+    t_z = evaluate(system, z) if terms is None else terms
+    if kind == "projected":
+        z_eval = _project_with(system, z, t_z)
+        t = evaluate(system, z_eval)
+    else:
+        z_eval, t = z, t_z
+    dH = t.dh if kind == "constrained" else t.dht
+    lam = _multipliers(system, z_eval, dH, t.dJ, t.Cinv)
+    zdot = _field(system, z_eval, dH, lam, t.Eflat)
+    n, d = system.space.n, system.space.d
+    return zdot, dH[..., n : n + d], t_z
 
 
 def projected_vector_field(system, z):
@@ -266,20 +294,9 @@ def full_vector_field(system, y, *, kind="extended"):
     ``"constrained"`` (``g' = g . dh/dmu`` with the constrained field) or
     ``"projected"``.
     """
-    y = np.asarray(y, float)
+    y = _state(y)
     nc = system.space.group.config_dim
     g, z = y[..., :nc], y[..., nc:]
-    if kind == "projected":
-        z_eval = project(system, z)
-        kind = "extended"
-    else:
-        z_eval = z
-    t = evaluate(system, z_eval)
-    dH = t.dht if kind == "extended" else t.dh
-    if kind not in ("extended", "constrained"):
-        raise ValueError(f"kind: expected 'extended', 'constrained' or 'projected', got {kind!r}")
-    lam = _multipliers(system, z_eval, dH, t.dJ, t.Cinv)
-    zdot = _field(system, z_eval, dH, lam, t.Eflat)
-    n, d = system.space.n, system.space.d
-    gdot = system.space.group.config_rate(g, dH[..., n : n + d])
+    zdot, xi, _ = field_terms(system, z, kind=kind)
+    gdot = system.space.group.config_rate(g, xi)
     return np.concatenate([np.broadcast_to(gdot, zdot.shape[:-1] + gdot.shape[-1:]), zdot], -1)
