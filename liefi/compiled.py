@@ -1553,16 +1553,9 @@ class CompiledField:
             the loop, 0 if it was compiled before), ``backend`` and, with a
             projection, ``projection_evaluations``.
         """
-        from .schemes import IntegrationError, Solution, _fail, get_scheme  # noqa: F401
+        from .schemes import IntegrationError, Solution, _fail, get_scheme, run_arguments  # noqa: F401
 
-        sch = get_scheme(scheme)
-        dt = float(dt)
-        if not np.isfinite(dt) or dt <= 0:
-            raise ValueError(f"dt: the step must be a positive finite number, got {dt!r}")
-        n_steps = int(n_steps)
-        if n_steps < 0:
-            raise ValueError(f"n_steps: must be non-negative, got {n_steps}")
-        save_every = max(1, int(save_every))
+        sch, dt, n_steps, save_every = run_arguments(scheme, dt, n_steps, save_every)
         check_every = max(1, int(check_every))
         if project is not None and not self.projection:
             raise ValueError("project: this compiled field has no invariant residuals (compile it with projection=True)")

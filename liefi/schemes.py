@@ -147,6 +147,18 @@ class Solution:
             raise KeyError(f"{name!r}: not a component; components are {self.names}") from None
 
 
+def run_arguments(scheme, dt, n_steps, save_every):
+    """Checked ``(scheme, dt, n_steps, save_every)`` of a fixed-step run (shared by every engine)."""
+    sch = get_scheme(scheme)
+    dt = float(dt)
+    if not np.isfinite(dt) or dt <= 0:
+        raise ValueError(f"dt: the step must be a positive finite number, got {dt!r}")
+    n_steps = int(n_steps)
+    if n_steps < 0:
+        raise ValueError(f"n_steps: must be non-negative, got {n_steps}")
+    return sch, dt, n_steps, max(1, int(save_every))
+
+
 def integrate(f, y0, dt, n_steps, scheme="euler", *, t0=0.0, save_every=1, names=(), check_every=1, on_failure=None):
     """Step ``y' = f(y)`` with a fixed-step explicit scheme, batch-first.
 
@@ -176,14 +188,7 @@ def integrate(f, y0, dt, n_steps, scheme="euler", *, t0=0.0, save_every=1, names
     IntegrationError
         At the first check that finds a non-finite number: no NaN is returned.
     """
-    sch = get_scheme(scheme)
-    dt = float(dt)
-    if not np.isfinite(dt) or dt <= 0:
-        raise ValueError(f"dt: the step must be a positive finite number, got {dt!r}")
-    n_steps = int(n_steps)
-    if n_steps < 0:
-        raise ValueError(f"n_steps: must be non-negative, got {n_steps}")
-    save_every = max(1, int(save_every))
+    sch, dt, n_steps, save_every = run_arguments(scheme, dt, n_steps, save_every)
     y = np.array(y0, dtype=float)
     if not np.all(np.isfinite(y)):
         raise ValueError("y0: the initial state contains non-finite numbers")
