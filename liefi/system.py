@@ -141,6 +141,7 @@ class NonholonomicSystem:
             self._C = self._Eflat @ E.T
             self._Cinv = _gram_inverse(self._C)
         if check:
+            space.group.check()  # the group's differentiated methods (liefi.groups.LieGroup.check)
             self.check(np.zeros(n) if sample is None else sample)
 
     # --- names and sizes ---------------------------------------------------

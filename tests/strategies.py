@@ -45,7 +45,7 @@ from hypothesis import strategies as st
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 from liefi import CotangentBundle, LieGroupPhaseSpace, NonholonomicSystem, TrivialPrincipalBundle  # noqa: E402
-from liefi.groups import S1, SE2, SO2, SO3, Rn  # noqa: E402
+from liefi.groups import S1, SE2, SE3, SO2, SO3, Rn  # noqa: E402
 from liefi.reduction import evaluate as _evaluate  # noqa: E402
 
 # ---------------------------------------------------------------------------
@@ -63,6 +63,10 @@ GROUPS = [
     pytest.param(Rn(2), id="R2"),
     pytest.param(SE2() * S1(), id="SE2xS1"),
     pytest.param(SO3() * Rn(1), id="SO3xR1"),
+    pytest.param(SE3(), id="SE3"),
+    # the rotation block not first: a product must offset every factor's blocks
+    pytest.param(S1() * SO3(), id="S1xSO3"),
+    pytest.param(Rn(1) * SO2() * SE3(), id="R1xSO2xSE3"),
 ]
 
 
@@ -95,7 +99,7 @@ PROPERTY = settings(max_examples=MAX_EXAMPLES, deadline=None, suppress_health_ch
 
 #: Settings of the tests that build a random system per example (~10-20 ms each,
 #: a third of it hypothesis' own bookkeeping): half as many examples per
-#: parametrization.  Each such test runs over the 17 entries of ``SPACES``, so a
+#: parametrization.  Each such test runs over the 23 entries of ``SPACES``, so a
 #: property is still checked on ~200 random systems per run, within the suite's
 #: one-minute budget.
 SYSTEM_PROPERTY = settings(
