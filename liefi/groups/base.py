@@ -114,10 +114,9 @@ class LieGroup:
         placed at the numbers the block was read from (zero elsewhere)."""
         g = np.asarray(g)
         blocks = self.orthogonal_matrices(g)
-        out = np.zeros(g.shape, dtype=np.result_type(g, float))
+        out = np.zeros(g.shape, dtype=g.dtype if g.dtype.kind in "cO" else float)
         for R, idx in zip(blocks, self._orthogonal_index):
-            k = idx.shape[-1]
-            out[..., idx.reshape(-1)] = (R @ _gram_defect(R)).reshape(R.shape[:-2] + (k * k,))
+            out[..., idx] = R @ _gram_defect(R)
         return out
 
     def penalty_hessian_bound(self):
@@ -329,16 +328,26 @@ class MatrixLieGroup(LieGroup):
 
     def orthogonal_matrices(self, g):
         rows = self._rows(g)
-        where = {r: i for i, r in enumerate(self.stored_rows)}
-        out = []
-        for s, k in self.orthogonal_blocks:
-            if any(r not in where for r in range(s, s + k)):
-                raise ValueError(
-                    f"{type(self).__name__}.orthogonal_blocks: block ({s}, {k}) covers a row that hat "
-                    "never moves (constant on the group); declare only rotation blocks"
-                )
-            i = where[s]
-            out.append(rows[..., i : i + k, s : s + k])
+        return [rows[..., i : i + k, s : s + k] for i, s, k in self._block_rows]
+
+    @property
+    def _block_rows(self):
+        """``(stored row index, first matrix row/column, k)`` of each declared block (validated once)."""
+        out = self.__dict__.get("_block_rows_cache")
+        if out is None:
+            where = {r: i for i, r in enumerate(self.stored_rows)}
+            out = []
+            for s, k in self.orthogonal_blocks:
+                s, k = int(s), int(k)
+                if k < 1 or s < 0 or s + k > self.matrix_dim or any(r not in where for r in range(s, s + k)):
+                    raise ValueError(
+                        f"{type(self).__name__}.orthogonal_blocks: block ({s}, {k}) covers a row that hat "
+                        f"never moves (constant on the group) or lies outside the {self.matrix_dim} x "
+                        f"{self.matrix_dim} matrix; declare only its rotation blocks ((first row, size), ...)"
+                    )
+                out.append((where[s], s, k))
+            out = tuple(out)
+            self.__dict__["_block_rows_cache"] = out
         return out
 
     def identity_config(self):
