@@ -58,6 +58,15 @@ class NonholonomicSystem:
         Check the data at ``sample`` (symmetry, positive definiteness,
         independence, complex-step safety).  Default True.
 
+    Attributes
+    ----------
+    metric_inverse : ndarray (D, D) or None
+        ``m^{-1}`` when the metric is constant (cached; ``None`` otherwise).
+    flat_constraints : ndarray (K, D) or None
+        The rows ``e_i^flat = m e_i`` when metric and constraints are constant.
+    gram_inverse : ndarray (K, K) or None
+        ``C^{-1}``, ``C^{li} = <e_l^flat, e_i>``, when metric and constraints are constant.
+
     Raises
     ------
     ValueError
@@ -133,13 +142,17 @@ class NonholonomicSystem:
             0.0 if potential is None else potential, (), n, "potential", potential_gradient, sample
         )
         self.constant = self.metric.constant and self.constraints.constant
+        #: ``m^{-1}`` of a constant metric (``None`` if the metric depends on ``x``)
+        self.metric_inverse = None
+        #: rows ``e_i^flat = m e_i`` (``(K, D)``) and the inverse Gram matrix ``C^{-1}``
+        #: (``(K, K)``, ``C = E m E^T``) when metric and constraints are constant, else ``None``
+        self.flat_constraints = self.gram_inverse = None
         if self.metric.constant:
-            self._minv = _checked_inverse(self.metric.value, "metric")
+            self.metric_inverse = _checked_inverse(self.metric.value, "metric")
         if self.constant:
             E, m = self.constraints.value, self.metric.value
-            self._Eflat = E @ m
-            self._C = self._Eflat @ E.T
-            self._Cinv = _gram_inverse(self._C)
+            self.flat_constraints = E @ m
+            self.gram_inverse = _gram_inverse(self.flat_constraints @ E.T)
         if check:
             space.group.check()  # the group's differentiated methods (liefi.groups.LieGroup.check)
             self.check(np.zeros(n) if sample is None else sample)

@@ -21,6 +21,13 @@ vectors ``e_i(x)`` (rows of ``E``) and potential ``U(x)``:
 Everything is evaluated in one pass by :func:`evaluate`; every ``x``
 derivative comes from the data's complex-step (or analytic) derivatives, so
 the results are exact to rounding.  Nothing here knows any particular system.
+
+The formulas are written once, for any array type: the numpy path calls them on
+float (or complex) arrays, and the compiled engine (:mod:`liefi.engine`) calls
+the very same functions on object arrays of traced scalars to generate its
+code.  What differs between the two is only how the data are read, which a
+*data accessor* says (:class:`NumpyData` here, ``liefi.engine.trace.TracedData``
+for tracing).
 """
 
 from __future__ import annotations
@@ -28,6 +35,51 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
+from .. import _diff
+
+
+class NumpyData:
+    """How the formulas read a system's data: numbers, derivatives by complex step.
+
+    A data accessor has three methods; :func:`evaluate`, the feedback field
+    (:meth:`liefi.FeedbackIntegrator.field_parts`) and the DLA step take one as
+    ``data=``.  This one evaluates the data on float arrays; the compiled engine
+    passes one that traces them (``liefi.engine.trace.TracedData``), so both
+    backends run the same formulas.
+    """
+
+    @staticmethod
+    def value(datum, x):
+        """``datum(x)`` for a :class:`~liefi._data.DataFunction`."""
+        return datum(x)
+
+    @staticmethod
+    def value_and_derivative(datum, x):
+        """``(datum(x), d datum/dx)`` (derivative ``None`` for a constant datum)."""
+        return datum.with_derivative(x)
+
+    @staticmethod
+    def value_and_gradient(fun, z, grad=None, name=""):
+        """``(fun(z), d fun/dz)`` of a scalar function: ``grad(z)`` if given, else by complex step."""
+        if grad is not None:
+            return np.asarray(fun(z)), np.asarray(grad(z))
+        return _diff.gradient(fun, z)
+
+
+#: the accessor of the numpy path (the default everywhere)
+NUMPY_DATA = NumpyData()
+
+
+def is_traced(a) -> bool:
+    """Whether ``a`` is an array of traced scalars (object dtype): then no float casts apply."""
+    return isinstance(a, np.ndarray) and a.dtype == object
+
+
+def as_real(a):
+    """``a`` as a float array, or unchanged when it is traced (object dtype)."""
+    a = np.asarray(a)
+    return a if a.dtype == object else a.astype(float, copy=False)
 
 
 @dataclass(frozen=True)
@@ -50,14 +102,15 @@ class Terms:
 def _state(z):
     """``z`` as a float array, or kept complex (for a complex step through liefi's functions)."""
     z = np.asarray(z)
-    return z if np.iscomplexobj(z) else z.astype(float, copy=False)
+    return z if z.dtype == object or np.iscomplexobj(z) else z.astype(float, copy=False)
 
 
 def small_inverse(C):
     """Inverse of a batch of small matrices; closed forms for 1x1 and 2x2 (the common K).
 
     ``np.linalg.inv`` costs ~20 us of overhead per call, more than the rest of a
-    step of a small system; the closed forms are exact to rounding.
+    step of a small system; the closed forms are exact to rounding.  (While the
+    compiled engine traces, ``np.linalg.inv`` accepts traced matrices.)
     """
     K = C.shape[-1]
     if K == 0:
@@ -71,8 +124,16 @@ def small_inverse(C):
     return np.linalg.inv(C)
 
 
-def evaluate(system, z) -> Terms:
-    """Compute :class:`Terms` at the reduced states ``z`` (shape ``(..., nz)``)."""
+def evaluate(system, z, *, data=NUMPY_DATA) -> Terms:
+    """Compute :class:`Terms` at the reduced states ``z`` (shape ``(..., nz)``).
+
+    ``data``: the data accessor (:class:`NumpyData`, or the engine's tracing one
+    when ``z`` holds traced scalars).  The constant parts (``m^{-1}`` of a
+    constant metric, ``e_i^flat`` and ``C^{-1}`` of constant data) are the
+    system's cached :attr:`~liefi.NonholonomicSystem.metric_inverse`,
+    :attr:`~liefi.NonholonomicSystem.flat_constraints` and
+    :attr:`~liefi.NonholonomicSystem.gram_inverse`.
+    """
     sp = system.space
     n, d, D, K = sp.n, sp.d, sp.D, system.K
     z = np.asarray(z)
@@ -86,20 +147,20 @@ def evaluate(system, z) -> Terms:
                 "only for systems whose data do not depend on x; give the Invariant an "
                 "explicit grad= instead"
             )
-    else:
+    elif z.dtype != object:
         z = z.astype(float, copy=False)
     x, P = z[..., :n], z[..., n:]
     batch = z.shape[:-1]
 
-    m, dm = system.metric.with_derivative(x)
-    E, dE = system.constraints.with_derivative(x)
-    U, dU = system.potential.with_derivative(x)
+    m, dm = data.value_and_derivative(system.metric, x)
+    E, dE = data.value_and_derivative(system.constraints, x)
+    U, dU = data.value_and_derivative(system.potential, x)
     if system.metric.constant:
-        minv = system._minv
+        minv = system.metric_inverse
     else:
         minv = small_inverse(m)
     if system.constant:
-        Eflat, Cinv = system._Eflat, system._Cinv
+        Eflat, Cinv = system.flat_constraints, system.gram_inverse
     else:
         Eflat = E @ m
         Cinv = small_inverse(Eflat @ np.swapaxes(E, -1, -2))
@@ -234,21 +295,21 @@ def _project_with(system, z, t):
     return np.concatenate([z[..., :n], P], -1)
 
 
-def field_terms(system, z, *, kind="extended", terms=None):
+def field_terms(system, z, *, kind="extended", terms=None, data=NUMPY_DATA):
     """The reduced field and the body velocity in one pass: ``(zdot, xi, t_z)``.
 
     ``kind``: ``"extended"``, ``"constrained"`` or ``"projected"`` (the extended
     field at :func:`project` ``(z)``).  ``t_z`` are the terms *at z* (what a
     Lyapunov function needs), so a caller evaluates the system once for the
     extended field and twice for the projected one.  ``terms``: ``evaluate(system, z)``
-    if the caller already has it.
+    if the caller already has it; ``data``: the accessor passed to :func:`evaluate`.
     """
     if kind not in ("extended", "constrained", "projected"):
         raise ValueError(f"kind: expected 'extended', 'constrained' or 'projected', got {kind!r}")
-    t_z = evaluate(system, z) if terms is None else terms
+    t_z = evaluate(system, z, data=data) if terms is None else terms
     if kind == "projected":
         z_eval = _project_with(system, z, t_z)
-        t = evaluate(system, z_eval)
+        t = evaluate(system, z_eval, data=data)
     else:
         z_eval, t = z, t_z
     dH = t.dh if kind == "constrained" else t.dht
@@ -287,16 +348,16 @@ def poisson_bracket(system, z, df, dg):
     return system.space.bracket(z, df, dg)
 
 
-def full_vector_field(system, y, *, kind="extended"):
+def full_vector_field(system, y, *, kind="extended", data=NUMPY_DATA):
     """The field on ``y = (g, z)``: reconstruction of the group element plus the reduced field.
 
     ``kind`` is ``"extended"`` (``g' = g . dh~/dmu`` with the extended field),
     ``"constrained"`` (``g' = g . dh/dmu`` with the constrained field) or
-    ``"projected"``.
+    ``"projected"``.  ``data``: the accessor passed to :func:`evaluate`.
     """
     y = _state(y)
     nc = system.space.group.config_dim
     g, z = y[..., :nc], y[..., nc:]
-    zdot, xi, _ = field_terms(system, z, kind=kind)
+    zdot, xi, _ = field_terms(system, z, kind=kind, data=data)
     gdot = system.space.group.config_rate(g, xi)
     return np.concatenate([np.broadcast_to(gdot, zdot.shape[:-1] + gdot.shape[-1:]), zdot], -1)
