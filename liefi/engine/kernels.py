@@ -131,19 +131,9 @@ def _constrained_field(fi, y):
 
 
 def orthogonal_matrices(group, g):
-    """The ``k x k`` blocks of the configuration ``g`` that must stay orthogonal, as the group declares them.
-
-    ``group.orthogonal_matrices(g)`` (:class:`liefi.groups.LieGroup`); a group that
-    keeps a penalty but declares no blocks cannot be projected.
-    """
-    fn = getattr(group, "orthogonal_matrices", None)
-    if fn is None:
-        if group.penalty_hessian_bound() > 0:
-            raise NotCompilable(
-                f"projection: {group!r} has an embedding penalty but declares no orthogonal_matrices(g)"
-            )
-        return []
-    return list(fn(g))
+    """The ``k x k`` blocks of the configuration ``g`` that must stay orthogonal, as the group declares
+    them (:meth:`liefi.groups.LieGroup.orthogonal_matrices`, traced like every group method)."""
+    return list(group.orthogonal_matrices(g))
 
 
 def projection_targets(fi):
