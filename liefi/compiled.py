@@ -829,6 +829,10 @@ def symbolic_terms(system, z):
     m, dm = symbolic_datum(system.metric, x)
     E, dE = symbolic_datum(system.constraints, x)
     U, dU = symbolic_datum(system.potential, x)
+    Pi, dA = P, None
+    if system.vector_potential is not None:  # kinetic momentum P - A(x), as in evaluate
+        A, dA = symbolic_datum(system.vector_potential, x)
+        Pi = P - np.asarray(A, dtype=object)
     m = np.asarray(m, dtype=object)
     E = np.asarray(E, dtype=object)
     if system.constant:
@@ -838,13 +842,13 @@ def symbolic_terms(system, z):
         Cinv = _sym_inv(Eflat @ E.T) if K else np.zeros((0, 0))
 
     if system.metric.constant:
-        v = np.einsum("ij,j->i", system._minv, P)  # dh/dP = P^sharp
+        v = np.einsum("ij,j->i", system._minv, Pi)  # dh/dP = (P - A)^sharp
     else:
-        v = _sym_solve(m, P)
-    J = np.einsum("kj,j->k", E, P)
+        v = _sym_solve(m, Pi)
+    J = np.einsum("kj,j->k", E, Pi)
     w = np.einsum("kl,l->k", Cinv, J)  # C^{-1} J
     dht_dP = v - np.einsum("kj,k->j", E, w)
-    h = 0.5 * np.einsum("i,i->", P, v) + U
+    h = 0.5 * np.einsum("i,i->", Pi, v) + U
     ht = h - 0.5 * np.einsum("k,k->", J, w)
 
     dh_dx = np.zeros(n, dtype=object)
@@ -854,12 +858,15 @@ def symbolic_terms(system, z):
             dh_dx = dh_dx + dU
         if dm is not None:
             dh_dx = dh_dx - 0.5 * np.einsum("i,kij,j->k", v, dm, v)
+        if dA is not None:
+            dh_dx = dh_dx - np.einsum("kj,j->k", dA, v)
+            dJ_dx = dJ_dx - np.einsum("kj,ij->ki", dA, E)
         dht_dx = dh_dx
         if K:
             Et = E.T
             dC = None
             if dE is not None:
-                dJ_dx = np.einsum("kij,j->ki", dE, P)
+                dJ_dx = dJ_dx + np.einsum("kij,j->ki", dE, Pi)
                 dEm = dE @ m[None, :, :]
                 dC = dEm @ Et[None, :, :]
                 dC = dC + np.swapaxes(dC, -1, -2)
@@ -1802,8 +1809,12 @@ def compile_constrained(fi, *, projection=False, engine=None):
 
 
 def dla_applies(system):
-    """Whether :mod:`liefi.dla` applies: a system on ``T*R^n`` (no group) with a constant metric."""
-    return system.space.d == 0 and system.metric.constant and system.space.n > 0
+    """Whether :mod:`liefi.dla` applies: a system on ``T*R^n`` (no group) with a constant metric
+    and no vector potential."""
+    return (
+        system.space.d == 0 and system.metric.constant and system.space.n > 0
+        and system.vector_potential is None
+    )
 
 
 def compile_dla(system, *, engine=None):

@@ -8,7 +8,12 @@ A system is a phase space (:mod:`liefi.phase_space`) and three data:
 * ``constraints`` ``e(x)``: ``K`` independent vectors (rows, shape ``(K, D)``)
   defining the constraint set ``C = {<P, e_i(x)> = 0}``; they need *not* be
   orthonormal for ``m`` (Remark ``(remark:nonhol:general)``);
-* ``potential`` ``U(x)`` (default 0).
+* ``potential`` ``U(x)`` (default 0);
+* ``vector_potential`` ``A(x)`` (default 0), shape ``(D,)``: the Hamiltonian is
+  ``h = 1/2 <P - A(x), m(x)^{-1} (P - A(x))> + U(x)``, the velocities are
+  ``v = m^{-1} (P - A)`` and the constraints ``<e_i^flat, v> = 0`` read
+  ``J_i = <P - A(x), e_i(x)> = 0`` (a gauge shift ``A = grad S``, a gyrostat's
+  rotor momentum ``A = l``, a charged particle's ``q A``).
 
 Everything else -- ``H~``, ``lambda``, ``lambda~``, the constrained, extended
 and reduced vector fields, the reconstruction -- is derived in
@@ -40,7 +45,13 @@ class NonholonomicSystem:
         Constraint vectors ``e_i(x)`` as rows (a 1-D array is one constraint).
     potential : callable, optional
         ``U(x)`` (``(..., n) -> (...)``).
-    metric_derivative, constraints_derivative, potential_gradient : callable, optional
+    vector_potential : array_like (D,) or callable, optional
+        ``A(x)`` (``(..., n) -> (..., D)``), the momentum shift in
+        ``h = 1/2 <P - A, m^{-1} (P - A)> + U``; the constraint set is then
+        ``C = {<P - A(x), e_i(x)> = 0}`` (zero velocity along ``e_i^flat``).
+        Default none (no cost).  On a Lie group (no shape variables) it is a
+        constant ``l in g*``, e.g. a gyrostat's rotor momentum.
+    metric_derivative, constraints_derivative, potential_gradient, vector_potential_derivative : callable, optional
         Analytic ``d/dx`` of the data, shape ``(..., n, *shape)``; by default the
         complex step is used.
     sample : array_like (n,), optional
@@ -75,6 +86,8 @@ class NonholonomicSystem:
         metric_derivative=None,
         constraints_derivative=None,
         potential_gradient=None,
+        vector_potential=None,
+        vector_potential_derivative=None,
         sample=None,
         orthonormalize: bool = False,
         check: bool = True,
@@ -84,7 +97,10 @@ class NonholonomicSystem:
         self.space = space
         n, D = space.n, space.D
         if n == 0:
-            for name, val in (("metric", metric), ("constraints", constraints), ("potential", potential)):
+            for name, val in (
+                ("metric", metric), ("constraints", constraints), ("potential", potential),
+                ("vector_potential", vector_potential),
+            ):
                 if callable(val):
                     raise ValueError(
                         f"{name}: a system on a Lie group has no shape variables, so its "
@@ -132,6 +148,14 @@ class NonholonomicSystem:
         self.potential = DataFunction(
             0.0 if potential is None else potential, (), n, "potential", potential_gradient, sample
         )
+        #: ``A(x)`` as a :class:`DataFunction` of shape ``(D,)``, or None (no vector potential)
+        self.vector_potential = None
+        if vector_potential is not None:
+            self.vector_potential = DataFunction(
+                vector_potential, (D,), n, "vector_potential", vector_potential_derivative, sample
+            )
+        elif vector_potential_derivative is not None:
+            raise ValueError("vector_potential_derivative: given without a vector_potential")
         self.constant = self.metric.constant and self.constraints.constant
         if self.metric.constant:
             self._minv = _checked_inverse(self.metric.value, "metric")
@@ -183,8 +207,13 @@ class NonholonomicSystem:
         U = np.asarray(self.potential(x), float)
         if not np.all(np.isfinite(U)):
             raise ValueError(f"potential: non-finite value at x = {x}")
+        data = [self.metric, self.constraints, self.potential]
+        if self.vector_potential is not None:
+            data.append(self.vector_potential)
+            if not np.all(np.isfinite(np.asarray(self.vector_potential(x), float))):
+                raise ValueError(f"vector_potential: non-finite values at x = {x}")
         if self.space.n:
-            for datum in (self.metric, self.constraints, self.potential):
+            for datum in data:
                 datum.check_differentiable(x)
 
     # --- the derived quantities (formulas in liefi.reduction.core) -----------
@@ -229,7 +258,7 @@ class NonholonomicSystem:
 
         ``known`` maps ``D - K`` momentum names (``space.momentum_names``) to values;
         the other ``K`` components are solved from the ``K`` linear constraints
-        ``E(x) P = 0``.  Returns ``z = (x, P)`` with ``J(z) = 0``.
+        ``E(x) (P - A(x)) = 0``.  Returns ``z = (x, P)`` with ``J(z) = 0``.
         """
         names = self.space.momentum_names
         unknown = [i for i, s in enumerate(names) if s not in known]
@@ -247,7 +276,10 @@ class NonholonomicSystem:
                 f"known: the constraints do not determine {[names[i] for i in unknown]} at "
                 f"x = {x}; give other components"
             )
-        P[unknown] = np.linalg.solve(A, -E @ P)
+        rhs = -E @ P
+        if self.vector_potential is not None:  # J = E (P - A(x))
+            rhs = rhs + E @ np.asarray(self.vector_potential(x), float)
+        P[unknown] = np.linalg.solve(A, rhs)
         return np.concatenate([x, P])
 
     def project(self, z):
