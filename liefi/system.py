@@ -167,6 +167,94 @@ class NonholonomicSystem:
         if check:
             self.check(np.zeros(n) if sample is None else sample)
 
+    # --- constraints as people write them ----------------------------------
+    @classmethod
+    def from_velocity_constraints(cls, space, metric, A, potential=None, *, scaling="unit", **kw):
+        """A system from Pfaffian constraints on velocities, ``A(x) v = 0``.
+
+        Parameters
+        ----------
+        space : PhaseSpace
+        metric : array_like (D, D) or callable
+            Mass tensor ``m(x)``: the kinetic energy is ``1/2 <v, m v>``.
+        A : array_like (K, D) or callable
+            Rows ``a_i(x)`` with ``<a_i, v> = 0`` on the velocities ``v = (xi, x')``
+            (body velocity for the group part, ``x'`` for the shape part), as
+            written in textbooks and by sympy.physics.mechanics (``A(q) q' = 0``).
+            Batch-first ``(..., n) -> (..., K, D)`` and complex-step safe if callable
+            (a 1-D array or ``(..., D)`` function is one constraint).
+        potential : callable, optional
+            ``U(x)``.
+        scaling : {"unit", "orthonormal", None}
+            How the constraint vectors ``e_i`` are scaled (the constraint set and,
+            on it, the motion do not depend on it; the gains do):
+
+            * ``"unit"`` (default): ``e_i = m^{-1} a_i / sqrt(<a_i, m^{-1} a_i>)``, so
+              the Gram matrix ``C = E m E^T`` has unit diagonal at every ``x``.
+              ``J_i = <e_i^flat, v>`` is then the velocity along the ``i``-th
+              forbidden direction in the kinetic-energy norm, ``J_i^2 <= 2 T``
+              whatever the units or the scale the user wrote ``a_i`` in, so a gain
+              on ``J_i`` is a rate in the same units as the gain on the energy,
+              and each ``J_i`` still belongs to the user's row ``i``.
+            * ``"orthonormal"``: ``C = I`` (``orthonormalize=True``): the paper's
+              main-text extension, for which ``h`` is a first integral everywhere;
+              ``J_i`` mixes rows ``1..i``.
+            * ``None``: ``e_i = m^{-1} a_i`` as given (the row scaling then sets the
+              stiffness of ``J_i``).
+        **kw
+            Passed to :class:`NonholonomicSystem` (``vector_potential``, ``sample``,
+            ``check`` ...).
+
+        Notes
+        -----
+        With ``v = m^{-1}(P - A_vec)`` (``A_vec`` the ``vector_potential``, default 0)
+        the constraint ``<a_i, v> = 0`` is ``<P - A_vec, e_i> = 0`` with ``e_i =
+        m^{-1} a_i``, i.e. ``e_i^flat = a_i``: the constraint forces act along the
+        rows ``a_i`` (Lagrange--d'Alembert).  A scaling by a constant leaves the
+        extended field unchanged; the ``x``-dependent normalisation of
+        ``"unit"`` changes it off ``C`` only (by a term proportional to ``J``),
+        and ``h~`` and every ``J_i`` are first integrals either way.
+        """
+        if scaling not in ("unit", "orthonormal", None):
+            raise ValueError(f"scaling: expected 'unit', 'orthonormal' or None, got {scaling!r}")
+        if "constraints" in kw or "orthonormalize" in kw:
+            raise TypeError("from_velocity_constraints: give the constraints as A (rows a_i); "
+                            "the scaling is chosen with scaling=")
+        if not isinstance(space, PhaseSpace):
+            raise TypeError(f"space: expected a liefi PhaseSpace, got {space!r}")
+        n, D = space.n, space.D
+        x0 = np.zeros(n) if kw.get("sample") is None else np.asarray(kw["sample"], float)
+        if callable(A):
+            try:
+                probe = np.asarray(A(x0))
+            except Exception as exc:  # noqa: BLE001 -- user code: say which datum failed
+                raise ValueError(f"A: calling it at x = {x0} failed: {exc!r}") from exc
+            fun = A
+            if probe.ndim == 1:
+                fun = lambda x, f=A: np.asarray(f(x))[..., None, :]  # noqa: E731
+                probe = probe[None, :]
+        else:
+            probe = np.atleast_2d(as_float_array(A, "A"))
+            fun = None
+        if probe.ndim != 2 or probe.shape[-1] != D:
+            raise ValueError(f"A: expected constraint rows of shape (K, {D}) (one row per constraint, "
+                             f"one column per velocity {space.momentum_names}), got {probe.shape}")
+        norms = np.linalg.norm(np.asarray(probe, complex), axis=-1)
+        if np.any(norms == 0):
+            raise ValueError(f"A: row(s) {np.flatnonzero(norms == 0).tolist()} are zero at x = {x0}; "
+                             "drop them or fix the constraint")
+
+        def rows(x):
+            a = fun(x) if fun is not None else probe
+            m = metric(x) if callable(metric) else np.asarray(metric, float)
+            e = np.swapaxes(np.linalg.solve(m, np.swapaxes(a, -1, -2)), -1, -2)  # e_i = m^{-1} a_i
+            if scaling == "unit":
+                e = e / np.sqrt(np.sum(a * e, -1))[..., None]
+            return e
+
+        constraints = rows if (fun is not None or callable(metric)) else rows(x0)
+        return cls(space, metric, constraints, potential, orthonormalize=scaling == "orthonormal", **kw)
+
     # --- names and sizes ---------------------------------------------------
     @property
     def state_names(self):
