@@ -300,6 +300,8 @@ class NonholonomicSystem:
             data.append(self.vector_potential)
             if not np.all(np.isfinite(np.asarray(self.vector_potential(x), float))):
                 raise ValueError(f"vector_potential: non-finite values at x = {x}")
+        for datum in data:
+            datum.check_real(x)
         if self.space.n:
             for datum in data:
                 datum.check_differentiable(x)
