@@ -10,10 +10,23 @@ from . import _diff
 def as_float_array(value, name):
     """``np.array(value, dtype=float)``, or a ``ValueError`` naming ``name`` (strings, ragged lists ...)."""
     try:
-        with np.errstate(all="ignore"):
-            return np.array(value, dtype=float)
+        raw = np.asarray(value)
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{name}: expected an array of real numbers, got {value!r} ({exc})") from None
+    if np.iscomplexobj(raw) and np.any(raw.imag != 0):
+        raise ValueError(
+            f"{name}: complex values (largest imaginary part {np.max(np.abs(raw.imag)):.3g}); liefi "
+            "needs real data -- pass the real array you meant (liefi does not drop imaginary parts)"
+        )
+    try:
+        with np.errstate(all="ignore"):
+            return np.array(raw.real if np.iscomplexobj(raw) else value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name}: expected an array of real numbers, got {value!r} ({exc})") from None
+
+
+#: Random points (besides the sample point) at which complex-step safety is checked.
+N_PROBES = 3
 
 
 class DataFunction:
@@ -99,10 +112,46 @@ class DataFunction:
             return self(x), np.asarray(self._derivative(x))
         return _diff.jacobian(self.fun, x)
 
+    def check_real(self, x):
+        """Raise a named error if the datum returns complex values (nonzero imaginary part) at real ``x``."""
+        if self.constant:
+            return
+        val = np.asarray(self.fun(np.asarray(x, dtype=float)))
+        if np.iscomplexobj(val) and np.any(val.imag != 0):
+            raise ValueError(
+                f"{self.name}: returns complex values at real x = {x} (largest imaginary part "
+                f"{np.max(np.abs(val.imag)):.3g}); it must be real for real x"
+            )
+
     def check_differentiable(self, x):
-        """Raise a named error if the derivative (complex-step or supplied) is wrong at ``x``."""
+        """Raise a named error if the derivative (complex-step or supplied) is wrong at ``x``.
+
+        A single point is not enough: a function that drops the imaginary part (an
+        in-place fill into a float array, ``np.real``, ``.astype(float)``) has a zero
+        complex-step derivative, which passes wherever the true derivative also vanishes
+        (``cos`` at ``x = 0``).  So ``x`` and :data:`N_PROBES` further points around it
+        (fixed seed: reproducible) are checked; probe points where the datum is not
+        finite (outside its domain) are skipped.
+        """
         if self.constant or not self.n:
             return
+        x = np.asarray(x, dtype=float)
+        self._check_differentiable_at(x)
+        if x.ndim != 1:
+            return
+        rng = np.random.default_rng(20261122)
+        scale = np.maximum(1.0, np.abs(x))
+        for _ in range(N_PROBES):
+            xp = x + 0.7 * scale * rng.uniform(-1.0, 1.0, size=x.shape)
+            with np.errstate(all="ignore"):
+                try:
+                    ok = np.all(np.isfinite(np.asarray(self.fun(xp))))
+                except Exception:  # noqa: BLE001 -- outside the datum's domain: not a probe point
+                    ok = False
+            if ok:
+                self._check_differentiable_at(xp)
+
+    def _check_differentiable_at(self, x):
         if self._derivative is None:
             _diff.check_complex_step(self.fun, x, self.name)
             return

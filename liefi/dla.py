@@ -341,6 +341,11 @@ class DLAIntegrator:
                 "system: the DLA integrator needs a constant metric (mass matrix); this "
                 "system's metric depends on q"
             )
+        if system.vector_potential is not None:
+            raise ValueError(
+                "system: the DLA integrator is written for H = 1/2 p.M^-1 p + U; this system "
+                "has a vector_potential (a term linear in the momenta), which it does not treat"
+            )
         from liefi.reduction.core import NUMPY_DATA
 
         data = NUMPY_DATA if data is None else data

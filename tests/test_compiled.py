@@ -137,6 +137,21 @@ def test_generated_field_equals_numpy_field(spec, data):
     assert rel(c.rhs(y, np.zeros(0)), want) < TOL
 
 
+@pytest.mark.parametrize("spec", SPACES)
+@FIELD_PROPERTY
+@given(data=st.data())
+def test_vector_potential_is_compiled_without_engine_code(spec, data):
+    """A datum the engine has no code for (the vector potential ``A(x)``, added to the core only)
+    reaches the compiled field through the traced core: generated == numpy."""
+    case = data.draw(cases(spec, vector_potential=True))
+    sys_ = case.system
+    z0 = case.constrained_state()
+    fi = FeedbackIntegrator(sys_, z0, configuration=False, gains=1.5)
+    z = z0 + 0.1 * case.rng.normal(size=z0.shape)
+    f = compiled.compile_feedback(fi, engine="python")
+    assert rel(f.rhs(z, fi.parameters()), fi.vector_field(z)) < TOL
+
+
 @pytest.mark.parametrize("name", SCENES)
 def test_scene_fields_equal_numpy(name):
     """Every scene, every variant, reduced and with the configuration: generated == numpy."""

@@ -211,8 +211,12 @@ def compile_constrained(fi, *, projection=False, engine=None):
 
 
 def dla_applies(system):
-    """Whether :mod:`liefi.dla` applies: a system on ``T*R^n`` (no group) with a constant metric."""
-    return system.space.d == 0 and system.metric.constant and system.space.n > 0
+    """Whether :mod:`liefi.dla` applies: a system on ``T*R^n`` (no group) with a constant metric
+    and no vector potential."""
+    return (
+        system.space.d == 0 and system.metric.constant and system.space.n > 0
+        and system.vector_potential is None
+    )
 
 
 def compile_dla(system, *, engine=None):

@@ -1,13 +1,16 @@
 """The extension of a nonholonomic system, computed from its data (Section 2).
 
 For a system with momentum ``P = (mu, p_x)``, metric ``m(x)``, constraint
-vectors ``e_i(x)`` (rows of ``E``) and potential ``U(x)``:
+vectors ``e_i(x)`` (rows of ``E``), potential ``U(x)`` and vector potential
+``A(x)`` (default 0; write ``Pi = P - A(x)``, the kinetic momentum, and
+``v = m^{-1} Pi`` the velocity):
 
-* constraint momenta ``J_i = <P, e_i>``, Gram matrix
+* constraint momenta ``J_i = <Pi, e_i>`` (the constraint ``<e_i^flat, v> = 0``
+  on velocities), Gram matrix
   ``C^{li} = <e_l^flat, e_i> = (E m E^T)_{li}`` and its inverse ``C_{li}``
   (Remark ``(remark:nonhol:general)``);
-* ``h = 1/2 <P, m^{-1} P> + U`` and the extended Hamiltonian
-  ``h~ = h - 1/2 J^T C^{-1} J`` (``(def:H:tilde:general)``; with orthonormal
+* ``h = 1/2 <Pi, m^{-1} Pi> + U`` and the extended Hamiltonian
+  ``h~ = h - 1/2 J^T C^{-1} J = h(P - e^flat C^{-1} J)`` (``(def:H:tilde:general)``; with orthonormal
   ``e_i`` this is ``(def:H:tilde)``, ``(def:reduced:h:tilde)``,
   ``(def:reduced:h:tilde:QG:trivial)``);
 * multipliers ``lambda = C^{-1} {h, J}`` (``(lambda:general)``) and
@@ -17,6 +20,12 @@ vectors ``e_i(x)`` (rows of ``E``) and potential ``U(x)``:
   extended field ``z' = B dh~ + sum_i lambda~_i e_i^flat``
   (``(bam:qp)``, ``(new:red:bam)``, ``(new:red:bam:QG:trivial)``), and the
   reconstruction ``g' = g . dh~/dmu``.
+
+With ``A``, ``dh/dP = v``, ``dJ_i/dP = e_i`` as before and the ``x``-gradients
+gain ``-(dA/dx)^T v`` and ``-(dA/dx)^T e_i``; the proofs that ``h~`` and ``J``
+are first integrals of the extended field (``<e_l^flat, dh~/dP> = J_l - (C C^{-1}
+J)_l = 0``) and that it equals the constrained field on ``J = 0`` (there
+``C^{-1} J = 0``) go through unchanged, since they use only these gradients.
 
 Everything is evaluated in one pass by :func:`evaluate`; every ``x``
 derivative comes from the data's complex-step (or analytic) derivatives, so
@@ -141,7 +150,10 @@ def evaluate(system, z, *, data=NUMPY_DATA) -> Terms:
         # A complex step through liefi's own functions (e.g. an Invariant built from
         # system.extended_hamiltonian): exact when the data do not depend on x; with
         # x-dependent data it would nest two complex steps, which is not exact.
-        if n and not (system.constant and system.potential.constant):
+        if n and not (
+            system.constant and system.potential.constant
+            and (system.vector_potential is None or system.vector_potential.constant)
+        ):
             raise TypeError(
                 "z: complex input (a complex step through liefi's functions) is supported "
                 "only for systems whose data do not depend on x; give the Invariant an "
@@ -155,6 +167,13 @@ def evaluate(system, z, *, data=NUMPY_DATA) -> Terms:
     m, dm = data.value_and_derivative(system.metric, x)
     E, dE = data.value_and_derivative(system.constraints, x)
     U, dU = data.value_and_derivative(system.potential, x)
+    # Vector potential: h = 1/2 <P - A, m^{-1}(P - A)> + U and J = <P - A, e_i>; every
+    # formula below is in the kinetic momentum Pi = P - A(x), plus the x-derivative
+    # terms -dA^T v in dh/dx and -dA^T e_i in dJ_i/dx (added where those are formed).
+    Pi, dA = P, None
+    if system.vector_potential is not None:
+        A, dA = data.value_and_derivative(system.vector_potential, x)
+        Pi = P - A
     if system.metric.constant:
         minv = system.metric_inverse
     else:
@@ -165,11 +184,11 @@ def evaluate(system, z, *, data=NUMPY_DATA) -> Terms:
         Eflat = E @ m
         Cinv = small_inverse(Eflat @ np.swapaxes(E, -1, -2))
 
-    v = np.einsum("...ij,...j->...i", minv, P)  # dh/dP = P^sharp
-    J = np.einsum("...kj,...j->...k", E, P)
+    v = np.einsum("...ij,...j->...i", minv, Pi)  # dh/dP = (P - A)^sharp, the velocity
+    J = np.einsum("...kj,...j->...k", E, Pi)
     w = np.einsum("...kl,...l->...k", Cinv, J)  # C^{-1} J
     dht_dP = v - np.einsum("...kj,...k->...j", E, w)
-    h = 0.5 * np.einsum("...i,...i->...", P, v) + U
+    h = 0.5 * np.einsum("...i,...i->...", Pi, v) + U
     ht = h - 0.5 * np.einsum("...k,...k->...", J, w)
 
     dh_dx = np.zeros(batch + (n,))
@@ -180,12 +199,15 @@ def evaluate(system, z, *, data=NUMPY_DATA) -> Terms:
             dh_dx = dh_dx + dU
         if dm is not None:
             dh_dx = dh_dx - 0.5 * np.einsum("...i,...kij,...j->...k", v, dm, v)
+        if dA is not None:
+            dh_dx = dh_dx - np.einsum("...kj,...j->...k", dA, v)
+            dJ_dx = dJ_dx - np.einsum("...kj,...ij->...ki", dA, E)
         dht_dx = dh_dx
         if K:
             Et = np.swapaxes(E, -1, -2)
             dC = 0.0
             if dE is not None:
-                dJ_dx = np.einsum("...kij,...j->...ki", dE, P)
+                dJ_dx = dJ_dx + np.einsum("...kij,...j->...ki", dE, Pi)
                 dEm = dE @ m[..., None, :, :]
                 dC = dEm @ Et[..., None, :, :]
                 dC = dC + np.swapaxes(dC, -1, -2)
@@ -223,7 +245,7 @@ def _field(system, z, dH, lam, Eflat):
 
 
 def hamiltonian(system, z):
-    """The original (reduced) Hamiltonian ``h = 1/2 <P, m^{-1} P> + U``."""
+    """The original (reduced) Hamiltonian ``h = 1/2 <P - A, m^{-1} (P - A)> + U``."""
     return evaluate(system, z).h
 
 
@@ -233,7 +255,7 @@ def extended_hamiltonian(system, z):
 
 
 def constraint_momenta(system, z):
-    """``J_i = <P, e_i(x)>``, shape ``(..., K)``; the constraint set is ``J = 0``."""
+    """``J_i = <P - A(x), e_i(x)>``, shape ``(..., K)``; the constraint set is ``J = 0``."""
     return evaluate(system, z).J
 
 
