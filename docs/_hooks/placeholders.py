@@ -20,6 +20,10 @@ PENDING = {
         "and LSODA on the non-reversible problems of Modin & Verdier (Numer. Math. 145 (2020)), "
         "with the drift of every first integral.",
     ),
+    "rigid_body.md": (
+        "The rigid body and the theory of gains",
+        "the free rigid body on SO(3) as a scene, and how liefi's gain theory chooses the gains.",
+    ),
 }
 
 
