@@ -147,10 +147,12 @@ class LieGroup:
           complex-step safe (the stiffness estimate differentiates ``penalty_grad``
           by complex step; a float buffer would silently give zero stiffness).
 
-        Called by :class:`~liefi.NonholonomicSystem` when a system is built; the
-        result is remembered per group object, so it costs one check per group.
+        Called by :class:`~liefi.NonholonomicSystem` when a system is built; a
+        passed check is remembered per group (class and parameters: groups are
+        immutable), so building many systems on one group checks it once.
         """
-        if self.__dict__.get("_checked"):
+        key = (type(self), repr(self))
+        if key in _CHECKED:
             return
         from .. import _diff
 
@@ -185,7 +187,7 @@ class LieGroup:
                     f"{np.max(np.abs(grad - ref)):.3g}); declare the orthogonal blocks and let liefi "
                     "derive both, or fix the override"
                 )
-        self.__dict__["_checked"] = True
+        _CHECKED.add(key)
 
     # --- derived --------------------------------------------------------
     @cached_property
@@ -248,6 +250,10 @@ class LieGroup:
 
     def __hash__(self):
         return hash(repr(self))
+
+
+#: groups whose check passed, by (class, repr)
+_CHECKED: set = set()
 
 
 def _gram_defect(R):
