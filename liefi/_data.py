@@ -129,27 +129,47 @@ class DataFunction:
         A single point is not enough: a function that drops the imaginary part (an
         in-place fill into a float array, ``np.real``, ``.astype(float)``) has a zero
         complex-step derivative, which passes wherever the true derivative also vanishes
-        (``cos`` at ``x = 0``).  So ``x`` and :data:`N_PROBES` further points around it
-        (fixed seed: reproducible) are checked; probe points where the datum is not
-        finite (outside its domain) are skipped.
+        (``cos`` at ``x = 0``).  So the complex step is also run at :data:`N_PROBES`
+        further points around ``x`` (fixed seed: reproducible), where a datum whose
+        complex-step derivative is *exactly* zero while its finite difference is not
+        has dropped the imaginary part.  Only that signature is an error there: a
+        probe point may lie near a singularity of the user's data (a chart's gimbal
+        lock), where finite differences themselves are poor; points where the datum
+        is not finite are skipped.
         """
         if self.constant or not self.n:
             return
         x = np.asarray(x, dtype=float)
         self._check_differentiable_at(x)
-        if x.ndim != 1:
+        if x.ndim != 1 or self._derivative is not None:
             return
         rng = np.random.default_rng(20261122)
         scale = np.maximum(1.0, np.abs(x))
         for _ in range(N_PROBES):
-            xp = x + 0.7 * scale * rng.uniform(-1.0, 1.0, size=x.shape)
+            self._check_imaginary_part_kept(x + 0.5 * scale * rng.uniform(-1.0, 1.0, size=x.shape))
+
+    def _check_imaginary_part_kept(self, x):
+        """Named error if the complex step of the datum is exactly zero where finite differences are not."""
+        try:
             with np.errstate(all="ignore"):
-                try:
-                    ok = np.all(np.isfinite(np.asarray(self.fun(xp))))
-                except Exception:  # noqa: BLE001 -- outside the datum's domain: not a probe point
-                    ok = False
-            if ok:
-                self._check_differentiable_at(xp)
+                _, jc = _diff.jacobian(self.fun, x)
+                h = 1e-6 * np.maximum(1.0, np.abs(x))
+                jf = np.stack(
+                    [(np.asarray(self.fun(x + h[k] * e), float) - np.asarray(self.fun(x - h[k] * e), float)) / (2 * h[k])
+                     for k, e in enumerate(np.eye(self.n))], 0)
+        except Exception:  # noqa: BLE001 -- outside the datum's domain (or raising there): not a probe point
+            return
+        if not (np.all(np.isfinite(jc)) and np.all(np.isfinite(jf))):
+            return
+        dropped = (jc == 0) & (np.abs(jf) > 1e-6 * max(1.0, float(np.max(np.abs(jf), initial=0.0))))
+        if np.any(dropped):
+            raise ValueError(
+                f"{self.name}: its complex-step derivative is exactly zero at x = {x} where finite "
+                f"differences give up to {np.max(np.abs(jf[dropped])):.3g}: the function drops the "
+                "imaginary part of its argument (in-place assignment into a float array, np.real, "
+                ".astype(float), abs(), comparisons ...). Write it with operations that accept complex "
+                "input (np.sin, np.stack, +, * ...), or pass its derivative explicitly."
+            )
 
     def _check_differentiable_at(self, x):
         if self._derivative is None:
