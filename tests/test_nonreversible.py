@@ -162,10 +162,11 @@ def test_start_and_first_integrals(name):
 
 
 @pytest.mark.parametrize("name", NAMES)
-def test_runs_at_defaults_with_small_drift(name):
+@pytest.mark.parametrize("variant", ["extended", "original"])
+def test_runs_at_defaults_with_small_drift(name, variant):
     """The scene's defaults (RK4, dt = 1e-2, gains 1), on a short horizon: drift and error small."""
     sc = scenes.get(name)
-    r = sc.run(t_final=20.0)
+    r = sc.run(t_final=20.0, variant=variant)
     assert max(r.max_drift.values()) <= 1e-8, r.max_drift
     assert max(r.max_error.values()) <= 1e-6, r.max_error
     assert r.scheme == "rk4" and r.dt == 1e-2
