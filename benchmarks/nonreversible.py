@@ -5,6 +5,7 @@ Run from the repository root::
     python benchmarks/nonreversible.py                       # t = 1e4, every scene below
     python benchmarks/nonreversible.py --t-final 1e3 --quick # a smoke test
     python benchmarks/nonreversible.py --scenes nonreversible-oscillator
+    python benchmarks/nonreversible.py --long --t-final 1e5   # RK4 runs only, to t = 1e5
 
 For each scene -- the ``nonreversible-*`` scenes and, as baselines, the paper's
 reversible ``oscillator`` and ``knife-edge`` (the same motions as
@@ -75,8 +76,11 @@ TWIN = {"nonreversible-oscillator": "oscillator", "nonreversible-contact-oscilla
 LSODA_RTOL = 1e-9
 
 
-def runs(sc, quick=False):
-    """The list of runs ``(method, scheme, dt, rtol, gains)`` of one scene."""
+def runs(sc, quick=False, long=False):
+    """The list of runs ``(method, scheme, dt, rtol, gains)`` of one scene (``long``: the RK4 runs only)."""
+    if long:
+        return [("FI", "rk4", DT, None, g) for g in SMALL_GAINS] + [
+            ("no-feedback", "rk4", DT, None, None), ("projection", "rk4", DT, None, None)]
     gains = [g for g in (sc.gains, *SMALL_GAINS) if not isinstance(g, dict)]
     gains = ([sc.gains] if isinstance(sc.gains, dict) else []) + sorted(set(gains), key=float) + ["auto"]
     out = []
@@ -147,14 +151,14 @@ def log_samples(t, k=120):
     return idx
 
 
-def study(names, T, out_dir, n_save=2000, quick=False, log=print):
+def study(names, T, out_dir, n_save=2000, quick=False, long=False, log=print):
     os.makedirs(out_dir, exist_ok=True)
     rows, curves = [], []
     for name in names:
         sc = scenes.get(name)
         v = sc.variant()
         fi_ref = sc.integrator(v)  # the invariants monitored (names, values) -- gains play no part
-        for method, scheme, dt, rtol, gains in runs(sc, quick):
+        for method, scheme, dt, rtol, gains in runs(sc, quick, long):
             w = time.perf_counter()
             if method == "FI":
                 r = run_fi(sc, v, scheme, dt, T, gains, n_save)
@@ -184,12 +188,13 @@ def study(names, T, out_dir, n_save=2000, quick=False, log=print):
             log(f"{name:34s} {method:12s} {scheme:6s} {_gains_label(gains):28s} {row['status']:8s} "
                 f"cpu {row['cpu_seconds']:.3g} s, wall {time.perf_counter() - w:.1f} s  "
                 + " ".join(f"{k}={x:.1e}" for k, x in fin.items()))
-    _write(rows, os.path.join(out_dir, "drifts.csv"))
-    with open(os.path.join(out_dir, "table.md"), "w") as fh:
+    sfx = "-long" if long else ""
+    _write(rows, os.path.join(out_dir, f"drifts{sfx}.csv"))
+    with open(os.path.join(out_dir, f"table{sfx}.md"), "w") as fh:
         fh.write(markdown_table(rows))
-    _write(curves, os.path.join(out_dir, "curves.csv"))
+    _write(curves, os.path.join(out_dir, f"curves{sfx}.csv"))
     for name in names:
-        plot_scene([c for c in curves if c["scene"] == name], name, T, os.path.join(out_dir, f"{name}.png"))
+        plot_scene([c for c in curves if c["scene"] == name], name, T, os.path.join(out_dir, f"{name}{sfx}.png"))
     return rows, curves
 
 
@@ -233,8 +238,8 @@ def _write(rows, path):
                         for k in cols})
 
 
-_COLOR = {"FI rk4": "C3", "FI euler": "C1", "FI paper": "C5", "no-feedback": "C7", "projection": "C2", "constrained": "C0",
-          "DLA": "C4"}
+_COLOR = {"FI rk4": "C3", "FI euler": "C1", "FI paper": "C5", "no-feedback": "C7", "projection": "C2",
+          "constrained": "C0", "DLA": "C4"}
 _STYLE = {"0.1": ":", "1": "--", "auto": "-."}
 
 
@@ -284,9 +289,11 @@ def main(argv=None):
     p.add_argument("--scenes", default=",".join(SCENES))
     p.add_argument("--n-save", type=int, default=2000, dest="n_save")
     p.add_argument("--quick", action="store_true", help="gains 1 only for the FI")
+    p.add_argument("--long", action="store_true",
+                   help="only FI RK4 (gains 0.1, 1), plain and projected RK4; files *-long.* (for t = 1e5)")
     a = p.parse_args(argv)
     names = [s.strip() for s in a.scenes.split(",") if s.strip()]
-    study(names, a.t_final, a.out, n_save=a.n_save, quick=a.quick,
+    study(names, a.t_final, a.out, n_save=a.n_save, quick=a.quick, long=a.long,
           log=lambda m: print(m, file=sys.stderr, flush=True))
     return 0
 
