@@ -168,6 +168,12 @@ class RigidBody(Scene):
     def invariants(self, variant):
         return ("energy", CASIMIR)
 
+    def integrator(self, variant=None, *, gains=None, configuration=None, y0=None):
+        """As :meth:`Scene.integrator`; without the configuration there is no penalty to weight."""
+        if gains is None and configuration is False:
+            gains = {k: v for k, v in self.gains.items() if k != "penalty"}
+        return super().integrator(variant, gains=gains, configuration=configuration, y0=y0)
+
     def run_extra(self, scheme, variant, dt, T, save_every, fi):
         y0 = np.asarray(self.initial_state(variant), float)
         n_steps = int(round(T / dt))
