@@ -90,7 +90,7 @@ import math
 import numpy as np
 
 from .schemes import ExplicitRungeKutta, get_scheme
-from .stability import _scaled, dynamics_rate, positive_number, real_stability_bound, unit_rate_gains
+from .stability import dynamics_rate, positive_number, real_stability_bound, unit_rate_gains
 
 
 #: Rounding error injected per step, relative to the state's scale (unit roundoff of float64).
@@ -247,7 +247,7 @@ def accurate_gains(fi, dt, scheme="rk4", t_final=None, y=None) -> dict:
     T = 1000.0 * dt if t_final is None else positive_number(t_final, "t_final")
     y = fi.y0 if y is None else np.asarray(y, float)
     z = accurate_rate(scheme, dt, unforced_rate(fi, y), T)
-    gains = _scaled(unit_rate_gains(fi, y), z / dt)
+    gains = {k: float(v) * z / dt for k, v in unit_rate_gains(fi, y).items()}
     for name in exactly_kept(fi, scheme, y):
         gains[name] = 0.0
     return gains
