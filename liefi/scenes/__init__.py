@@ -22,6 +22,7 @@ REGISTRY = {
     "nonreversible-oscillator": "nonreversible",
     "nonreversible-contact-oscillator": "nonreversible",
     "nonreversible-knife-edge": "nonreversible_knife_edge",
+    "rigid-body": "rigid_body",
 }
 
 
