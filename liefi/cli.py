@@ -344,7 +344,7 @@ def build_parser():
                     help="(for tests) multiply every horizon by S, e.g. 0.01 for a quick smoke run")
 
     from . import bench as _bench
-    from . import stability as _stability
+    from .experiments import stability_cli as _stability
 
     ps = sub.add_parser(
         "stability",
@@ -398,7 +398,7 @@ def _main(parser, argv):
             parser.print_help(sys.stderr)
             return 2
         if args.command == "stability":
-            from .stability import command
+            from .experiments.stability_cli import command
 
             return command(args)
         if args.command == "bench":

@@ -117,6 +117,15 @@ class Scene:
     error_variables: tuple = ()
     #: schemes besides liefi's RK tableaux and ``scipy:METHOD`` this scene supports
     extra_schemes: tuple = ()
+    #: the variant the stability experiments run (default: the first)
+    stability_variant = None
+    #: this scene's own extreme cases for the stability battery (see :meth:`stability_case`);
+    #: each also runs with automatic gains as ``"<case> auto"``
+    stability_cases: tuple = ()
+
+    def stability_case(self, case):
+        """``(scene, variant, has_reference)`` of one of :attr:`stability_cases` (a modified copy of the scene)."""
+        raise ValueError(f"case: scene {self.name!r} has no stability case {case!r}")
 
     # --- data (to supply) --------------------------------------------------------
     def build_system(self):
