@@ -39,6 +39,7 @@ from .stability import (
     drift,
     drift_scales,
     dynamics_rate,
+    metric_defect,
     stiffness,
 )
 
@@ -198,6 +199,9 @@ def _advice(fi, y, t, dt, sch, beta, earlier=None):
     if len(found) == 2 and found[0][0] > 10 * found[1][0]:
         pick = found[1]
     lam, dom, y, t, label = pick
+    md = metric_defect(fi, y)
+    if md:  # the data, not the gains
+        return f"{label} (t={t:g}): {md}"
     name = getattr(sch, "name", str(sch))
     if math.isfinite(beta) and dt * lam > beta:
         safe = beta / lam
@@ -247,30 +251,6 @@ def _subsample(y, k):
     if flat.shape[0] <= k:
         return flat
     return flat[np.unique(np.linspace(0, flat.shape[0] - 1, k).astype(int))]
-
-
-def metric_defect(fi, y):
-    """A message if the metric is not positive definite at a state of ``y`` (else ``""``).
-
-    A metric that loses positive definiteness along the run makes the field
-    singular: the blow-up is the system's data, not the gains.
-    """
-    try:
-        n = fi.system.space.n
-        x = np.asarray(y, float)[..., fi.nc : fi.nc + n].reshape(-1, n)
-        with np.errstate(all="ignore"):
-            m = np.asarray(fi.system.metric(x), float)
-            m = np.broadcast_to(m, (x.shape[0],) + m.shape[-2:])
-            w = np.linalg.eigvalsh(0.5 * (m + np.swapaxes(m, -1, -2)))[..., 0]
-    except Exception:  # noqa: BLE001 -- a diagnostic only
-        return ""
-    bad = np.nonzero(~(w > 0))[0]
-    if not bad.size:
-        return ""
-    i = int(bad[0])
-    return (f"The metric is not positive definite at x = {np.round(x[i], 6).tolist()} (smallest eigenvalue "
-            f"{float(w[i]):.3g}): the system's metric turned indefinite along the run, which no choice of gains "
-            "or dt can repair; check the metric's data there.")
 
 
 class Guard:

@@ -347,6 +347,39 @@ def dynamics_growth(scheme, dt, eigenvalues):
     return float(np.max(np.abs(_R(tab, dt * mu))))
 
 
+def metric_defect(fi, y, rtol=1e-8):
+    """A message if the metric loses positive definiteness at a state of ``y`` (else ``""``).
+
+    Lost: an eigenvalue ``<= 0``, or below ``rtol`` times the smallest at the
+    start (the field, and ``Hess V`` with it, blow up as the metric degenerates).
+    The blow-up is then the system's data, not the gains.
+    """
+    try:
+        n = fi.system.space.n
+        if not n:
+            return ""
+
+        def smallest(yy):
+            x = np.asarray(yy, float)[..., fi.nc : fi.nc + n].reshape(-1, n)
+            m = np.asarray(fi.system.metric(x), float)
+            m = np.broadcast_to(m, (x.shape[0],) + m.shape[-2:])
+            return x, np.linalg.eigvalsh(0.5 * (m + np.swapaxes(m, -1, -2)))[..., 0]
+
+        with np.errstate(all="ignore"):
+            _, w0 = smallest(fi.y0)
+            x, w = smallest(y)
+    except Exception:  # noqa: BLE001 -- a diagnostic only
+        return ""
+    bad = np.nonzero(~(w > rtol * float(np.min(w0))))[0]
+    if not bad.size:
+        return ""
+    i = int(bad[0])
+    what = "is not positive definite" if not w[i] > 0 else "is nearly singular"
+    return (f"The metric {what} at x = {np.round(x[i], 6).tolist()} (smallest eigenvalue {float(w[i]):.3g}, "
+            f"{float(np.min(w0)):.3g} at the start): the system's metric degenerates along the motion, which no "
+            "choice of gains or dt can repair; check the metric's data there.")
+
+
 @dataclass
 class StabilityEstimate:
     """The stability limit of one run, estimated before it (see :func:`estimate`).
@@ -391,6 +424,8 @@ class StabilityEstimate:
     growth: float = float("nan")
     #: a few states of the pilot (start included), shape ``(k,) + y0.shape``
     samples: np.ndarray = field(repr=False, default=None)
+    #: :func:`metric_defect` along the pilot (``""``: the metric stays positive definite)
+    metric: str = ""
 
     @property
     def dt_safe(self):
@@ -552,6 +587,7 @@ def estimate(fi, dt, scheme="euler", *, t_final=None, y0=None, max_evals=None, r
         getattr(sch, "name", str(scheme)), beta, float(dt), lam, lam0, float(ts[i]), float(ts[-1]),
         float(t_final if t_final is not None else 0.0), dict(fi.gains), dom, ev, rate, t_cross, growth,
         _members(Ys[np.unique(np.linspace(0, len(ts) - 1, min(len(ts), 8)).astype(int))], RESOLUTION_MEMBERS),
+        metric_defect(fi, Ys[: i + 2]) if len(ts) > 1 else "",
     )
 
 
@@ -580,6 +616,8 @@ def check(fi, dt, scheme="euler", *, t_final=None, y0=None, max_evals=None, rtol
     """
     est = estimate(fi, dt, scheme, t_final=t_final, y0=y0, max_evals=max_evals, rtol=rtol)
     v = est.verdict
+    if est.metric and v != "ok":
+        raise ValueError(f"initial state: along the motion from it (a pilot of the unforced field) {est.metric}")
     if v == "refuse":
         when = "within a few steps" if not est.t_cross > 0 else f"soon after t ~ {est.t_cross:.3g}"
         raise ValueError(
