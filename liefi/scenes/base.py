@@ -72,6 +72,8 @@ class RunResult:
     invariants: dict
     max_error: dict
     max_drift: dict
+    #: seconds spent besides the integration (estimate, guard, kernel loading)
+    overhead_seconds: float = 0.0
 
     def __getitem__(self, name):
         return self.y[self.names.index(name)]
@@ -86,6 +88,7 @@ class RunResult:
             "t_final": self.t_final,
             "steps": self.steps,
             "cpu_seconds": self.cpu_seconds,
+            "overhead_seconds": self.overhead_seconds,
             "rhs_evaluations": self.rhs_evaluations,
             "reference": self.reference,
             "gains": self.gains,
@@ -117,6 +120,15 @@ class Scene:
     error_variables: tuple = ()
     #: schemes besides liefi's RK tableaux and ``scipy:METHOD`` this scene supports
     extra_schemes: tuple = ()
+    #: the variant the stability experiments run (default: the first)
+    stability_variant = None
+    #: this scene's own extreme cases for the stability battery (see :meth:`stability_case`);
+    #: each also runs with automatic gains as ``"<case> auto"``
+    stability_cases: tuple = ()
+
+    def stability_case(self, case):
+        """``(scene, variant, has_reference)`` of one of :attr:`stability_cases` (a modified copy of the scene)."""
+        raise ValueError(f"case: scene {self.name!r} has no stability case {case!r}")
 
     # --- data (to supply) --------------------------------------------------------
     def build_system(self):
@@ -219,7 +231,7 @@ class Scene:
         """Run the scene at its settings unless told otherwise.
 
         ``scheme`` is a liefi scheme name (``euler``, ``heun``, ``rk4``...), a
-        stiff-safe split scheme (``imex-euler``, ``imex-rk4``: :mod:`liefi.stiff`),
+        stiff-safe split scheme (``imex-euler``, ``imex-rk4``: :mod:`liefi.schemes.split`),
         ``"scipy:METHOD"`` (``solve_ivp`` with ``rtol``/``atol``), or one of the
         scene's ``extra_schemes`` (e.g. ``"dla"``).  ``gains="auto"``: chosen from
         ``dt`` and the Hessian of ``V`` and adapted along the run.
@@ -248,24 +260,28 @@ class Scene:
         fi = self.integrator(v, gains=gains, configuration=configuration)
         self._check_start(fi, v)
 
+        overhead = 0.0
         if scheme in self.extra_schemes:
             t, Y, names, cpu, steps, nfev = self.run_extra(scheme, v, dt, T, save_every, fi)
-        elif str(scheme).startswith("scipy:"):
-            from scipy.integrate import solve_ivp
+            if check_stability:
+                from ..run import check_result_drift
 
-            method = scheme.split(":", 1)[1]
-            from scipy.integrate._ivp.ivp import METHODS
+                check_result_drift(fi, t, Y, names, scheme, dt)  # e.g. DLA at a step that loses the motion
+        elif str(scheme).lower().startswith("scipy:"):
+            from ..schemes import registry as _schemes
 
-            if method not in METHODS:
-                raise ValueError(f"scheme: unknown solve_ivp method {method!r}; choose scipy:{'|'.join(METHODS)}")
+            ivp = _schemes.get(scheme, kind="scipy")
+            method = ivp.method
             if getattr(fi, "gains_mode", "fixed") == "auto":
                 from ..stability import auto_gains
 
                 fi = fi.with_gains(auto_gains(fi, dt, "euler"))
+            if check_stability:
+                from ..run import check_ivp
+
+                check_ivp(fi, ivp, T)  # an explicit method on a stiff field would run for minutes
             t_eval = np.linspace(0.0, T, min(n_steps, max_saved) + 1)
-            start = time.process_time()
-            sol = solve_ivp(fi.fun, (0.0, T), fi.y0, method=method, t_eval=t_eval, rtol=rtol, atol=atol)
-            cpu = time.process_time() - start
+            sol, cpu = ivp.solve(fi.fun, T, fi.y0, t_eval=t_eval, rtol=rtol, atol=atol)
             if not sol.success:
                 raise RuntimeError(f"solve_ivp({method}) failed on {self.name!r}: {sol.message}")
             if not np.all(np.isfinite(sol.y)):
@@ -279,7 +295,10 @@ class Scene:
             if getattr(sol, "stability", None) is not None and sol.stability.gains:
                 fi = fi.with_gains(sol.stability.gains)  # report the gains the run started with
             t, Y, names, cpu, steps, nfev = sol.t, sol.y, sol.names, sol.cpu_seconds, sol.steps, sol.rhs_evaluations
-        return self._result(v, str(scheme), dt, T, fi, t, Y, names, cpu, steps, nfev)
+            overhead = getattr(sol, "overhead_seconds", 0.0)
+        res = self._result(v, str(scheme), dt, T, fi, t, Y, names, cpu, steps, nfev)
+        res.overhead_seconds = float(overhead)
+        return res
 
     def _check_start(self, fi, v, rtol=1e-9):
         """The reference solution is the *constrained* motion: the start must be on ``J = 0``."""
