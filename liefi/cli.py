@@ -29,10 +29,11 @@ import math
 import sys
 
 from . import scenes as _scenes
-from .schemes import SCHEMES, IntegrationError
+from .schemes import IntegrationError
+from .schemes import registry as _schemes
 
-#: solve_ivp methods accepted after ``scipy:``
-SCIPY_METHODS = ("RK23", "RK45", "DOP853", "Radau", "BDF", "LSODA")
+#: solve_ivp methods accepted after ``scipy:`` (from the scheme registry)
+SCIPY_METHODS = tuple(n.split(":", 1)[1] for n in _schemes.names("scipy"))
 
 
 class UsageError(Exception):
@@ -122,13 +123,7 @@ def parse_gains(text, scene, variant=None, configuration=None):
 
 def available_schemes(scene):
     """Scheme names ``liefi run SCENE --scheme`` accepts (besides ``scipy:METHOD``)."""
-    names = list(SCHEMES)
-    try:  # stiff-safe split schemes, where the library has them
-        from .stiff import SPLIT_SCHEMES
-
-        names += [n for n in SPLIT_SCHEMES if n not in names]
-    except ImportError:
-        pass
+    names = _schemes.names("explicit") + _schemes.names("split")
     return names + [n for n in scene.extra_schemes if n not in names]
 
 
@@ -322,7 +317,7 @@ def build_parser():
     pr.add_argument("--t-final", type=_positive_float("t-final"), default=None, dest="t_final",
                     help="final time (default: the paper's)")
     pr.add_argument("--scheme", default=None,
-                    help="euler|heun|midpoint|rk3|rk4|imex-euler|imex-heun|imex-rk4|dla (oscillator)|"
+                    help="|".join(_schemes.names("explicit") + _schemes.names("split")) + "|dla (oscillator)|"
                          "scipy:METHOD (METHOD: " + "|".join(SCIPY_METHODS) + "; default: the paper's)")
     pr.add_argument("--gains", default=None, metavar="K|K1,K2,...|name=K,...|auto",
                     help="feedback gains (default: the paper's); order: the integrator's invariant_names, see below")

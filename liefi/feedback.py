@@ -466,7 +466,7 @@ class FeedbackIntegrator:
         numpy path runs.
 
         ``scheme``: a tableau of :mod:`liefi.schemes` (``"euler"``, ``"rk4"``, ...)
-        or a stiff-safe split scheme of :mod:`liefi.stiff` (``"imex-euler"``,
+        or a stiff-safe split scheme of :mod:`liefi.schemes.split` (``"imex-euler"``,
         ``"imex-heun"``, ``"imex-rk4"``: stable for any gain).
 
         Stability (:mod:`liefi.stability`).  ``check_stability`` (default True):

@@ -53,7 +53,6 @@ What this module does with that number:
 
 from __future__ import annotations
 
-import functools
 import math
 import time
 import warnings
@@ -61,9 +60,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import stiff as _stiff
 from .reduction import core as _core
-from .schemes import ExplicitRungeKutta, IntegrationError, Solution, get_scheme, integrate
+from .schemes import ExplicitRungeKutta, IntegrationError, Solution, integrate
+from .schemes import registry as _registry
+from .schemes import split as _stiff
 
 #: ``dt lambda_max / beta`` within this of 1 is "at the limit" (marginal: the stiff mode neither grows nor decays).
 LIMIT_BAND = 0.01
@@ -75,7 +75,7 @@ RESOLUTION_LIMIT = 0.2
 GROWTH_LIMIT = 1.05
 #: ``dt lambda_max`` targeted by automatic gains with a split (stiff-safe) scheme: the
 #: feedback substep damps the stiffest mode by ``1/(1 + 10)`` per step.
-SPLIT_RATE = 10.0
+SPLIT_RATE = _stiff.LinearlyImplicitSplit.optimal_rate
 #: Fraction of a run's right-hand-side evaluations the pre-run pilot may spend (and its cap).
 PILOT_FRACTION = 0.05
 PILOT_MAX_EVALS = 6000
@@ -143,75 +143,31 @@ def _scaled(gains, factor):
 
 
 def resolve_scheme(scheme):
-    """``(scheme, beta)``: the scheme object and its real stability bound (``inf`` for a split scheme)."""
-    if _stiff.is_split_scheme(scheme):
-        return _stiff.get_split_scheme(scheme), math.inf
-    sch = get_scheme(scheme)
+    """``(scheme, beta)``: the registry's scheme and its real stability bound (``inf`` when stiff-safe)."""
+    if isinstance(scheme, _stiff.BoundSplitStep):
+        scheme = scheme.scheme
+    sch = _registry.get(scheme)
     return sch, float(getattr(sch, "real_stability_bound", math.inf))
 
 
-@functools.lru_cache(maxsize=None)
-def _poly(sch):
-    """Coefficients of ``R(z) = 1 + sum_k b^T A^(k-1) 1 z^k`` (an explicit tableau: a polynomial)."""
-    s = sch.stages
-    A = np.array([list(r) + [0.0] * (s - len(r)) for r in sch.A], float)
-    b = np.array(sch.b, float)
-    v = np.ones(s)
-    c = [1.0]
-    for _ in range(s):
-        c.append(float(b @ v))
-        v = A @ v
-    return np.array(c[::-1])  # highest power first, for np.polyval
-
-
 def _R(sch, z):
-    return np.polyval(_poly(sch), np.asarray(z, dtype=complex))
+    return sch.stability_function(z)
 
 
-def real_stability_bound(scheme, *, xmax=10.0, tol=1e-12):
-    """The extent ``beta`` of the stability region on the negative real axis, from ``R(z)``.
-
-    ``beta = sup{x : |R(-s)| <= 1 for all s in [0, x]}`` -- computed from the
-    tableau's stability polynomial (the same as
-    :meth:`~liefi.schemes.ExplicitRungeKutta.stability_polynomial`), a check of
-    the declared ``real_stability_bound``: 2 for Euler and Heun, 2.5127 for RK3,
-    2.7853 for RK4.
-    """
-    sch, _ = resolve_scheme(scheme)
-    if not isinstance(sch, ExplicitRungeKutta):
-        return math.inf
-    xs = np.linspace(0.0, xmax, 20001)
-    R = np.abs(_R(sch, -xs))
-    bad = np.nonzero(R > 1 + 1e-12)[0]
-    if bad.size == 0:
-        return math.inf
-    lo, hi = xs[bad[0] - 1], xs[bad[0]]
-    while hi - lo > tol:
-        mid = 0.5 * (lo + hi)
-        if abs(_R(sch, -mid)) <= 1 + 1e-15:
-            lo = mid
-        else:
-            hi = mid
-    return lo
-
-
-@functools.lru_cache(maxsize=None)
-def _optimal_rate(sch):
-    xs = np.linspace(0.0, sch.real_stability_bound, 20001)
-    return float(xs[int(np.argmin(np.abs(_R(sch, -xs))))])
+def real_stability_bound(scheme):
+    """The scheme's real stability bound ``beta`` (:attr:`liefi.schemes.rk.ExplicitRungeKutta.real_stability_bound`)."""
+    return resolve_scheme(scheme)[1]
 
 
 def optimal_rate(scheme):
-    """``x* = argmin |R(-x)|`` over ``[0, beta]``: the ``dt lambda_max`` automatic gains aim at.
+    """The ``dt lambda_max`` automatic gains aim at: the scheme's ``optimal_rate``.
 
-    Euler: ``R(-x) = 1 - x``, so ``x* = 1`` (the stiffest mode is removed in
-    one step; Bae & Chang's optimal gain ``1/(dt L)``).  Heun: ``x* = 1``
-    (``|R| = 1/2``).  RK4: ``x* ~ 1.6``.  Split schemes: :data:`SPLIT_RATE`.
+    Euler ``x* = 1`` (Bae & Chang's optimal gain ``1/(dt L)``), Heun 1, RK4
+    ~1.6; split schemes :data:`SPLIT_RATE`.
     """
-    sch, beta = resolve_scheme(scheme)
-    if not isinstance(sch, ExplicitRungeKutta):
-        return SPLIT_RATE
-    return _optimal_rate(sch)
+    sch, _ = resolve_scheme(scheme)
+    r = getattr(sch, "optimal_rate", math.nan)
+    return SPLIT_RATE if not (isinstance(r, float) and math.isfinite(r)) else float(r)
 
 
 # --------------------------------------------------------------------------------

@@ -219,7 +219,7 @@ class Scene:
         """Run the scene at its settings unless told otherwise.
 
         ``scheme`` is a liefi scheme name (``euler``, ``heun``, ``rk4``...), a
-        stiff-safe split scheme (``imex-euler``, ``imex-rk4``: :mod:`liefi.stiff`),
+        stiff-safe split scheme (``imex-euler``, ``imex-rk4``: :mod:`liefi.schemes.split`),
         ``"scipy:METHOD"`` (``solve_ivp`` with ``rtol``/``atol``), or one of the
         scene's ``extra_schemes`` (e.g. ``"dla"``).  ``gains="auto"``: chosen from
         ``dt`` and the Hessian of ``V`` and adapted along the run.
@@ -250,22 +250,17 @@ class Scene:
 
         if scheme in self.extra_schemes:
             t, Y, names, cpu, steps, nfev = self.run_extra(scheme, v, dt, T, save_every, fi)
-        elif str(scheme).startswith("scipy:"):
-            from scipy.integrate import solve_ivp
+        elif str(scheme).lower().startswith("scipy:"):
+            from ..schemes import registry as _schemes
 
-            method = scheme.split(":", 1)[1]
-            from scipy.integrate._ivp.ivp import METHODS
-
-            if method not in METHODS:
-                raise ValueError(f"scheme: unknown solve_ivp method {method!r}; choose scipy:{'|'.join(METHODS)}")
+            ivp = _schemes.get(scheme, kind="scipy")
+            method = ivp.method
             if getattr(fi, "gains_mode", "fixed") == "auto":
                 from ..stability import auto_gains
 
                 fi = fi.with_gains(auto_gains(fi, dt, "euler"))
             t_eval = np.linspace(0.0, T, min(n_steps, max_saved) + 1)
-            start = time.process_time()
-            sol = solve_ivp(fi.fun, (0.0, T), fi.y0, method=method, t_eval=t_eval, rtol=rtol, atol=atol)
-            cpu = time.process_time() - start
+            sol, cpu = ivp.solve(fi.fun, T, fi.y0, t_eval=t_eval, rtol=rtol, atol=atol)
             if not sol.success:
                 raise RuntimeError(f"solve_ivp({method}) failed on {self.name!r}: {sol.message}")
             if not np.all(np.isfinite(sol.y)):
