@@ -19,6 +19,7 @@ REGISTRY = {
     "roller-racer": "roller_racer",
     "heisenberg": "heisenberg",
     "oscillator": "oscillator",
+    "rigid-body": "rigid_body",
 }
 
 
