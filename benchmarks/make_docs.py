@@ -18,8 +18,8 @@ scene's gains and k = 0.1, 1, 10 on every invariant, ``rtol = 1e-3 ... 1e-11``
 for ``solve_ivp``; ``FI/solve_ivp`` with LSODA only (RK45 and DOP853 on the
 stiff FI field cost minutes per run and never win).
 
-``long`` runs every compiled fixed-step family (FI with each gain,
-no-feedback, projection) with RK4 at ``dt * (8, 4, 2)`` to ``--t-final`` and
+``long`` runs every compiled fixed-step family (FI with k = 0.1 and 1,
+``FI-accurate``, no-feedback, projection) with RK4 at ``dt * (8, 4)`` to ``--t-final`` and
 writes ``long-<T>.sqlite``, ``crossover.json`` and ``<scene>-cost-horizon.png``.
 """
 
@@ -81,7 +81,9 @@ def long(a, names):
     with open_executor(a.scheduler) as ex, ResultStore(path) as store:
         for name in names:
             sc = scenes.get(name)
-            tasks = bench.horizon_tasks(sc, a.t_final, dts=[sc.dt * f for f in factors], n_save=a.n_save)
+            gains = tuple(None if g == "scene" else float(g) for g in a.gains.split(","))
+            tasks = bench.horizon_tasks(sc, a.t_final, dts=[sc.dt * f for f in factors], n_save=a.n_save,
+                                        gains=gains)
             if a.methods:
                 tasks = [t for t in tasks if t["method"] in a.methods.split(",")]
             log(f"{name}: {len(tasks)} runs to t = {a.t_final:g}")
@@ -145,7 +147,8 @@ def main(argv=None):
     ap.add_argument("--out", default=OUT)
     ap.add_argument("--only", default=None, help="comma-separated scene names")
     ap.add_argument("--t-final", type=float, default=None, dest="t_final")
-    ap.add_argument("--dts", default="8,4,2", help="long: steps as multiples of the scene's dt")
+    ap.add_argument("--dts", default="8,4", help="long: steps as multiples of the scene's dt")
+    ap.add_argument("--gains", default="0.1,1", help="long: fixed FI gains ('scene': the scene's)")
     ap.add_argument("--methods", default=None, help="long: only these families (FI,no-feedback,projection)")
     ap.add_argument("--n-save", type=int, default=10000, dest="n_save")
     ap.add_argument("--scheduler", default="processes:2")

@@ -117,6 +117,26 @@ def test_run_sweep_is_executor_independent():
     assert out[0] == 1 and out[2] == 3 and isinstance(out[1], TaskError) and out[1].type == "TypeError"
 
 
+def test_schemes_come_from_the_registry(capsys):
+    """--schemes takes any explicit tableau of the scheme registry and solve_ivp's methods, and names the choices."""
+    from liefi.bench.cli import _schemes
+
+    assert _schemes("midpoint,rk4,scipy:LSODA,RK45") == (("midpoint", "rk4"), ("LSODA", "RK45"))
+    with pytest.raises(ValueError, match="schemes: unknown scheme 'imex-euler'.*midpoint"):
+        _schemes("imex-euler")
+
+
+def test_accurate_gains_are_an_fi_over_a_long_enough_horizon():
+    """FI-accurate (liefi.gains) runs where its gains are nonzero on every invariant the scheme does not keep."""
+    r = bench.run_task(dict(scene="oscillator", variant=None, method="FI-accurate", scheme="rk4", dt=8e-3, rtol=None,
+                            t_final=40.0, configuration=True, n_save=10, gain=None))
+    assert r["status"] == "ok" and "H_y=" in r["message"], r["message"]
+    # over a short horizon RK4's accurate gains vanish (the contraction never acts): the no-feedback method
+    r = bench.run_task(dict(scene="oscillator", variant=None, method="FI-accurate", scheme="rk4", dt=8e-3, rtol=None,
+                            t_final=0.08, configuration=True, n_save=10, gain=None))
+    assert r["status"] == "not-applicable" and "no-feedback" in r["message"], r["message"]
+
+
 def test_open_executor_strings():
     with open_executor(None) as ex:
         assert ex is None
@@ -351,3 +371,36 @@ def contextlib_closing(x):
     import contextlib
 
     return contextlib.closing(x)
+
+
+def test_crossover_from_prefix_maxima():
+    """The crossover is the least horizon from which on the FI keeps the invariants for less than any other
+    method; costs scale with the horizon; a horizon where no FI qualifies ends it."""
+    def row(method, gain, cpu, drifts, errors=None):
+        hs = [1e2, 1e3, 1e4]
+        return dict(method=method, scheme="rk4", gain=gain, status="ok", t_final=1e4, cpu_seconds=cpu, horizons=hs,
+                    drift_at=drifts, error_at=errors or [None] * 3, error_measured=errors is not None)
+
+    rows = [row("FI", 0.1, 2.0, [1e-12, 1e-11, 5e-11]),          # bounded drift, 2 s to 1e4
+            row("no-feedback", None, 1.0, [1e-12, 1e-11, 1e-9]),  # cheaper, but drifts past 1e-10 by 1e4
+            row("projection", None, 3.0, [1e-14, 1e-14, 1e-14])]
+    c = bench.crossover(rows, drift=1e-10)
+    assert c["crossover"] == 1e4
+    assert c["other_best"][1e3] == ("no-feedback rk4", pytest.approx(0.1))
+    assert c["fi_best"][1e4] == ("FI rk4 k=0.1", 2.0) and c["other_best"][1e4] == ("projection rk4", 3.0)
+    rows[0]["drift_at"][-1] = None  # the FI diverged before 1e4: no crossover
+    assert bench.crossover(rows, drift=1e-10)["crossover"] is None
+    # a relative state error where measured
+    rows = [row("FI", 1.0, 2.0, [0, 0, 0], [1e-9, 1e-8, 1e-5]), row("projection", None, 3.0, [0, 0, 0], [0, 0, 0])]
+    assert bench.crossover(rows, drift=1e-10, error=1e-6)["crossover"] is None
+    assert bench.crossover(rows, drift=1e-10, error=1e-4)["crossover"] == 1e2
+
+
+def test_horizon_row_reads_prefixes():
+    """horizon_row turns a run into prefix maxima of the drift and of the relative error (exact solution)."""
+    task = dict(scene="suslov", variant=None, method="FI", scheme="rk4", dt=8e-3, rtol=None, t_final=200.0,
+                configuration=True, n_save=200, gain=1.0)
+    r = bench.horizon_row(task, bench.run_task(task))
+    assert r["horizons"] == [100.0, 200.0] and r["error_measured"]
+    assert r["drift_at"][0] <= r["drift_at"][1] == pytest.approx(r["max_drift"])
+    assert 0 < r["error_at"][0] <= r["error_at"][1] < 1e-6

@@ -39,7 +39,8 @@ def add_arguments(parser):
     parser.add_argument("--methods", default=None, metavar="M[,M]",
                         help=f"method families (default: all that apply): {','.join(METHODS)}")
     parser.add_argument("--schemes", default=None, metavar="S[,S]",
-                        help=f"schemes (default: all): {','.join(FIXED_SCHEMES + IVP_METHODS)}")
+                        help=f"schemes (default: {','.join(FIXED_SCHEMES + IVP_METHODS)}): any explicit tableau of "
+                        "the scheme registry (`liefi list`) or a solve_ivp method")
     parser.add_argument("--gains", default=None, metavar="K[,K]",
                         help="gains of the FI rows, 'scene' for the scene's own (default: scene,0.1,1,10)")
     parser.add_argument("--progress", action=argparse_bool(), default=None,
@@ -61,6 +62,28 @@ def _list(text, allowed, what):
     if bad or not items:
         raise ValueError(f"{what}: unknown {bad or text!r}; choose from {','.join(allowed)}")
     return items
+
+
+def _schemes(text):
+    """``--schemes`` -> ``(fixed-step tableaux, solve_ivp methods)``, names from the scheme registry
+    (:func:`liefi.schemes.get`): any explicit tableau (the compiled engine unrolls any), and
+    ``scipy:METHOD`` or ``METHOD`` for solve_ivp."""
+    if text is None:
+        return FIXED_SCHEMES, IVP_METHODS
+    from ..schemes import get, names
+
+    fixed, ivp = [], []
+    for t in (x.strip() for x in text.split(",") if x.strip()):
+        name = t if t.lower() in names("explicit") or t.lower().startswith("scipy:") else f"scipy:{t}"
+        try:
+            sch = get(name, ("explicit", "scipy"))
+        except ValueError:
+            raise ValueError(f"schemes: unknown scheme {t!r}; choose from "
+                             f"{','.join(names('explicit') + [n.split(':', 1)[1] for n in names('scipy')])}") from None
+        (fixed if sch.kind == "explicit" else ivp).append(sch.name if sch.kind == "explicit" else sch.method)
+    if not fixed and not ivp:
+        raise ValueError("schemes: empty list")
+    return tuple(fixed), tuple(ivp)
 
 
 def _gains(text):
@@ -125,10 +148,8 @@ def run_from_args(args, log=None):
         positive("--long-horizon", args.long_horizon)
     names = _scenes.names() if args.scene == "all" else [args.scene]
     methods = _list(getattr(args, "methods", None), METHODS, "methods")
-    chosen = _list(getattr(args, "schemes", None), FIXED_SCHEMES + IVP_METHODS, "schemes")
+    schemes, ivp = _schemes(getattr(args, "schemes", None))
     gains = _gains(getattr(args, "gains", None))
-    schemes = FIXED_SCHEMES if chosen is None else tuple(s for s in chosen if s in FIXED_SCHEMES)
-    ivp = IVP_METHODS if chosen is None else tuple(s for s in chosen if s in IVP_METHODS)
     os.makedirs(args.out, exist_ok=True)  # outputs checked before any work
     ResultStore(os.path.join(args.out, STORE)).close()
     if not _compiled.available():

@@ -10,6 +10,11 @@ tolerances ``rtol`` (each run from the scene's start to ``t_final``):
 ``FI-tuned``        the feedback integrator with fixed gains matched to ``dt`` and the scheme
                     (:func:`liefi.stability.auto_gains`: ``dt lambda_max(Hess V)`` at the
                     scheme's optimal rate along a pilot run), same schemes
+``FI-accurate``     the feedback integrator with the gains of :func:`liefi.gains.accurate_gains`
+                    (least drift bound for the scheme, ``dt`` and ``t_final``; zero on the
+                    invariants the scheme keeps exactly); a run whose gains vanish on an
+                    invariant the scheme does not keep is the no-feedback method, and is
+                    recorded as ``not-applicable``
 ``FI/solve_ivp``    the same field with ``solve_ivp`` ``RK45``, ``DOP853``, ``LSODA``
 ``no-feedback``     the extended field ``X`` alone (gains zero) with ``euler``, ``heun``, ``rk4``
 ``constrained``     the original constrained equations (multipliers
@@ -78,13 +83,13 @@ from ..sweep import ResultStore, SweepInterrupted, TaskError, run_sweep
 
 FIXED_SCHEMES = ("euler", "heun", "rk4")
 IVP_METHODS = ("RK45", "DOP853", "LSODA")
-METHODS = ("FI", "FI-tuned", "FI/solve_ivp", "no-feedback", "constrained", "projection", "DLA")
+METHODS = ("FI", "FI-tuned", "FI-accurate", "FI/solve_ivp", "no-feedback", "constrained", "projection", "DLA")
 #: the gains of the ``FI`` rows: ``None`` is the scene's own (the paper's) gains, a number k is k on every
 #: invariant.  Small gains belong here: with RK4 at the scene's step, k = 0.1 keeps the oscillator's
 #: invariants bounded at the cost of plain RK4.  Zero is the ``no-feedback`` method, not an FI.
 FI_GAINS = (None, 0.1, 1.0, 10.0)
 #: the methods that count as a feedback integrator in :func:`summarize`
-FI_METHODS = ("FI", "FI-tuned", "FI/solve_ivp")
+FI_METHODS = ("FI", "FI-tuned", "FI-accurate", "FI/solve_ivp")
 STORE = "results.sqlite"
 
 
@@ -132,7 +137,7 @@ def build_tasks(scene, t_final, *, variant=None, dts=None, rtols=None, methods=N
         if m == "FI":
             tasks += [dict(common, method=m, scheme=s, dt=float(dt), rtol=None, gain=k)
                       for k in gains for s in schemes for dt in dts]
-        elif m in ("FI-tuned", "no-feedback", "projection"):
+        elif m in ("FI-tuned", "FI-accurate", "no-feedback", "projection"):
             tasks += [dict(common, method=m, scheme=s, dt=float(dt), rtol=None) for s in schemes for dt in dts]
         elif m in ("FI/solve_ivp", "constrained"):
             tasks += [dict(common, method=m, scheme=s, dt=None, rtol=float(r)) for s in ivp_methods for r in rtols]
@@ -176,7 +181,7 @@ def run_task(task):
         sc, v, fi = _integrator(task)
         method, scheme, T = task["method"], task["scheme"], task["t_final"]
         w = time.perf_counter()
-        if method in ("FI", "FI-tuned", "no-feedback", "projection"):
+        if method in ("FI", "FI-tuned", "FI-accurate", "no-feedback", "projection"):
             n, se = _steps(T, task["dt"], task["n_save"])
             if method == "projection":
                 cf = _compiled.compile_constrained(fi, projection=True)
@@ -186,6 +191,20 @@ def run_task(task):
 
                 fi = fi.with_gains(auto_gains(fi, task["dt"], scheme, y=fi.y0, t_final=T))
                 out["message"] = "gains " + ", ".join(f"{k}={v:.3g}" for k, v in fi.gains.items())
+                cf = _compiled.compile_feedback(fi)
+                p, proj = _compiled.parameters(fi), None
+            elif method == "FI-accurate":
+                from ..gains import accurate_gains, exactly_kept
+
+                g = accurate_gains(fi, task["dt"], scheme, t_final=T)
+                out["message"] = "gains " + ", ".join(f"{k}={v:.3g}" for k, v in g.items())
+                kept = set(exactly_kept(fi, scheme))
+                zero = [k for k, v in g.items() if v == 0 and k not in kept]
+                if zero or not any(g.values()):
+                    out.update(status="not-applicable",
+                               message=f"accurate gains are zero on {zero or list(g)}: that is the no-feedback method")
+                    return out
+                fi = fi.with_gains(g)
                 cf = _compiled.compile_feedback(fi)
                 p, proj = _compiled.parameters(fi), None
             else:
@@ -519,8 +538,8 @@ def summarize(rows, drift=1e-8, tasks=None):
     ``method``, ``scheme``, ``dt`` or ``rtol``, ``gain`` (``None``: the scene's
     gains; ``FI-tuned``: chosen from ``dt``), ``cpu_seconds``, ``max_drift`` and
     ``max_error``.  Only runs with ``status = "ok"`` count; ``runs``,
-    ``failed`` (diverged or solver failures) and ``errors`` (raised, worker died)
-    count the rest, and ``complete`` says whether every task of the grid
+    ``failed`` (diverged or solver failures), ``not_applicable`` and ``errors``
+    (raised, worker died) count the rest, and ``complete`` says whether every task of the grid
     (``tasks``, when given) finished.
     """
     best = cheapest(rows, drift=drift)
@@ -534,7 +553,8 @@ def summarize(rows, drift=1e-8, tasks=None):
         "runs": len(rows),
         "tasks": len(rows) if tasks is None else int(tasks),
         "complete": tasks is None or len(rows) >= tasks,
-        "failed": sum(r["status"] not in ("ok", "error") for r in rows),
+        "failed": sum(r["status"] in ("diverged", "failed") for r in rows),
+        "not_applicable": sum(r["status"] == "not-applicable" for r in rows),
         "errors": sum(r["status"] == "error" for r in rows),
         "cheapest_overall": _brief(best),
         "cheapest_fi": _brief(fi),

@@ -12,7 +12,7 @@ import numpy as np
 # plots
 # ======================================================================================
 
-_COLORS = {"FI": "C3", "FI-tuned": "C6", "FI/solve_ivp": "C1", "no-feedback": "C7", "constrained": "C0", "projection": "C2", "DLA": "C4"}
+_COLORS = {"FI": "C3", "FI-tuned": "C6", "FI-accurate": "C5", "FI/solve_ivp": "C1", "no-feedback": "C7", "constrained": "C0", "projection": "C2", "DLA": "C4"}
 _STYLES = {"euler": ("o", "-"), "heun": ("s", "-"), "rk4": ("^", "-"), "RK45": ("o", "--"), "DOP853": ("D", "--"),
            "LSODA": ("v", ":"), "dla": ("x", "-")}
 
