@@ -285,9 +285,10 @@ def _fresh_pool(executor):
 
 def _stop(executor):
     """Cancel what has not started and stop a process pool's workers (after Ctrl-C)."""
-    with contextlib.suppress(Exception):
+    procs = list((getattr(executor, "_processes", None) or {}).values())  # no public way before Python 3.14;
+    with contextlib.suppress(Exception):  # taken first: shutdown() forgets them
         executor.shutdown(wait=False, cancel_futures=True)
-    for p in list((getattr(executor, "_processes", None) or {}).values()):  # no public way before Python 3.14
+    for p in procs:
         with contextlib.suppress(Exception):
             p.terminate()
 

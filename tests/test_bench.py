@@ -404,3 +404,24 @@ def test_horizon_row_reads_prefixes():
     assert r["horizons"] == [100.0, 200.0] and r["error_measured"]
     assert r["drift_at"][0] <= r["drift_at"][1] == pytest.approx(r["max_drift"])
     assert 0 < r["error_at"][0] <= r["error_at"][1] < 1e-6
+
+
+def test_interrupt_stops_a_process_pool_at_once():
+    """Ctrl-C while process-pool workers run long tasks: the workers are stopped and the sweep returns
+    within seconds, not after the running tasks finish."""
+    code = (
+        "import os, signal, threading, time, sys\n"
+        "from liefi.sweep import run_sweep, open_executor, SweepInterrupted\n"
+        "threading.Timer(1.0, lambda: os.kill(os.getpid(), signal.SIGINT)).start()\n"
+        "t = time.time()\n"
+        "try:\n"
+        "    with open_executor('processes:2') as ex:\n"
+        "        run_sweep(time.sleep, [60.0] * 4, ex)\n"
+        "except SweepInterrupted as e:\n"
+        "    print('interrupted', e.done, round(time.time() - t, 1))\n"
+    )
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    t = time.time()
+    out = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, timeout=120)
+    assert out.stdout.startswith("interrupted 0"), out.stderr
+    assert time.time() - t < 50  # the 60 s tasks did not run to the end
