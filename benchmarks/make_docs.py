@@ -5,7 +5,7 @@ finishes, and a rerun skips what is there)::
 
     python benchmarks/make_docs.py grid                    # every scene, t in [0, 1e3]
     python benchmarks/make_docs.py long --t-final 1e5      # long runs, crossover horizons
-    python benchmarks/make_docs.py long --t-final 1e6 --only suslov --dts 8   # a longer run of one scene
+    python benchmarks/make_docs.py long --t-final 1e6 --only roller-racer --dts 8 --gains 1 --methods FI,projection
     python benchmarks/make_docs.py tables                  # print the markdown tables
 
 ``grid`` writes into ``docs/work_precision/`` (``--out``): per scene
@@ -56,9 +56,13 @@ def grid(a, names):
         for name in names:
             sc = scenes.get(name)
             dts = [sc.dt * f for f in (8.0, 4.0, 2.0, 1.0, 0.5, 0.25)]
-            kw = dict(dts=dts, select=_grid_select)
-            rows = bench.work_precision(sc, a.t_final, a.out, ex, log=log, **kw)
-            expected[name] = len(rows)
+            expected[name] = sum(map(_grid_select, bench.build_tasks(sc, a.t_final, dts=dts)))
+            try:
+                rows = bench.work_precision(sc, a.t_final, a.out, ex, log=log, dts=dts, select=_grid_select)
+            except KeyboardInterrupt:
+                bench.write_summary(a.out, expected)
+                log(f"{name}: interrupted; what finished is in results.sqlite and summary.json")
+                raise SystemExit(130) from None
             bench.write_summary(a.out, expected)
             log(f"{name}: " + bench.summary(rows).replace("\n", "; "))
 
@@ -89,10 +93,10 @@ def long(a, names):
             log(f"{name}: {len(tasks)} runs to t = {a.t_final:g}")
             store.sweep = name
             vals = run_sweep(bench.run_task, tasks, ex, store=store, convert=bench.horizon_row, label=name)
-            rows = [bench.error_row(t, v) if isinstance(v, TaskError) else v for t, v in zip(tasks, vals)]
-            # every long run of this scene in any store of this folder (other horizons too)
+            # every long run of this scene in every store of this folder (other steps and horizons too)
+            rows = []
             for other in sorted(os.listdir(a.out)):
-                if other.startswith("long-") and other.endswith(".sqlite") and other != os.path.basename(path):
+                if other.startswith("long-") and other.endswith(".sqlite"):
                     with ResultStore(os.path.join(a.out, other)) as o:
                         rows += [v for t, v in o.rows(name) if not isinstance(v, TaskError)]
             res = {}
@@ -125,7 +129,7 @@ def tables(a, names):
     if os.path.exists(p):
         c = json.load(open(p))
         print("\n| scene | crossover H (drift <= 1e-10, rel. error <= 1e-6) | crossover H (drift only) "
-              "| at the longest H: cheapest FI | cheapest other |\n|---|---|---|---|---|")
+              "| at the longest H where a method qualifies: cheapest FI | cheapest other |\n|---|---|---|---|---|")
         for n in names:
             if n not in c:
                 continue

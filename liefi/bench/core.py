@@ -540,7 +540,7 @@ def summarize(rows, drift=1e-8, tasks=None):
     ``max_error``.  Only runs with ``status = "ok"`` count; ``runs``,
     ``failed`` (diverged or solver failures), ``not_applicable`` and ``errors``
     (raised, worker died) count the rest, and ``complete`` says whether every task of the grid
-    (``tasks``, when given) finished.
+    (``tasks``; ``None`` when not given) finished.
     """
     best = cheapest(rows, drift=drift)
     fi = cheapest(rows, drift=drift, methods=FI_METHODS)
@@ -551,8 +551,8 @@ def summarize(rows, drift=1e-8, tasks=None):
         "criterion": f"every invariant's max drift <= {drift:g}",
         "t_final": rows[0]["t_final"] if rows else None,
         "runs": len(rows),
-        "tasks": len(rows) if tasks is None else int(tasks),
-        "complete": tasks is None or len(rows) >= tasks,
+        "tasks": None if tasks is None else int(tasks),
+        "complete": None if tasks is None else len(rows) >= tasks,
         "failed": sum(r["status"] in ("diverged", "failed") for r in rows),
         "not_applicable": sum(r["status"] == "not-applicable" for r in rows),
         "errors": sum(r["status"] == "error" for r in rows),

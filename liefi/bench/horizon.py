@@ -214,7 +214,7 @@ def plot_cost_vs_horizon(curves, path, name, drift=1e-10):
         h = sorted(c)
         m = lab.split()[0]
         ax.loglog(h, [c[x] for x in h], marker="o^sDvx"[i % 6], ms=3.5, lw=1, color=_COLORS.get(m, "k"),
-                  ls="-" if m == "FI" else "--", label=lab)
+                  ls="-" if m.startswith("FI") else "--", label=lab)
     ax.set_xlabel("horizon H")
     ax.set_ylabel("CPU s to keep every invariant within %g over [0, H]" % drift, fontsize=8)
     ax.set_title(f"{name}: cost against horizon (missing: no step of the grid keeps the drift)", fontsize=9)
