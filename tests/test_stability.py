@@ -1,4 +1,4 @@
-"""The stability machinery (:mod:`liefi.stability`, :mod:`liefi.stiff`) against its defining facts.
+"""The stability machinery (:mod:`liefi.stability`, :mod:`liefi.schemes.split`, :mod:`liefi.experiments`) against its defining facts.
 
 * The Hessian of ``V`` on its zero set is ``sum_j k_j grad I_j grad I_j^T + k0 Hess P``:
   its largest eigenvalue from the small Gram matrix equals the one of the full
@@ -31,6 +31,8 @@ from liefi import scenes
 from liefi.feedback import FeedbackIntegrator
 from liefi.schemes import SCHEMES, IntegrationError
 from liefi import stability as S
+from liefi.experiments import battery as B
+from liefi.experiments import stability_maps as M
 from liefi.schemes import split as stiff
 from liefi.scenes import exact as _exact
 
@@ -247,7 +249,7 @@ def test_scipy_implicit_solvers_run_through_scene_run():
 
 
 def test_suslov_map_reproduces_dt_k_one_and_the_estimate():
-    m = S.stability_map("suslov", gains=[100.0], t_final=3.0, tol=0.02, backend="numpy")
+    m = M.stability_map("suslov", gains=[100.0], t_final=3.0, tol=0.02, backend="numpy")
     b = m.boundaries[0]
     assert 0.97 <= b.dt_finite * 100 <= 1.03  # finite up to dt k = 1: the constraint mode, k |e|^2 = 2k
     assert b.dt_estimate * 100 == pytest.approx(4 / (3 + math.sqrt(5)), rel=1e-3)  # 2 / 2.618
@@ -258,15 +260,15 @@ def test_suslov_map_reproduces_dt_k_one_and_the_estimate():
 
 def test_map_accepts_any_executor():
     with ThreadPoolExecutor(2) as ex:
-        m = S.stability_map("suslov", gains=[100.0, 300.0], t_final=0.5, tol=0.1, backend="numpy", executor=ex)
+        m = M.stability_map("suslov", gains=[100.0, 300.0], t_final=0.5, tol=0.1, backend="numpy", executor=ex)
     assert [b.gain for b in m.boundaries] == [100.0, 300.0]
     assert all(b.finite[0] is not None and b.finite[1] is not None for b in m.boundaries)
 
 
 def test_plot_stability_map(tmp_path):
     pytest.importorskip("matplotlib")
-    m = S.stability_map("suslov", gains=[100.0], t_final=0.5, tol=0.1, backend="numpy")
-    S.plot_stability_map(m, tmp_path / "m.png")
+    m = M.stability_map("suslov", gains=[100.0], t_final=0.5, tol=0.1, backend="numpy")
+    M.plot_stability_map(m, tmp_path / "m.png")
     assert (tmp_path / "m.png").stat().st_size > 1000
 
 
@@ -275,15 +277,15 @@ def test_plot_stability_map(tmp_path):
 
 @pytest.mark.slow
 def test_battery_has_no_silent_drift_and_no_crash():
-    res = S.run_battery(quick=True)
+    res = B.run_battery(quick=True)
     bad = [r for r in res if r.outcome in ("SILENT DRIFT", "CRASH")]
-    assert not bad, S.battery_table(bad)
+    assert not bad, B.battery_table(bad)
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", scenes.names())
 def test_stability_map_of_every_scene(name):
-    m = S.stability_map(name, gains=[10.0, 100.0, 1000.0], t_final=2.0, tol=0.05)
+    m = M.stability_map(name, gains=[10.0, 100.0, 1000.0], t_final=2.0, tol=0.05)
     for b in m.boundaries:
         assert b.finite[0] is not None
 

@@ -72,6 +72,8 @@ class RunResult:
     invariants: dict
     max_error: dict
     max_drift: dict
+    #: seconds spent besides the integration (estimate, guard, kernel loading)
+    overhead_seconds: float = 0.0
 
     def __getitem__(self, name):
         return self.y[self.names.index(name)]
@@ -86,6 +88,7 @@ class RunResult:
             "t_final": self.t_final,
             "steps": self.steps,
             "cpu_seconds": self.cpu_seconds,
+            "overhead_seconds": self.overhead_seconds,
             "rhs_evaluations": self.rhs_evaluations,
             "reference": self.reference,
             "gains": self.gains,
@@ -117,6 +120,15 @@ class Scene:
     error_variables: tuple = ()
     #: schemes besides liefi's RK tableaux and ``scipy:METHOD`` this scene supports
     extra_schemes: tuple = ()
+    #: the variant the stability experiments run (default: the first)
+    stability_variant = None
+    #: this scene's own extreme cases for the stability battery (see :meth:`stability_case`);
+    #: each also runs with automatic gains as ``"<case> auto"``
+    stability_cases: tuple = ()
+
+    def stability_case(self, case):
+        """``(scene, variant, has_reference)`` of one of :attr:`stability_cases` (a modified copy of the scene)."""
+        raise ValueError(f"case: scene {self.name!r} has no stability case {case!r}")
 
     # --- data (to supply) --------------------------------------------------------
     def build_system(self):
@@ -248,8 +260,13 @@ class Scene:
         fi = self.integrator(v, gains=gains, configuration=configuration)
         self._check_start(fi, v)
 
+        overhead = 0.0
         if scheme in self.extra_schemes:
             t, Y, names, cpu, steps, nfev = self.run_extra(scheme, v, dt, T, save_every, fi)
+            if check_stability:
+                from ..run import check_result_drift
+
+                check_result_drift(fi, t, Y, names, scheme, dt)  # e.g. DLA at a step that loses the motion
         elif str(scheme).lower().startswith("scipy:"):
             from ..schemes import registry as _schemes
 
@@ -259,6 +276,10 @@ class Scene:
                 from ..stability import auto_gains
 
                 fi = fi.with_gains(auto_gains(fi, dt, "euler"))
+            if check_stability:
+                from ..run import check_ivp
+
+                check_ivp(fi, ivp, T)  # an explicit method on a stiff field would run for minutes
             t_eval = np.linspace(0.0, T, min(n_steps, max_saved) + 1)
             sol, cpu = ivp.solve(fi.fun, T, fi.y0, t_eval=t_eval, rtol=rtol, atol=atol)
             if not sol.success:
@@ -274,7 +295,10 @@ class Scene:
             if getattr(sol, "stability", None) is not None and sol.stability.gains:
                 fi = fi.with_gains(sol.stability.gains)  # report the gains the run started with
             t, Y, names, cpu, steps, nfev = sol.t, sol.y, sol.names, sol.cpu_seconds, sol.steps, sol.rhs_evaluations
-        return self._result(v, str(scheme), dt, T, fi, t, Y, names, cpu, steps, nfev)
+            overhead = getattr(sol, "overhead_seconds", 0.0)
+        res = self._result(v, str(scheme), dt, T, fi, t, Y, names, cpu, steps, nfev)
+        res.overhead_seconds = float(overhead)
+        return res
 
     def _check_start(self, fi, v, rtol=1e-9):
         """The reference solution is the *constrained* motion: the start must be on ``J = 0``."""

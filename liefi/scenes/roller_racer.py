@@ -95,6 +95,20 @@ class RollerRacer(Scene):
         """Integrate the reduced state only unless ``configuration=True`` is asked for."""
         return False
 
+    stability_cases = ("near-singular",)
+
+    def stability_case(self, case):
+        """``"near-singular"``: ``d1 cos(phi) + d2 = 0`` up to 1e-6, where ``e_1^flat`` loses its ``Pi_theta`` part."""
+        if case != "near-singular":
+            return super().stability_case(case)
+        import copy
+        import math
+
+        scene = copy.copy(self)
+        scene.__dict__ = {}
+        scene.phi0 = math.acos(-self.d2 / self.d1) + 1e-6
+        return scene, scene.variant(), False
+
     def initial_state(self, variant):
         z0 = self.system.complete_momenta([self.phi0], self.momenta0)
         return np.concatenate([np.asarray(self.pose0, float), z0])

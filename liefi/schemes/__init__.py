@@ -11,7 +11,17 @@
 ``get(name)`` and ``names(kind=None)`` read the registry.
 """
 
-from .core import IntegrationError, Solution, _fail, integrate, run_arguments, steps_for  # noqa: F401
+from .core import (  # noqa: F401
+    MAX_STEPS,
+    IntegrationError,
+    Solution,
+    _fail,
+    integrate,
+    positive_int,
+    positive_number,
+    run_arguments,
+    steps_for,
+)
 from .registry import REGISTRY, describe, get, names
 from .rk import EULER, HEUN, MIDPOINT, RK3, RK4, TABLEAUX, ExplicitRungeKutta
 
