@@ -74,11 +74,13 @@ states given; where it vanishes (a free motion) the horizon ``1/T`` is used.
 
 *Invariants the scheme keeps exactly* (:func:`exactly_kept`): an invariant
 with a constant gradient ``a`` that is a first integral of the field
-(``a . X(y) = 0`` for every ``y``, on and off the invariant set) is kept to
-rounding by every Runge--Kutta scheme (``a . y_{n+1} = a . y_n + h sum b_i
-a . X(Y_i)``); its residual stays zero, its feedback term vanishes identically
-and only costs work.  Its gain is 0 and it should be left out of ``V``
-(``invariants=`` of :class:`~liefi.FeedbackIntegrator`).
+(``a . X(y) = 0`` for every ``y``, on and off the invariant set) and is
+orthogonal to the gradients of the other penalized invariants (so that their
+feedback does not move it) is kept to rounding by every Runge--Kutta scheme
+applied to the feedback field (``a . y_{n+1} = a . y_n + h sum b_i a . F(Y_i)``,
+``a . F = 0``); its residual stays zero, its feedback term vanishes
+identically and only costs work.  Its gain is 0 and it should be left out of
+``V`` (``invariants=`` of :class:`~liefi.FeedbackIntegrator`).
 """
 
 from __future__ import annotations
@@ -88,7 +90,7 @@ import math
 import numpy as np
 
 from .schemes import ExplicitRungeKutta, get_scheme
-from .stability import _scaled, dynamics_rate, positive_number, real_stability_bound, unit_rate_gains
+from .stability import dynamics_rate, positive_number, real_stability_bound, unit_rate_gains
 
 
 #: Rounding error injected per step, relative to the state's scale (unit roundoff of float64).
@@ -181,13 +183,18 @@ def unforced_rate(fi, y=None):
 def exactly_kept(fi, scheme="rk4", y=None, *, n_samples=6, rel=1e-2, tol=1e-10):
     """Names of the penalized invariants every Runge--Kutta scheme keeps to rounding.
 
-    An invariant qualifies when its gradient is constant and it is a first
-    integral of the (extended) field: checked at ``y`` (default ``fi.y0``)
-    and ``n_samples`` states around it, off the invariant set (relative
-    perturbation ``rel``, fixed seed).  Such an invariant is linear,
-    ``a . y_{n+1} = a . y_n`` for any RK step, so its feedback term vanishes
-    identically (module docstring).  The embedding penalty (quadratic) never
-    qualifies.  ``scheme`` must be a Runge--Kutta tableau.
+    An invariant qualifies when its gradient ``a`` is constant, it is a first
+    integral of the (extended) field, and the feedback of every invariant that
+    does not qualify leaves it alone (``a . grad I_k = 0``): checked at ``y``
+    (default ``fi.y0``) and ``n_samples`` states around it, off the invariant
+    set (relative perturbation ``rel``, fixed seed).  Then ``a . y`` is
+    unchanged by the whole feedback field, ``a . y_{n+1} = a . y_n`` for any
+    RK step, and its feedback term vanishes identically (module docstring).
+    A linear first integral of ``X`` alone is not enough: the energy's
+    feedback ``-k (h - h0) grad h`` moves ``a . y`` when ``a . grad h != 0``
+    (Suslov's ``J_1``, the roller racer's ``J_2``), and then its own feedback
+    is needed.  The embedding penalty (quadratic) never qualifies.
+    ``scheme`` must be a Runge--Kutta tableau.
     """
     _tableau(scheme)
     y0 = fi.y0 if y is None else np.asarray(y, float)
@@ -197,18 +204,34 @@ def exactly_kept(fi, scheme="rk4", y=None, *, n_samples=6, rel=1e-2, tol=1e-10):
     Y = np.concatenate([y0[None], y0 + rel * scale * rng.standard_normal((n_samples, fi.n))])
     jet = fi.invariant_gradients(Y)
     X = fi.unforced_vector_field(Y)
-    kept = []
-    for j, name in enumerate(jet.names):
+    norms = np.linalg.norm(jet.grad, axis=-1)  # (s, m)
+    linear = []
+    for j in range(len(jet.names)):
         G = jet.grad[:, j, :]
-        gn = float(np.max(np.linalg.norm(G, axis=-1)))
+        gn = float(np.max(norms[:, j]))
         if gn == 0.0:
             continue
         constant = np.max(np.abs(G - G[0])) <= tol * gn
         xn = np.maximum(np.linalg.norm(X, axis=-1), 1e-300)
         integral = np.max(np.abs(np.einsum("sn,sn->s", G, X)) / (gn * xn)) <= tol
         if constant and integral:
-            kept.append(name)
-    return tuple(kept)
+            linear.append(j)
+    # the other invariants' feedback must not move it: a . grad I_k = 0 for every I_k not kept
+    kept = list(linear)
+    changed = True
+    while changed:
+        changed = False
+        for j in list(kept):
+            a = jet.grad[0, j, :]
+            for k in range(len(jet.names)):
+                if k in kept:
+                    continue
+                dots = np.abs(jet.grad[:, k, :] @ a) / np.maximum(norms[:, k] * np.linalg.norm(a), 1e-300)
+                if np.max(dots) > tol:
+                    kept.remove(j)
+                    changed = True
+                    break
+    return tuple(jet.names[j] for j in kept)
 
 
 def accurate_gains(fi, dt, scheme="rk4", t_final=None, y=None) -> dict:
@@ -224,7 +247,7 @@ def accurate_gains(fi, dt, scheme="rk4", t_final=None, y=None) -> dict:
     T = 1000.0 * dt if t_final is None else positive_number(t_final, "t_final")
     y = fi.y0 if y is None else np.asarray(y, float)
     z = accurate_rate(scheme, dt, unforced_rate(fi, y), T)
-    gains = _scaled(unit_rate_gains(fi, y), z / dt)
+    gains = {k: float(v) * z / dt for k, v in unit_rate_gains(fi, y).items()}
     for name in exactly_kept(fi, scheme, y):
         gains[name] = 0.0
     return gains

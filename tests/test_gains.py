@@ -41,15 +41,16 @@ def test_rk4_rate_small_and_zero_on_short_horizons():
 
 
 def test_exactly_kept_detection():
-    # linear invariants that are first integrals of the extended field
-    assert exactly_kept(scenes.get("suslov").integrator(), "rk4") == ("J_1",)
+    # linear first integrals of the extended field that the other invariants' feedback leaves alone
     assert exactly_kept(scenes.get("roller-racer").integrator(), "rk4") == ("J_2",)
     vd = scenes.get("vertical-disk").integrator("further")
     assert set(exactly_kept(vd, "rk4")) == set(vd.invariant_names)
+    # Suslov's J_1 is linear and a first integral of X, but the energy's feedback moves it
+    assert exactly_kept(scenes.get("suslov").integrator(), "rk4") == ()
     # quadratic ones are not
     assert "energy" not in exactly_kept(scenes.get("oscillator").integrator(), "rk4")
-    g = accurate_gains(scenes.get("suslov").integrator(), 1e-3, "rk4", 1e3)
-    assert g["J_1"] == 0.0 and g["energy"] > 0.0
+    g = accurate_gains(scenes.get("roller-racer").integrator(), 1e-3, "rk4", 1e3)
+    assert g["J_2"] == 0.0 and g["J_1"] > 0.0 and g["energy"] > 0.0
     with pytest.raises(ValueError, match="scheme"):
         exactly_kept(vd, "imex-euler")
 
@@ -86,3 +87,19 @@ def test_accurate_gains_not_dominated(name):
     for k in (0.0, 1.0, 10.0, 100.0):
         e, d = measure(k)
         assert not (2 * e < err and 2 * d < drift), (name, k, (e, d), (err, drift))
+
+
+def test_exactly_kept_means_kept_by_the_feedback_field():
+    """With its own gain 0, a kept invariant stays at rounding; Suslov's J_1 (not kept) is moved by the energy's feedback."""
+
+    def drift_J(name, which, gains):
+        sc = scenes.get(name)
+        fi = sc.integrator(gains=gains)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            sol = fi.run(1e-2, 2.0, "heun", check_stability=False)
+        vals = fi.invariant_values(sol.y.T)
+        return float(np.max(np.abs(vals[which])))
+
+    assert drift_J("roller-racer", "J_2", {"J_1": 10.0, "J_2": 0.0, "energy": 10.0}) < 1e-13
+    assert drift_J("suslov", "J_1", {"J_1": 0.0, "energy": 10.0}) > 1e-9

@@ -64,3 +64,11 @@ def test_scene_runs_splitting_and_projected_rk4():
     r = SC.run(scheme="projected-rk4", dt=1e-2, t_final=5.0)
     assert max(r.max_drift.values()) < 1e-12
     assert max(r.max_error.values()) < 1e-6
+
+
+def test_compiled_reference_equals_numpy_reference():
+    v = SC.variant()
+    t = np.linspace(0.0, 5.0, 51)
+    a, b = SC.exact(t, v), SC.numerical_reference(t, v)
+    assert set(a) == set(b)
+    assert max(np.max(np.abs(a[k] - b[k])) for k in a) < 1e-10
