@@ -111,6 +111,10 @@ class Heisenberg(Scene):
         ),
     }
     error_variables = ("x", "y", "z", "p_x", "p_y", "p_z")
+    #: the stability battery's own case: a start at ``|q| ~ 1e3`` (fixed and automatic gains)
+    stability_cases = ("far from origin", "far from origin auto")
+    #: the battery runs the generic start (the special one keeps ``V = 0`` exactly)
+    stability_variant = "generic"
 
     def build_system(self):
         def constraint(q):

@@ -62,6 +62,8 @@ class RollerRacer(Scene):
     }
     #: reduced variables always; the pose only when run with configuration=True
     error_variables = ("phi", "Pi_theta", "Pi_x", "Pi_y", "p_phi", "theta", "x", "y")
+    #: the stability battery's own case: a start where ``d1 cos(phi) + d2 = 0`` (fixed and automatic gains)
+    stability_cases = ("near-singular", "near-singular auto")
 
     m = 1.0
     I1 = 1.0
