@@ -33,6 +33,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import re
 import sys
 
 from . import __version__
@@ -444,6 +445,24 @@ def build_parser():
     return p
 
 
+#: the library's advice in Python spelling -> the flag that does it
+_ADVICE = (
+    (re.compile(r"\bgains\s*=\s*['\"]auto['\"]"), "--gains auto"),
+    (re.compile(r"\badaptive\s*=\s*True\b"), "--adaptive"),
+    (re.compile(r"\bcheck_stability\s*=\s*False\b"), "--no-check-stability"),
+    (re.compile(r"\bscheme\s*=\s*['\"]([\w:-]+)['\"]"), r"--scheme \1"),
+    (re.compile(r"\bsave_every\s*=\s*"), "--save-every "),
+    (re.compile(r"\bbackend\s*=\s*['\"](\w+)['\"]"), r"--backend \1"),
+)
+
+
+def as_flags(message):
+    """A library message with its advice spelled as ``liefi`` flags (``adaptive=True`` -> ``--adaptive``)."""
+    for pattern, flag in _ADVICE:
+        message = pattern.sub(flag, message)
+    return message
+
+
 def main(argv=None):
     """Entry point of ``liefi`` / ``python -m liefi``; returns the exit code.
 
@@ -458,7 +477,7 @@ def main(argv=None):
     def show(message, category, *args, **kwargs):
         msg = " ".join(str(message).split())
         msg = msg[len("liefi: "):] if msg.startswith("liefi: ") else msg
-        line = f"{category.__name__}: {msg}"
+        line = f"{category.__name__}: {as_flags(msg)}"
         if line not in seen:
             seen.append(line)
             print(f"liefi: warning: {line}", file=sys.stderr, flush=True)
@@ -503,7 +522,7 @@ def _main(parser, argv, seen=()):
         # diverging run; RuntimeError: solve_ivp or the reference failed; OSError: an output path;
         # ImportError: an optional extra (matplotlib: liefi[plot]) is missing.
         msg = " ".join(str(exc).split()) or type(exc).__name__
-        print(f"liefi: error: {msg}", file=sys.stderr)
+        print(f"liefi: error: {as_flags(msg)}", file=sys.stderr)
         return 2
 
 

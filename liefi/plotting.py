@@ -144,7 +144,7 @@ def logplot(ax, t, values, *, label=None, **kw):
         else:
             ax.text(0.5, 0.5, "identically 0", transform=ax.transAxes, ha="center", va="center", color="gray")
         return
-    ax.plot(t, shown, label=label, **kw)
+    ax.plot(*thinned(t, shown), label=label, **kw)
     if label is None and log_span(a[1:] if a.size > 1 else a) < 1.0:
         # less than a decade (t = 0 excluded): a linear axis reads better
         ax.ticklabel_format(axis="y", style="sci", scilimits=(-2, 2))
@@ -171,6 +171,20 @@ def component(result, name):
     if name in result.names:
         return np.asarray(result[name])
     return None
+
+
+def thinned(t, *series, max_points=50000):
+    """``t`` and ``series`` at every k-th point, at most ``max_points`` (and the last point kept).
+
+    For drawing only: a line of 4e5 points on a figure a thousand pixels wide shows
+    nothing more than one of 5e4, and costs seconds to lay out and rasterize.
+    """
+    t = np.asarray(t)
+    k = max(1, -(-t.size // max_points))
+    if k == 1:
+        return (t, *series)
+    idx = np.r_[np.arange(0, t.size - 1, k), t.size - 1]
+    return (t[idx], *(np.asarray(s)[..., idx] for s in series))
 
 
 def reference_of(result, name):
@@ -202,7 +216,7 @@ def panel_row(fig, result, panels, *, title, width=11.0, height=3.4):
         if scale == "log":
             logplot(ax, result.t, values, lw=0.9, color="C0")
         else:
-            ax.plot(result.t, values, lw=0.9, color="C0")
+            ax.plot(*thinned(result.t, values), lw=0.9, color="C0")
             ax.ticklabel_format(axis="y", style="sci", scilimits=(-2, 2))
     fig.suptitle(title + "\n" + run_caption(result), fontsize=10)
     return fig

@@ -108,7 +108,7 @@ class Output:
         except FileNotFoundError:
             return []
 
-    def _update(self, add=(), reset=False):
+    def _update(self, add=(), reset=False, refuse_foreign=False):
         lock = os.open(self.path, os.O_RDONLY)  # the folder itself is the lock
         try:
             try:
@@ -119,6 +119,12 @@ class Output:
                 pass
             files = [] if reset else self.files()
             new = [n for n in add if n not in files]
+            if refuse_foreign:
+                for n in new:
+                    if os.path.lexists(os.path.join(self.path, n)):
+                        raise OutputError(
+                            f"out: {os.path.join(self.path, n)} exists and was not written by liefi; not overwriting it"
+                        )
             if new or reset:
                 data = {"written_by": f"liefi {__version__}", "command": "reproduce", "files": files + new}
                 self._atomic(MANIFEST, lambda f: json.dump(data, f, indent=1))
@@ -131,12 +137,8 @@ class Output:
 
         Raises :class:`OutputError` if a file of that name exists that liefi did not write.
         """
-        path = os.path.join(self.path, name)
-        exists = os.path.lexists(path)
-        before = self._update(add=[name])
-        if exists and name not in before:
-            raise OutputError(f"out: {path} exists and was not written by liefi; not overwriting it")
-        return path
+        self._update(add=[name], refuse_foreign=True)
+        return os.path.join(self.path, name)
 
     def write_text(self, name, text):
         self.claim(name)

@@ -253,7 +253,7 @@ def integrals_figure(runs, fig=None, *, tag=""):
         what = "DLA" if r.scheme == "dla" else "feedback integrator"
         for i, (val, ylabel) in enumerate(zip(quantities(r), names)):
             ax = axes[i, j]
-            ax.plot(r.t, val, lw=0.6, color="C3" if r.scheme == "dla" else "C0")
+            ax.plot(*plotting.thinned(r.t, val), lw=0.6, color="C3" if r.scheme == "dla" else "C0")
             ax.set_ylabel(ylabel)
             ax.ticklabel_format(axis="y", style="sci", scilimits=(-2, 2))
             ax.grid(alpha=0.3)
@@ -286,7 +286,7 @@ def poincare_figure(runs, fig=None, *, tag=""):
         a0, a1, a2 = axes[i]
         y = plotting.component(r, "y")
         if y is not None:
-            a0.plot(r.t, y, lw=0.5, color=color)
+            a0.plot(*plotting.thinned(r.t, y), lw=0.5, color=color)
         a0.set_xlabel("$t$")
         a0.set_ylabel("$y$")
         a0.set_title(f"{what}: $y(t)$", fontsize=9)
