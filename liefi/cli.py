@@ -38,10 +38,11 @@ import sys
 
 from . import __version__
 from . import scenes as _scenes
-from .schemes import SCHEMES, IntegrationError
+from .schemes import IntegrationError
+from .schemes import registry as _schemes
 
-#: solve_ivp methods accepted after ``scipy:``
-SCIPY_METHODS = ("RK23", "RK45", "DOP853", "Radau", "BDF", "LSODA")
+#: solve_ivp methods accepted after ``scipy:`` (from the scheme registry)
+SCIPY_METHODS = tuple(n.split(":", 1)[1] for n in _schemes.names("scipy"))
 
 
 class UsageError(Exception):
@@ -131,13 +132,7 @@ def parse_gains(text, scene, variant=None, configuration=None):
 
 def available_schemes(scene):
     """Scheme names ``liefi run SCENE --scheme`` accepts (besides ``scipy:METHOD``)."""
-    names = list(SCHEMES)
-    try:  # stiff-safe split schemes, where the library has them
-        from .stiff import SPLIT_SCHEMES
-
-        names += [n for n in SPLIT_SCHEMES if n not in names]
-    except ImportError:
-        pass
+    names = _schemes.names("explicit") + _schemes.names("split")
     return names + [n for n in scene.extra_schemes if n not in names]
 
 
@@ -244,6 +239,29 @@ def plot_path(path, scene, variant=None):
     return path
 
 
+#: ``liefi run`` refuses more steps than this unless ``--max-steps`` says otherwise
+MAX_STEPS = 10**8
+
+
+def check_steps(scene, args):
+    """Refuse, before any work, a run of more than ``--max-steps`` steps (default :data:`MAX_STEPS`).
+
+    The count ``t_final / dt`` is the whole estimate: at liefi's fastest (about a
+    microsecond a step, compiled) 1e8 steps take minutes, with numpy hours.  The
+    saved output is capped by the run itself (``--save-every`` overrides).
+    """
+    dt = scene.dt if args.dt is None else args.dt
+    T = scene.t_final if args.t_final is None else args.t_final
+    n = T / dt
+    limit = args.max_steps if args.max_steps is not None else MAX_STEPS
+    if n > limit:
+        raise UsageError(
+            f"dt: --dt {dt:g} over --t-final {T:g} is {n:.3g} steps, more than the {limit:.3g} allowed "
+            f"(about {n * 1e-6 / 3600:.2g} h at a microsecond a step, compiled; far longer with numpy); "
+            "take a larger --dt or a shorter --t-final, or raise --max-steps"
+        )
+
+
 def cmd_run(args):
     scene = _scenes.get(args.scene)
     variant = scene.variant(args.variant)
@@ -255,6 +273,7 @@ def cmd_run(args):
         if scene.figures_need_configuration:
             configuration = True
     gains = parse_gains(args.gains, scene, variant, configuration)
+    check_steps(scene, args)
     result = scene.run(
         dt=args.dt,
         t_final=args.t_final,
@@ -385,7 +404,7 @@ def build_parser():
     pr.add_argument("--t-final", type=_positive_float("t-final"), default=None, dest="t_final",
                     help="final time (default: the paper's)")
     pr.add_argument("--scheme", default=None,
-                    help="euler|heun|midpoint|rk3|rk4|imex-euler|imex-heun|imex-rk4|dla (oscillator)|"
+                    help="|".join(_schemes.names("explicit") + _schemes.names("split")) + "|dla (oscillator)|"
                          "scipy:METHOD (METHOD: " + "|".join(SCIPY_METHODS) + "; default: the paper's)")
     pr.add_argument("--gains", default=None, metavar="K|K1,K2,...|name=K,...|auto",
                     help="feedback gains (default: the paper's); order: the integrator's invariant_names, see below")
@@ -397,6 +416,8 @@ def build_parser():
                     help="keep every N-th step (default: at most 20000 saved points)")
     pr.add_argument("--no-check-stability", action="store_false", dest="check_stability",
                     help="skip the stability estimate and monitoring before and during the run")
+    pr.add_argument("--max-steps", type=_positive_float("max-steps"), default=None, dest="max_steps", metavar="N",
+                    help=f"refuse runs of more than N steps (t_final / dt) before they start (default {MAX_STEPS:.0e})")
     pr.add_argument("--adaptive", action="store_true",
                     help="adapt the gains along the run to the stability limit (liefi.stability)")
     pr.add_argument("--json", action="store_true", help="print one JSON object")
@@ -421,7 +442,7 @@ def build_parser():
                     help="worker processes for independent scenes (default: the number of CPUs)")
 
     from . import bench as _bench
-    from . import stability as _stability
+    from .experiments import stability_cli as _stability
 
     ps = sub.add_parser(
         "stability",
@@ -496,7 +517,7 @@ def _main(parser, argv, seen=()):
             parser.print_help(sys.stderr)
             return 2
         if args.command == "stability":
-            from .stability import command
+            from .experiments.stability_cli import command
 
             return command(args)
         if args.command == "bench":

@@ -29,7 +29,6 @@ import numpy as np
 
 from . import _diff
 from .reduction import core as _core
-from .schemes import get_scheme, integrate
 from .system import NonholonomicSystem
 
 
@@ -450,13 +449,21 @@ class FeedbackIntegrator:
         return self.vector_field(y)
 
     # --- running ------------------------------------------------------------------
-    def run(self, dt, t_final, scheme="euler", *, y0=None, save_every=1, check_every=1, backend="numpy",
-            check_stability=True, adaptive=None, monitor_every=None):
+    def run(self, dt, t_final, scheme="euler", *, y0=None, save_every=None, check_every=1, backend="numpy",
+            check_stability=True, adaptive=None, monitor_every=None, progress=None):
         """Integrate from ``y0`` (default: the one given at construction) to ``t_final``.
 
-        Returns a :class:`~liefi.schemes.Solution`; raises
-        :class:`~liefi.schemes.IntegrationError` naming the time and components
-        if the run produces non-finite numbers.
+        The loop is :func:`liefi.run.run_feedback`.  Returns a
+        :class:`~liefi.schemes.Solution` (with ``cpu_seconds``, the integration,
+        ``overhead_seconds``, the rest, and ``plan``: steps, saved memory,
+        expected time); raises :class:`~liefi.schemes.IntegrationError` naming
+        the time and components if the run produces non-finite numbers.
+
+        ``dt`` must divide ``t_final`` (the message gives the nearest one that
+        does).  ``save_every``: keep every this many steps; default ``None``:
+        every step while the output stays under 256 MiB, else capped there.
+        ``progress``: progress on stderr (default: for runs expected to take
+        more than a few seconds, when stderr is a terminal).
 
         ``backend``: ``"numpy"`` (default, the reference implementation),
         ``"numba"`` or ``"auto"``: the same field generated as scalar code from
@@ -466,12 +473,12 @@ class FeedbackIntegrator:
         numpy path runs.
 
         ``scheme``: a tableau of :mod:`liefi.schemes` (``"euler"``, ``"rk4"``, ...)
-        or a stiff-safe split scheme of :mod:`liefi.stiff` (``"imex-euler"``,
+        or a stiff-safe split scheme of :mod:`liefi.schemes.split` (``"imex-euler"``,
         ``"imex-heun"``, ``"imex-rk4"``: stable for any gain).
 
         Stability (:mod:`liefi.stability`).  ``check_stability`` (default True):
-        before the run, estimate ``dt * lambda_max(A Hess V)`` along a cheap pilot
-        of the extended field and compare it with the scheme's stability bound;
+        before the run, estimate ``dt * lambda_max(A Hess V)`` at the start (one
+        vectorized Gram estimate over the whole batch) and compare it with the scheme's stability bound;
         warn (:class:`liefi.stability.LiefiStabilityWarning`, with the largest
         safe ``dt`` and gain) at or past the limit, refuse (``ValueError``) 10x
         past it; during the run, stop with
@@ -482,19 +489,10 @@ class FeedbackIntegrator:
         ``monitor_every``: steps between two checks (default: adaptive).  The
         solution carries the report as ``solution.stability``.
         """
-        from .stability import guarded_run, positive_number
+        from .run import run_feedback
 
-        t_final = positive_number(t_final, "t_final", "must be a positive finite time")
-        dt = positive_number(dt, "dt", "the step must be a positive finite number")
-        if t_final / dt > 1e10:
-            raise ValueError(
-                f"dt: {dt!r} with t_final = {t_final!r} means {t_final / dt:.3g} steps (more than 1e10); "
-                "take a larger dt or a shorter t_final"
-            )
-        n_steps = int(round(t_final / dt))
-        if n_steps < 1 or abs(n_steps * dt - t_final) > 1e-9 * t_final:
-            raise ValueError(f"t_final: {t_final} is not a whole number of steps dt={dt}")
-        return guarded_run(
-            self, dt, n_steps, scheme, y0=y0, save_every=save_every, check_every=check_every,
+        return run_feedback(
+            self, dt, t_final, scheme, y0=y0, save_every=save_every, check_every=check_every,
             backend=backend, check_stability=check_stability, adaptive=adaptive, monitor_every=monitor_every,
+            progress=progress,
         )

@@ -310,3 +310,20 @@ def test_advice_names_flags_that_exist(capsys):
     for flag in set(re.findall(r"(?<![\w-])--[a-z][\w-]*", err)):
         assert flag in known, flag
     assert cli.as_flags("use check_stability=False or save_every=10") == "use --no-check-stability or --save-every 10"
+
+
+@pytest.mark.parametrize("argv", [["--dt", "1e-9"], ["--t-final", "1e7"]])
+def test_runs_of_hours_are_refused_before_they_start(capsys, monkeypatch, argv):
+    _no_run(monkeypatch)
+    t0 = time.perf_counter()
+    code, out, err = run_cli(capsys, "run", "suslov", *argv)
+    assert code == 2 and time.perf_counter() - t0 < 30
+    _one_error_line(err, "steps")
+    assert "--max-steps" in err and "--dt" in err
+
+
+def test_max_steps_lets_a_long_run_through(capsys):
+    code, out, err = run_cli(capsys, "run", "suslov", "--t-final", "0.2", "--max-steps", "100")
+    assert code == 2 and "--max-steps" in err
+    code, out, err = run_cli(capsys, "run", "suslov", "--t-final", "0.2", "--max-steps", "1000", "--json")
+    assert code == 0 and json.loads(out)["steps"] == 200

@@ -136,7 +136,7 @@ def test_dense_reference_agrees_with_a_direct_solve(monkeypatch):
 
 
 def test_stability_cases_are_scene_data():
-    assert scenes.get("roller-racer").stability_cases == ("near-singular", "near-singular auto")
-    assert scenes.get("heisenberg").stability_cases == ("far from origin", "far from origin auto")
+    assert scenes.get("roller-racer").stability_cases == ("near-singular",)
+    assert scenes.get("heisenberg").stability_cases == ("far from origin",)
     assert scenes.get("heisenberg").stability_variant == "generic"
     assert scenes.get("suslov").stability_cases == ()

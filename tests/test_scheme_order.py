@@ -146,3 +146,70 @@ def test_stability_polynomial_at_real_stability_bound(name):
     z = np.array([0.3, -0.7 + 0.2j, 1.1j])
     taylor = sum(z**k / np.prod(np.arange(1, k + 1)) for k in range(sch.order + 1))
     np.testing.assert_allclose(sch.stability_polynomial(z), taylor, rtol=1e-14)
+
+
+# ------------------------------------------------------------------------ the registry
+from liefi.schemes import registry  # noqa: E402
+
+
+@pytest.mark.parametrize("name", registry.names("explicit") + ["scipy:RK23", "scipy:RK45", "scipy:DOP853"])
+def test_tableau_consistency(name):
+    """Every explicit tableau: ``c_i = sum_j a_ij``, ``sum_i b_i = 1``, ``A`` strictly lower triangular."""
+    sch = registry.get(name)
+    tab = sch.tableau if sch.kind == "scipy" else sch
+    assert len(tab.A) == len(tab.b) == len(tab.c)
+    for i, row in enumerate(tab.A):
+        assert len(row) <= i  # explicit
+        assert sum(row) == pytest.approx(tab.c[i], abs=1e-14), f"{name}: c_{i} != sum_j a_{i}j"
+    assert sum(tab.b) == pytest.approx(1.0, abs=1e-14)
+
+
+@pytest.mark.parametrize("name", registry.names("explicit"))
+def test_declared_order_is_that_of_the_stability_polynomial(name):
+    """``R(z)`` agrees with ``exp(z)`` to the declared order: the coefficient of ``z^k`` is ``1/k!`` for ``k <= p``."""
+    from math import factorial
+
+    sch = registry.get(name)
+    c = sch.stability_coefficients[::-1]
+    for k in range(sch.order + 1):
+        assert c[k] == pytest.approx(1 / factorial(k), rel=1e-14)
+
+
+def test_registry_get_and_names():
+    assert registry.names("explicit") == ["euler", "heun", "midpoint", "rk3", "rk4"]
+    assert registry.names("split") == ["imex-euler", "imex-heun", "imex-rk4"]
+    assert registry.names("dla") == ["dla"]
+    assert registry.names("scipy") == [f"scipy:{m}" for m in ("RK23", "RK45", "DOP853", "Radau", "BDF", "LSODA")]
+    assert registry.get("RK4") is registry.get("rk4")
+    assert registry.get("scipy:lsoda").method == "LSODA"
+    for s in registry.ENTRIES:
+        assert isinstance(s.order, int) and s.order >= 1
+        assert s.stiff_safe == (s.real_stability_bound == np.inf)
+        assert callable(s.step)
+    with pytest.raises(ValueError, match="choose one of.*rk4.*scipy:LSODA"):
+        registry.get("rk5")
+    with pytest.raises(ValueError, match="scipy:Radau"):
+        registry.get("scipy:Foo")
+    with pytest.raises(ValueError, match="kind"):
+        registry.names("implicit")
+
+
+def test_registry_uses_scipy_public_api_only():
+    import pathlib
+
+    root = pathlib.Path(__file__).resolve().parents[1] / "liefi"
+    offenders = [str(p) for p in root.rglob("*.py") if "scipy.integrate._" in p.read_text()]
+    assert not offenders
+
+
+def test_errors_pickle_with_their_fields():
+    import pickle
+
+    from liefi.stability import StabilityError
+
+    for cls in (IntegrationError, StabilityError):
+        e = cls("boom at t=1", 1.5, 7, np.arange(3.0), ["J_1"])
+        e2 = pickle.loads(pickle.dumps(e))
+        assert type(e2) is cls and str(e2) == "boom at t=1"
+        assert (e2.t, e2.step, e2.components) == (1.5, 7, ["J_1"])
+        np.testing.assert_array_equal(e2.y, e.y)

@@ -165,14 +165,18 @@ class Scene:
     extra_schemes: tuple = ()
     #: the scene's figures need the group element integrated (e.g. ``||R^T R - I||``)
     figures_need_configuration: bool = False
-    #: names of the stability battery's cases particular to this scene
-    #: (:mod:`liefi.stability`: e.g. a start near a singularity of the metric)
-    stability_cases: tuple = ()
-    #: the variant the stability battery runs (``None``: the first)
-    stability_variant: str | None = None
     #: tolerances of the numerical reference (DOP853 on the constrained field)
     reference_rtol: float = 1e-12
     reference_atol: float = 1e-12
+    #: the variant the stability experiments run (default: the first)
+    stability_variant = None
+    #: this scene's own extreme cases for the stability battery (see :meth:`stability_case`);
+    #: each also runs with automatic gains as ``"<case> auto"``
+    stability_cases: tuple = ()
+
+    def stability_case(self, case):
+        """``(scene, variant, has_reference)`` of one of :attr:`stability_cases` (a modified copy of the scene)."""
+        raise ValueError(f"case: scene {self.name!r} has no stability case {case!r}")
 
     # --- data (to supply) --------------------------------------------------------
     def build_system(self):
@@ -366,7 +370,7 @@ class Scene:
         """Run the scene at its settings unless told otherwise.
 
         ``scheme`` is a liefi scheme name (``euler``, ``heun``, ``rk4``...), a
-        stiff-safe split scheme (``imex-euler``, ``imex-rk4``: :mod:`liefi.stiff`),
+        stiff-safe split scheme (``imex-euler``, ``imex-rk4``: :mod:`liefi.schemes.split`),
         ``"scipy:METHOD"`` (``solve_ivp`` with ``rtol``/``atol``), or one of the
         scene's ``extra_schemes`` (e.g. ``"dla"``).  ``gains="auto"``: chosen from
         ``dt`` and the Hessian of ``V`` and adapted along the run.
@@ -398,22 +402,17 @@ class Scene:
 
         if scheme in self.extra_schemes:
             t, Y, names, cpu, steps, nfev = self.run_extra(scheme, v, dt, T, save_every, fi)
-        elif str(scheme).startswith("scipy:"):
-            from scipy.integrate import solve_ivp
+        elif str(scheme).lower().startswith("scipy:"):
+            from ..schemes import registry as _schemes
 
-            method = scheme.split(":", 1)[1]
-            from scipy.integrate._ivp.ivp import METHODS
-
-            if method not in METHODS:
-                raise ValueError(f"scheme: unknown solve_ivp method {method!r}; choose scipy:{'|'.join(METHODS)}")
+            ivp = _schemes.get(scheme, kind="scipy")
+            method = ivp.method
             if getattr(fi, "gains_mode", "fixed") == "auto":
                 from ..stability import auto_gains
 
                 fi = fi.with_gains(auto_gains(fi, dt, "euler"))
             t_eval = np.linspace(0.0, T, min(n_steps, max_saved) + 1)
-            start = time.process_time()
-            sol = solve_ivp(fi.fun, (0.0, T), fi.y0, method=method, t_eval=t_eval, rtol=rtol, atol=atol)
-            cpu = time.process_time() - start
+            sol, cpu = ivp.solve(fi.fun, T, fi.y0, t_eval=t_eval, rtol=rtol, atol=atol)
             if not sol.success:
                 raise RuntimeError(f"solve_ivp({method}) failed on {self.name!r}: {sol.message}")
             if not np.all(np.isfinite(sol.y)):

@@ -111,10 +111,6 @@ class Heisenberg(Scene):
         ),
     }
     error_variables = ("x", "y", "z", "p_x", "p_y", "p_z")
-    #: the stability battery's own case: a start at ``|q| ~ 1e3`` (fixed and automatic gains)
-    stability_cases = ("far from origin", "far from origin auto")
-    #: the battery runs the generic start (the special one keeps ``V = 0`` exactly)
-    stability_variant = "generic"
 
     def build_system(self):
         def constraint(q):
@@ -123,6 +119,21 @@ class Heisenberg(Scene):
 
         space = CotangentBundle(3, names=("x", "y", "z"))
         return NonholonomicSystem(space, np.eye(3), constraint)
+
+    stability_variant = "generic"
+    stability_cases = ("far from origin",)
+
+    def stability_case(self, case):
+        """``"far from origin"``: ``q0 = (1e3, 5e2, 0)`` on the constraint set, where ``|grad J|^2 ~ |q|^2`` is large."""
+        if case != "far from origin":
+            return super().stability_case(case)
+        q0 = np.array([1e3, 5e2, 0.0])
+        p0 = np.array([0.3, 0.4, 0.0])
+        p0[2] = q0[1] * p0[0] - q0[0] * p0[1]  # on the constraint set p_z = y p_x - x p_y
+        g = self.variant("generic")
+        v = Variant("far", "q0 = (1e3, 5e2, 0)", energy=g.energy, field=g.field,
+                    options={**g.options, "q0": tuple(q0), "p0": tuple(p0)})
+        return self, v, True
 
     def initial_state(self, variant):
         o = variant.options

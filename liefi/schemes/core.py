@@ -1,6 +1,6 @@
-"""Explicit Runge--Kutta schemes as Butcher tableaux, and a batch-first fixed-step driver.
+"""The batch-first fixed-step driver, its result and its error.
 
-A scheme is data (:class:`ExplicitRungeKutta`); :func:`integrate` steps any
+A scheme comes from :mod:`liefi.schemes.registry`; :func:`integrate` steps any
 batch-first vector field ``f(y)`` (``(..., n) -> (..., n)``) with it, checks
 every step for non-finite numbers and reports where they appeared.  For
 adaptive or implicit integration use ``scipy.integrate.solve_ivp`` with the
@@ -9,89 +9,11 @@ adaptive or implicit integration use ``scipy.integrate.solve_ivp`` with the
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
-
-
-@dataclass(frozen=True)
-class ExplicitRungeKutta:
-    """An explicit Runge--Kutta scheme ``(A, b, c)``.
-
-    Attributes
-    ----------
-    name : str
-    A : tuple of tuples (strictly lower triangular), b, c : tuples
-    order : int
-        Classical order of accuracy.
-    real_stability_bound : float
-        ``beta`` such that ``y' = -L y`` is stable for ``0 <= L dt <= beta``
-        (the stability region's extent on the negative real axis).
-    """
-
-    name: str
-    A: tuple
-    b: tuple
-    c: tuple
-    order: int
-    real_stability_bound: float
-
-    @property
-    def stages(self):
-        return len(self.b)
-
-    def step(self, f, y, dt):
-        """One step ``y -> y + dt sum_i b_i k_i``."""
-        ks = []
-        for i in range(self.stages):
-            yi = y
-            for j, a in enumerate(self.A[i][:i]):
-                if a:
-                    yi = yi + (dt * a) * ks[j]
-            ks.append(f(yi))
-        out = y
-        for bi, k in zip(self.b, ks):
-            if bi:
-                out = out + (dt * bi) * k
-        return out
-
-    def stability_polynomial(self, z):
-        """``R(z)`` with ``y_{n+1} = R(dt L) y_n`` for ``y' = L y``."""
-        A = np.array([list(r) + [0.0] * (self.stages - len(r)) for r in self.A])
-        b = np.array(self.b)
-        z = np.asarray(z, dtype=complex)
-        out = np.empty_like(z)
-        for idx, zi in np.ndenumerate(z):
-            out[idx] = 1 + zi * b @ np.linalg.solve(np.eye(self.stages) - zi * A, np.ones(self.stages))
-        return out
-
-
-EULER = ExplicitRungeKutta("euler", ((),), (1.0,), (0.0,), 1, 2.0)
-HEUN = ExplicitRungeKutta("heun", ((), (1.0,)), (0.5, 0.5), (0.0, 1.0), 2, 2.0)
-MIDPOINT = ExplicitRungeKutta("midpoint", ((), (0.5,)), (0.0, 1.0), (0.0, 0.5), 2, 2.0)
-RK3 = ExplicitRungeKutta("rk3", ((), (0.5,), (-1.0, 2.0)), (1 / 6, 2 / 3, 1 / 6), (0.0, 0.5, 1.0), 3, 2.5127453266183286)
-RK4 = ExplicitRungeKutta(
-    "rk4", ((), (0.5,), (0.0, 0.5), (0.0, 0.0, 1.0)), (1 / 6, 1 / 3, 1 / 3, 1 / 6), (0.0, 0.5, 0.5, 1.0), 4, 2.785293563405282
-)
-
-#: The fixed-step schemes by name.
-SCHEMES = {s.name: s for s in (EULER, HEUN, MIDPOINT, RK3, RK4)}
-
-
-def get_scheme(scheme) -> ExplicitRungeKutta:
-    """A scheme from its name (``"euler"``, ``"heun"``, ``"midpoint"``, ``"rk3"``, ``"rk4"``) or itself."""
-    if isinstance(scheme, ExplicitRungeKutta):
-        return scheme
-    if callable(getattr(scheme, "step", None)) and hasattr(scheme, "stages") and hasattr(scheme, "name"):
-        return scheme  # a stepper object, e.g. a split scheme of liefi.stiff bound to an integrator
-    try:
-        return SCHEMES[str(scheme).lower()]
-    except KeyError:
-        raise ValueError(
-            f"scheme: unknown scheme {scheme!r}; choose one of {sorted(SCHEMES)} "
-            "(or, with a FeedbackIntegrator, 'imex-euler', 'imex-heun', 'imex-rk4')"
-        ) from None
 
 
 class IntegrationError(FloatingPointError):
@@ -112,6 +34,9 @@ class IntegrationError(FloatingPointError):
     def __init__(self, message, t, step, y, components):
         super().__init__(message)
         self.t, self.step, self.y, self.components = t, step, y, components
+
+    def __reduce__(self):  # pickles with its fields (process pools, sweeps)
+        return (type(self), (str(self), self.t, self.step, self.y, self.components), self.__dict__)
 
 
 @dataclass
@@ -147,16 +72,83 @@ class Solution:
             raise KeyError(f"{name!r}: not a component; components are {self.names}") from None
 
 
+def _number(x, name, what):
+    if isinstance(x, (bool, np.bool_, str, bytes)):
+        raise ValueError(f"{name}: {what}, got {x!r}")
+    try:
+        v = float(x)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: {what}, got {x!r}") from None
+    if not math.isfinite(v) or v <= 0:
+        raise ValueError(f"{name}: {what}, got {x!r}")
+    return v
+
+
+def positive_number(x, name, what="must be a positive finite number"):
+    """``float(x)`` if it is a positive finite number (not a bool), else a ``ValueError`` naming ``name``."""
+    return _number(x, name, what)
+
+
+def positive_int(x, name):
+    """``int(x)`` if it is a positive whole number (not a bool), else a ``ValueError`` naming ``name``."""
+    if isinstance(x, (bool, np.bool_)):
+        raise ValueError(f"{name}: expected a positive integer, got {x!r}")
+    try:
+        v = int(x)
+    except (TypeError, ValueError, OverflowError):
+        raise ValueError(f"{name}: expected a positive integer, got {x!r}") from None
+    if v < 1 or v != x:
+        raise ValueError(f"{name}: expected a positive integer, got {x!r}")
+    return v
+
+
+#: More steps than this are refused (a typo in dt or t_final, not a run).
+MAX_STEPS = 1e10
+
+
+def steps_for(dt, t_final, *, save_every=1, check_every=1):
+    """The one validator of a fixed-step run's arguments: ``(dt, t_final, n_steps, save_every, check_every)``.
+
+    ``dt`` and ``t_final`` positive finite numbers, ``t_final / dt`` a whole
+    number of steps (to ``1e-9`` relative; otherwise the message gives the
+    nearest ``dt`` that divides ``t_final``), at most :data:`MAX_STEPS` steps;
+    ``save_every`` and ``check_every`` positive integers.
+    """
+    dt = positive_number(dt, "dt", "the step must be a positive finite number")
+    t_final = positive_number(t_final, "t_final", "must be a positive finite time")
+    save_every = positive_int(save_every, "save_every")
+    check_every = positive_int(check_every, "check_every")
+    ratio = t_final / dt
+    if ratio > MAX_STEPS:
+        raise ValueError(
+            f"dt: {dt!r} with t_final = {t_final!r} means {ratio:.3g} steps (more than {MAX_STEPS:.0e}); "
+            "take a larger dt or a shorter t_final"
+        )
+    n_steps = int(round(ratio))
+    if n_steps < 1 or abs(n_steps * dt - t_final) > 1e-9 * t_final:
+        n = max(1, n_steps)
+        up, down = t_final / n, t_final / (n + 1)
+        near = up if abs(up - dt) <= abs(down - dt) else down
+        raise ValueError(
+            f"dt: {dt!r} does not divide t_final = {t_final!r} ({ratio:.6g} steps); the nearest step that "
+            f"divides it is dt = {near:.12g} ({int(round(t_final / near))} steps)"
+        )
+    return dt, t_final, n_steps, save_every, check_every
+
+
 def run_arguments(scheme, dt, n_steps, save_every):
-    """Checked ``(scheme, dt, n_steps, save_every)`` of a fixed-step run (shared by every engine)."""
-    sch = get_scheme(scheme)
-    dt = float(dt)
-    if not np.isfinite(dt) or dt <= 0:
-        raise ValueError(f"dt: the step must be a positive finite number, got {dt!r}")
-    n_steps = int(n_steps)
-    if n_steps < 0:
-        raise ValueError(f"n_steps: must be non-negative, got {n_steps}")
-    return sch, dt, n_steps, max(1, int(save_every))
+    """Checked ``(scheme, dt, n_steps, save_every)`` of a fixed-step run given its number of steps."""
+    sch = _get_scheme(scheme)
+    dt = positive_number(dt, "dt", "the step must be a positive finite number")
+    if isinstance(n_steps, (bool, np.bool_)) or int(n_steps) != n_steps or int(n_steps) < 0:
+        raise ValueError(f"n_steps: must be a non-negative integer, got {n_steps!r}")
+    return sch, dt, int(n_steps), positive_int(save_every, "save_every")
+
+
+def _get_scheme(scheme):
+    from . import get_scheme
+
+    return get_scheme(scheme)
 
 
 def integrate(f, y0, dt, n_steps, scheme="euler", *, t0=0.0, save_every=1, names=(), check_every=1, on_failure=None):

@@ -44,8 +44,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import _diff
-from .schemes import EULER, HEUN, RK4, ExplicitRungeKutta
+from .. import _diff
+from .rk import EULER, HEUN, RK4, ExplicitRungeKutta
 
 
 @dataclass(frozen=True)
@@ -62,8 +62,14 @@ class LinearlyImplicitSplit:
     name: str
     explicit: ExplicitRungeKutta
 
+    kind = "split"
     #: The real stability bound of the stiff part: unbounded (A-stable feedback step).
     real_stability_bound = float("inf")
+    #: Stable for every gain and step (the feedback substep is A-stable).
+    stiff_safe = True
+    #: ``dt lambda_max`` targeted by automatic gains: the feedback substep damps the
+    #: stiffest mode by ``1/(1 + 10)`` per step.
+    optimal_rate = 10.0
 
     @property
     def order(self):
@@ -78,6 +84,10 @@ class LinearlyImplicitSplit:
     def stability_function(self, z):
         """``R(z) = 1 / (1 - z)`` of the feedback substep for ``y' = z y / dt`` (``z = -dt lambda``)."""
         return 1.0 / (1.0 - np.asarray(z, dtype=complex))
+
+    def step(self, fi, y, dt):
+        """One step of the feedback integrator ``fi``: the tableau on ``X``, then the feedback substep."""
+        return feedback_step(fi, self.explicit.step(fi.unforced_vector_field, y, dt), dt)
 
     def bind(self, fi):
         """A stepper for :func:`liefi.schemes.integrate` that steps ``fi`` (``step(f, y, dt)`` ignores ``f``)."""
@@ -106,8 +116,12 @@ class BoundSplitStep:
         return BoundSplitStep(self.scheme, fi)
 
     def step(self, f, y, dt):
-        ystar = self.scheme.explicit.step(self.fi.unforced_vector_field, y, dt)
-        return feedback_step(self.fi, ystar, dt)
+        return self.scheme.step(self.fi, y, dt)
+
+    def __getattr__(self, name):  # the scheme's other properties (stability_function, kind, ...)
+        if name == "scheme":
+            raise AttributeError(name)
+        return getattr(self.scheme, name)
 
 
 def penalty_hessian(group, g):
@@ -155,7 +169,13 @@ def feedback_step(fi, y, dt):
         gradV = np.einsum("ij,...j->...i", fi.A, gradV)
         H = np.einsum("ij,...jk->...ik", fi.A, H)
     M = np.eye(n) + dt * H
-    delta = np.linalg.solve(M, (dt * gradV)[..., None])[..., 0]
+    with np.errstate(all="ignore"):
+        try:
+            delta = np.linalg.solve(M, (dt * gradV)[..., None])[..., 0]
+        except np.linalg.LinAlgError:
+            # I + dt A H singular to working precision (dt * gain ~ 1/eps): no meaningful step.
+            # Non-finite values make the run's check raise IntegrationError with the time.
+            return np.full(y.shape, np.nan)
     return y - delta
 
 

@@ -1,0 +1,150 @@
+"""``liefi stability SCENE``: the pre-run estimate at a scene's settings and its measured map; the docs' report."""
+
+from __future__ import annotations
+
+import math
+
+from ..stability import estimate
+from .battery import battery_table, plot_work_precision, run_battery, stiff_work_precision
+from .stability_maps import plot_stability_map, stability_map
+
+def add_arguments(parser):
+    """Add the arguments of ``liefi stability`` to an ``argparse`` (sub)parser."""
+    parser.add_argument("scene", help="scene name (see `liefi list`)")
+    parser.add_argument("--variant", default=None)
+    parser.add_argument("--scheme", default="euler", help="euler, heun, rk4, ... (default euler)")
+    parser.add_argument("--gains", default=None, metavar="K1,K2,...",
+                        help="the gains k of the sweep, every gain equal to k (default 1, 3.16, ..., 1e4)")
+    parser.add_argument("--t-final", type=float, default=None, help="horizon of each run (default min(scene's, 10))")
+    parser.add_argument("--tol", type=float, default=0.02, help="relative tolerance of the boundaries in dt")
+    parser.add_argument("--accurate", type=float, default=1e-2, help="drift (relative to scale) called accurate")
+    parser.add_argument("--jobs", type=int, default=1, help="worker processes (default 1: serial)")
+    parser.add_argument("--backend", default="auto", choices=("auto", "numpy", "numba"))
+    parser.add_argument("--plot", default=None, metavar="PNG", help="write the map to this file")
+    parser.add_argument("--estimate", action="store_true",
+                        help="only the pre-run estimate at the scene's settings (no sweep)")
+    parser.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    return parser
+
+
+def command(args, file=None):
+    """Body of ``liefi stability SCENE`` (``args`` from :func:`add_arguments`); returns the exit code.
+
+    Prints the estimate at the scene's settings and, unless ``--estimate``, the
+    measured map (a table, or JSON with ``--json``); ``--plot`` writes the figure.
+    Errors in the arguments raise ``ValueError`` naming the argument.
+    """
+    import json
+    import sys
+
+    from .. import scenes as _scenes
+
+    out = file or sys.stdout
+    sc = _scenes.get(args.scene)
+    fi = sc.integrator(sc.variant(args.variant))
+    T = float(args.t_final) if args.t_final is not None else float(sc.t_final)
+    est = estimate(fi, sc.dt, args.scheme, t_final=T)
+    result = {"scene": sc.name, "estimate": {
+        "scheme": est.scheme, "bound": est.bound, "dt": est.dt, "lambda_max": est.lam, "lambda_0": est.lam0,
+        "t_max": est.t_max, "ratio": est.ratio, "verdict": est.verdict, "dt_safe": est.dt_safe,
+        "gains": est.gains, "message": est.message()}}
+    if not args.estimate:
+        gains = None
+        if args.gains:
+            try:
+                gains = [float(x) for x in str(args.gains).split(",")]
+            except ValueError:
+                raise ValueError(f"gains: expected a comma list of numbers, got {args.gains!r}") from None
+        ex = None
+        if args.jobs and int(args.jobs) > 1:
+            from concurrent.futures import ProcessPoolExecutor
+
+            ex = ProcessPoolExecutor(int(args.jobs))
+        try:
+            smap = stability_map(sc.name, gains=gains, scheme=args.scheme, variant=args.variant,
+                                 t_final=min(T, 10.0) if args.t_final is None else T, tol=args.tol,
+                                 accurate=args.accurate, executor=ex, backend=args.backend)
+        finally:
+            if ex is not None:
+                ex.shutdown()
+        result["map"] = smap.to_dict()
+        if args.plot:
+            plot_stability_map(smap, args.plot)
+            result["plot"] = args.plot
+    if args.json:
+        out.write(json.dumps(result, indent=2, default=lambda o: None if o is None else float(o)) + "\n")
+        return 0
+    out.write(f"{sc.name}: at the scene's settings (dt = {sc.dt:g}, gains {sc.gains}, t in [0, {T:g}]):\n  "
+              + est.message() + "\n")
+    if not args.estimate:
+        out.write(f"\nmeasured map ({smap.scheme}, runs of t in [0, {smap.t_final:g}], boundaries to "
+                  f"{100 * smap.tol:g} % in dt):\n" + smap.table() + "\n")
+        if args.plot:
+            out.write(f"map written to {args.plot}\n")
+    return 0
+
+
+def write_report(out_dir="docs/stability", *, scenes=None, quick=False, executor=None, backend="auto"):
+    """Regenerate the figures and tables of ``docs/stability.md``.
+
+    Writes ``<out_dir>/map-<scene>.png`` for every scene, ``work-precision.png``
+    and ``tables.md`` (the maps' tables, the battery's table and the
+    work-precision rows).  Returns the markdown of ``tables.md``.
+    """
+    import os
+
+    from .. import scenes as _scenes
+
+    os.makedirs(out_dir, exist_ok=True)
+    names = list(_scenes.names() if scenes is None else scenes)
+    parts = ["# Stability: generated tables\n", "Generated by `liefi.experiments.stability_cli.write_report`.\n"]
+    parts.append("## Stability maps (Euler, every gain equal to k)\n")
+    gains = [1.0, 10.0, 100.0, 1000.0] if quick else None
+    for nm in names:
+        sc = _scenes.get(nm)
+        v = sc.stability_variant
+        smap = stability_map(nm, gains=gains, variant=v, t_final=2.0 if quick else None, executor=executor,
+                             backend=backend)
+        plot_stability_map(smap, os.path.join(out_dir, f"map-{nm}.png"))
+        parts.append(f"### {nm} ({sc.variant(v).name}), t in [0, {smap.t_final:g}]\n\n![map](stability/map-{nm}.png)\n\n"
+                     + smap.table() + "\n")
+    res = run_battery(names, quick=quick, executor=executor, backend=backend)
+    parts.append("## The extreme-case battery\n\n" + battery_table(res) + "\n")
+    rows = stiff_work_precision(t_final=2.0 if quick else 5.0)
+    plot_work_precision(rows, os.path.join(out_dir, "work-precision.png"),
+                        "knife edge: explicit (auto gains), split imex and implicit solve_ivp")
+    wp = ["| method | dt / rtol | outcome | max error | max drift | cpu s |", "| --- | --- | --- | --- | --- | --- |"]
+    for r in rows:
+        f = lambda x: "-" if not isinstance(x, float) or not math.isfinite(x) else f"{x:.2g}"  # noqa: E731
+        wp.append(f"| {r['label']} | {r['dt'] if r['dt'] is not None else r['rtol']:g} | {r['outcome']} | "
+                  f"{f(r['error'])} | {f(r['drift'])} | {f(r['cpu'])} |")
+    parts.append("## Work-precision (knife edge)\n\n![wp](stability/work-precision.png)\n\n" + "\n".join(wp) + "\n")
+    text = "\n".join(parts)
+    with open(os.path.join(out_dir, "tables.md"), "w") as fh:
+        fh.write(text)
+    return text
+
+
+def main(argv=None):
+    """``python -m liefi.stability SCENE [...]`` (the same as ``liefi stability``); ``--report DIR`` regenerates the docs."""
+    import argparse
+    import sys
+
+    if argv is None:
+        argv = sys.argv[1:]
+    if argv and argv[0] == "--report":
+        write_report(argv[1] if len(argv) > 1 else "docs/stability", quick="--quick" in argv)
+        return 0
+    p = add_arguments(argparse.ArgumentParser(prog="liefi stability", description=command.__doc__.split("\n")[0]))
+    args = p.parse_args(argv)
+    try:
+        return command(args)
+    except ValueError as exc:
+        print(f"liefi stability: error: {exc}", file=__import__("sys").stderr)
+        return 2
+
+
+if __name__ == "__main__":  # pragma: no cover -- ``python -m``: use the package's module (one set of classes)
+    from liefi.experiments.stability_cli import main as _main
+
+    raise SystemExit(_main())

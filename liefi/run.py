@@ -1,0 +1,395 @@
+"""The run module: drives fixed-step runs of a feedback integrator.
+
+One job: given a :class:`~liefi.FeedbackIntegrator`, a step, a horizon and a
+scheme of the registry (:mod:`liefi.schemes.registry`), it
+
+1. validates the arguments once (:func:`liefi.schemes.steps_for`: a ``dt``
+   that does not divide ``t_final`` is refused with the nearest one that does);
+2. plans the run (:class:`RunPlan`): the number of steps, the memory of the
+   saved output -- refused when it would not fit in memory, and capped by
+   default (``save_every=None`` keeps at most :data:`DEFAULT_SAVE_BYTES`) --
+   and the expected time, from the measured cost of one step;
+3. asks the stability guard (:class:`liefi.guard.Guard`, a policy) for the
+   starting gains and the pre-run checks, then runs in segments on the chosen
+   backend (numpy, or the compiled engine :func:`liefi.compiled.run_feedback`),
+   consulting the guard between segments and auditing the saved states after;
+4. shows progress on stderr for runs expected to take more than
+   :data:`PROGRESS_SECONDS` (``tqdm`` when installed, ``liefi[progress]``; a
+   plain line otherwise; quiet when stderr is not a terminal);
+5. reports ``cpu_seconds`` (the integration loops alone) and
+   ``overhead_seconds`` (estimate, guard, kernel loading and compiling)
+   separately on the :class:`~liefi.schemes.Solution`.
+
+:func:`check_ivp` is the guard of the adaptive ``scipy:METHOD`` path and
+:func:`check_result_drift` the drift guard of schemes run outside this loop
+(DLA).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from .schemes import IntegrationError, Solution, integrate, positive_int, steps_for
+from .schemes import registry as _registry
+from .schemes import split as _split
+
+#: Saved output kept by default (``save_every=None``): at most this many bytes.
+DEFAULT_SAVE_BYTES = 256 * 2**20
+#: Show progress for runs expected to take longer than this (seconds).
+PROGRESS_SECONDS = 3.0
+#: Refuse an explicit ``scipy:`` method expected to need more steps than this.
+IVP_MAX_STEPS = 1e6
+
+
+def available_memory():
+    """Bytes of memory available to this process (``MemAvailable``; physical memory as a fallback)."""
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return 2**34
+
+
+@dataclass
+class RunPlan:
+    """What a run will cost, known before it starts.
+
+    Attributes
+    ----------
+    n_steps : int
+    save_every : int
+    n_saved : int
+        Saved states (per batch member), the start and the end included.
+    saved_bytes : int
+        Memory of the saved output.
+    seconds_per_step : float
+        Measured cost of one step (numpy: a timed evaluation of the field at
+        the start; compiled: updated after the first segment).
+    expected_seconds : float
+    """
+
+    n_steps: int
+    save_every: int
+    n_saved: int
+    saved_bytes: int
+    seconds_per_step: float = math.nan
+    expected_seconds: float = math.nan
+
+
+def _saved(n_steps, save_every):
+    return n_steps // save_every + 1 + (1 if n_steps % save_every else 0)
+
+
+def plan(y0, n_steps, save_every=None, *, max_bytes=None):
+    """The :class:`RunPlan` of ``n_steps`` steps from ``y0``: the saving and its memory.
+
+    ``save_every=None``: every step while the output stays under
+    :data:`DEFAULT_SAVE_BYTES` (``max_bytes``), else the smallest stride that
+    keeps it there.  An explicit ``save_every`` whose output would not fit in
+    the available memory is refused with the smallest stride that fits.
+    """
+    per_state = int(np.asarray(y0).size) * 8
+    if save_every is None:
+        cap = DEFAULT_SAVE_BYTES if max_bytes is None else int(max_bytes)
+        save_every = max(1, math.ceil((n_steps + 1) * per_state / max(cap, per_state)))
+        save_every = min(save_every, n_steps)
+    else:
+        save_every = positive_int(save_every, "save_every")
+        limit = 0.5 * available_memory() if max_bytes is None else int(max_bytes)
+        need = _saved(n_steps, save_every) * per_state
+        if need > limit:
+            fit = max(1, math.ceil((n_steps + 1) * per_state / max(limit, per_state)))
+            raise ValueError(
+                f"save_every: saving every {save_every} step(s) of {n_steps} keeps {need / 2**30:.3g} GiB, more "
+                f"than the {limit / 2**30:.3g} GiB this run may use; take save_every >= {fit} "
+                "(or save_every=None: capped automatically)"
+            )
+    n_saved = _saved(n_steps, save_every)
+    return RunPlan(n_steps, save_every, n_saved, n_saved * per_state)
+
+
+class Progress:
+    """Progress on stderr: ``tqdm`` when installed (``liefi[progress]``), a plain line otherwise; quiet off a TTY."""
+
+    def __init__(self, total, desc, enabled):
+        self.total, self.done, self.bar, self.enabled = total, 0, None, enabled
+        self._last = 0.0
+        if not enabled:
+            return
+        try:
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=total, desc=desc, unit="step", unit_scale=True, leave=False, file=sys.stderr)
+        except ImportError:
+            self.desc = desc
+
+    def update(self, n):
+        self.done += n
+        if not self.enabled:
+            return
+        if self.bar is not None:
+            self.bar.update(n)
+        elif time.monotonic() - self._last > 1.0 or self.done >= self.total:
+            self._last = time.monotonic()
+            sys.stderr.write(f"\r{self.desc}: {self.done}/{self.total} steps ({100 * self.done / self.total:.0f} %)")
+            sys.stderr.flush()
+
+    def close(self):
+        if not self.enabled:
+            return
+        if self.bar is not None:
+            self.bar.close()
+        else:
+            sys.stderr.write("\n")
+
+
+def _want_progress(progress, expected):
+    if progress is not None:
+        return bool(progress)
+    return expected > PROGRESS_SECONDS and sys.stderr is not None and sys.stderr.isatty()
+
+
+def _fixed_step_scheme(scheme):
+    if isinstance(scheme, _split.BoundSplitStep):
+        return scheme.scheme
+    sch = _registry.get(scheme)
+    if getattr(sch, "kind", None) not in ("explicit", "split"):
+        raise ValueError(
+            f"scheme: {sch.name!r} is not a fixed-step scheme of a feedback integrator; choose one of "
+            f"{', '.join(_registry.names('explicit') + _registry.names('split'))} (scipy:METHOD and dla run "
+            "through Scene.run)"
+        )
+    return sch
+
+
+def _segment_runner(sch, dt, backend, names):
+    """``run(fi_cur, y, n, s0, save_every, check_every) -> Solution`` on the requested backend.
+
+    Times are absolute; an :class:`~liefi.schemes.IntegrationError` is re-raised
+    with the absolute time of the last finite state and the absolute step.
+    """
+    state = {"backend": backend}
+    split = sch.kind == "split"
+    if backend not in ("numpy", "numba", "auto"):
+        raise ValueError(f"backend: expected 'numpy', 'numba' or 'auto', got {backend!r}")
+    if split and backend == "numba":
+        raise ValueError(f"backend: the split scheme {sch.name!r} runs on numpy only; pass backend='numpy'")
+    if split:
+        state["backend"] = "numpy"  # "auto": the split schemes have no compiled path
+
+    def run(fi_cur, y, n, s0, save_every, check_every):
+        t0 = s0 * dt
+        if state["backend"] != "numpy":
+            from .compiled import run_feedback
+
+            try:
+                sol = run_feedback(fi_cur, dt, n, sch, y, save_every, check_every, state["backend"])
+            except IntegrationError as exc:  # times relative to the segment
+                raise IntegrationError(str(exc), t0 + exc.t, s0 + exc.step, exc.y, exc.components) from None
+            if sol is not None:
+                sol.t = sol.t + t0
+                return sol
+            state["backend"] = "numpy"
+        stepper = sch.bind(fi_cur) if split else sch
+        try:
+            return integrate(fi_cur.vector_field, y, dt, n, stepper, t0=t0, save_every=save_every,
+                             names=names, check_every=check_every)
+        except IntegrationError as exc:  # t absolute, step relative
+            raise IntegrationError(str(exc), exc.t, s0 + exc.step, exc.y, exc.components) from None
+
+    run.state = state
+    return run
+
+
+def _chunk(s0, n_steps, N, save_every):
+    """``(length, sub_save)`` of the next segment so that saved indices stay multiples of ``save_every``."""
+    left = n_steps - s0
+    nxt = (s0 // save_every + 1) * save_every
+    if save_every <= N:
+        if s0 % save_every:  # first back onto a multiple of save_every
+            L = min(nxt - s0, left)
+            return L, L
+        L = save_every * max(1, N // save_every)
+        return min(L, left), save_every
+    L = min(N, nxt - s0, left)
+    return L, L
+
+
+def _step_seconds(fi, y0, sch):
+    """Measured seconds of one numpy step at ``y0`` (one timed field evaluation times the stages)."""
+    t = time.perf_counter()
+    with np.errstate(all="ignore"):
+        fi.vector_field(y0)
+    return (time.perf_counter() - t) * getattr(sch, "stages", 1) * (3 if sch.kind == "split" else 1)
+
+
+def run_feedback(fi, dt, t_final, scheme="euler", *, y0=None, save_every=None, check_every=1, backend="numpy",
+                 check_stability=True, adaptive=None, monitor_every=None, progress=None, max_saved_bytes=None,
+                 stacklevel=3) -> Solution:
+    """Integrate the feedback integrator ``fi`` from ``y0`` to ``t_final`` with a fixed step (module docstring).
+
+    The parameters are those of :meth:`liefi.FeedbackIntegrator.run`;
+    ``progress``: ``None`` (automatic), True or False; ``max_saved_bytes``: the
+    memory the saved output may use (default: :data:`DEFAULT_SAVE_BYTES` with
+    ``save_every=None``, half the available memory with an explicit stride).
+
+    Returns the :class:`~liefi.schemes.Solution` with ``stability`` (the
+    guard's :class:`~liefi.guard.RunReport`), ``plan`` (:class:`RunPlan`),
+    ``cpu_seconds`` (integration) and ``overhead_seconds``.
+    """
+    from .guard import Guard
+
+    start_all = time.process_time()
+    dt, t_final, n_steps, _, check_every = steps_for(dt, t_final, check_every=check_every)
+    if monitor_every is not None:
+        monitor_every = positive_int(monitor_every, "monitor_every")
+    if y0 is None:
+        y0 = fi.y0
+    else:
+        y0 = np.asarray(y0, dtype=float) if not isinstance(y0, str) else y0
+        if not isinstance(y0, np.ndarray) or y0.shape[-1:] != (fi.n,):
+            raise ValueError(f"y0: expected a state of {fi.n} numbers {fi.names}, got {np.shape(y0)}")
+        if not np.all(np.isfinite(y0)):
+            raise ValueError("y0: contains non-finite numbers")
+    sch = _fixed_step_scheme(scheme)
+    pl = plan(y0, n_steps, save_every, max_bytes=max_saved_bytes)
+    save_every = pl.save_every
+    names = fi.names
+    runner = _segment_runner(sch, dt, backend, names)
+    guard = Guard(fi, sch, dt, n_steps, backend=backend, check_stability=check_stability, adaptive=adaptive,
+                  monitor_every=monitor_every, stacklevel=stacklevel + 1)
+    run_fi = guard.before(y0)
+    if runner.state["backend"] == "numpy":
+        pl.seconds_per_step = _step_seconds(run_fi, y0, sch)
+        pl.expected_seconds = pl.seconds_per_step * n_steps
+
+    # --- segments -------------------------------------------------------------------------
+    out = np.empty(y0.shape + (pl.n_saved,))
+    ts = np.empty(pl.n_saved)
+    out[..., 0], ts[0], k = y0, 0.0, 1
+    if guard.active:
+        N = guard.segment_length(n_steps)
+    else:
+        N = n_steps if not pl.expected_seconds > PROGRESS_SECONDS else max(1, n_steps // 100)
+    bar = Progress(n_steps, f"liefi {sch.name}", _want_progress(progress, pl.expected_seconds))
+    y, s0, rhs, cpu, last = y0, 0, 0, 0.0, None
+    checked = (y0, 0.0)
+    try:
+        while s0 < n_steps:
+            L, sub = _chunk(s0, n_steps, N, save_every)
+            try:
+                seg = runner(run_fi, y, L, s0, sub, check_every)
+            except IntegrationError as exc:
+                raise guard.failure(run_fi, exc, checked) from None
+            last = seg
+            rhs += seg.rhs_evaluations
+            cpu += seg.cpu_seconds
+            gidx = s0 + np.round((seg.t - s0 * dt) / dt).astype(int)
+            for j in range(1, len(seg.t)):
+                if gidx[j] % save_every == 0 or gidx[j] == n_steps:
+                    ts[k] = dt * float(gidx[j])
+                    out[..., k] = seg.y[..., j]
+                    k += 1
+            y = seg.y[..., -1]
+            s0 += L
+            bar.update(L)
+            if not math.isfinite(pl.expected_seconds) and s0 < n_steps:  # compiled: measured now
+                pl.seconds_per_step = seg.cpu_seconds / L
+                pl.expected_seconds = pl.seconds_per_step * n_steps
+                if _want_progress(progress, pl.expected_seconds) and not bar.enabled:
+                    bar = Progress(n_steps, f"liefi {sch.name}", True)
+                    bar.update(s0)
+            if s0 >= n_steps:
+                break
+            if guard.active:
+                run_fi, N = guard.between(run_fi, y, s0, N)
+                checked = (y, s0 * dt)
+    finally:
+        bar.close()
+    guard.after(ts[:k], np.moveaxis(out[..., :k], -1, 0))
+    sol = Solution(ts[:k], out[..., :k], sch.name, dt, n_steps, rhs, cpu, tuple(names))
+    for attr in ("backend", "wall_seconds"):
+        if last is not None and hasattr(last, attr):
+            setattr(sol, attr, getattr(last, attr))
+    sol.backend = getattr(sol, "backend", runner.state["backend"])
+    sol.stability = guard.report
+    sol.plan = pl
+    sol.overhead_seconds = max(0.0, time.process_time() - start_all - cpu)
+    return sol
+
+
+# ------------------------------------------------------------------------------------------
+# guards of the paths that do not go through the fixed-step loop
+# ------------------------------------------------------------------------------------------
+
+
+def check_ivp(fi, scheme, t_final, *, max_steps=IVP_MAX_STEPS):
+    """Refuse an explicit ``scipy:`` method on a stiff feedback field before it runs for minutes.
+
+    An explicit adaptive method keeps ``h lambda_max <= beta`` (``beta`` the
+    real stability bound of its tableau), so it needs at least
+    ``t_final lambda_max / beta`` steps; past ``max_steps`` it is refused with
+    the advice to use ``scipy:LSODA`` or ``scipy:BDF``.  ``lambda_max`` is the
+    Gram estimate of :func:`liefi.stability.stiffness` at the start (``O(1)``).
+    """
+    from .stability import stiffness
+
+    sch = _registry.get(scheme, kind="scipy")
+    if sch.stiff_safe:
+        return None
+    with np.errstate(all="ignore"):
+        lam = float(np.max(stiffness(fi, fi.y0).lam, initial=0.0))
+    need = float(t_final) * lam / sch.real_stability_bound
+    if need > max_steps:
+        raise ValueError(
+            f"scheme: {sch.name} is explicit and the feedback term is stiff (lambda_max = {lam:.3g}, the largest "
+            f"eigenvalue of Hess V at these gains): it would need at least {need:.3g} steps to stay stable over "
+            f"t in [0, {float(t_final):g}]. Use scheme='scipy:LSODA' or 'scipy:BDF' (stiff-safe), or lower the gains."
+        )
+    return need
+
+
+def check_result_drift(fi, t, Y, names, scheme, dt, *, limit=None):
+    """The drift guard of a run made outside the loop (e.g. DLA): refuse garbage returned as a result.
+
+    ``Y`` is ``(len(names), n_t)``.  When the largest relative drift of the
+    integrator's invariants (:func:`liefi.stability.drift`, relative to their
+    scale at the start) passes ``limit`` (default
+    :data:`liefi.stability.GUARD_DRIFT` x 100, i.e. O(1): the run lost every
+    invariant) a :class:`~liefi.stability.StabilityError` says when.
+    """
+    from .stability import GUARD_DRIFT, StabilityError, drift, drift_scales
+
+    limit = 100 * GUARD_DRIFT if limit is None else limit
+    try:
+        idx = [list(names).index(n) for n in fi.names]
+    except ValueError:
+        return None
+    states = np.stack([np.asarray(Y[i], float) for i in idx], -1)  # (n_t, n)
+    scales = drift_scales(fi)
+    with np.errstate(all="ignore"):
+        d = [drift(fi, states[i], scales)[0] if np.all(np.isfinite(states[i])) else math.inf
+             for i in range(states.shape[0])]
+    bad = np.nonzero(~(np.asarray(d) <= limit))[0]
+    if bad.size:
+        i = int(bad[0])
+        who = drift(fi, states[i], scales)[1] if math.isfinite(d[i]) else "the state"
+        raise StabilityError(
+            f"the {scheme} run became meaningless at t ~ {float(t[i]):g}: the drift of {who} reached "
+            f"{d[i]:.3g} x its scale (dt = {dt:g}); the step does not resolve the motion: reduce dt. "
+            "No result is returned.",
+            float(t[i]), i, states[max(i - 1, 0)], [who],
+        )
+    return float(max(d, default=0.0))
