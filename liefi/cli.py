@@ -212,7 +212,7 @@ def cmd_list(args):
     return 0
 
 
-def plot_path(path, scene, variant=None):
+def plot_path(path, scene, variant=None, *, suffix=""):
     """The file ``liefi run --out`` writes, checked before the run.
 
     A folder gets ``SCENE.png`` (``SCENE-VARIANT.png`` for another variant than the
@@ -227,7 +227,7 @@ def plot_path(path, scene, variant=None):
     plotting.require_matplotlib()
     if os.path.isdir(path):
         first = next(iter(scene.variants), None)
-        name = scene.name + ("" if variant in (None, first) else f"-{variant}")
+        name = scene.name + ("" if variant in (None, first) else f"-{variant}") + suffix
         path = os.path.join(path, name + ".png")
     elif not os.path.splitext(path)[1]:
         path += ".png"
@@ -516,6 +516,8 @@ def _main(parser, argv, seen=()):
         if args.command is None:
             parser.print_help(sys.stderr)
             return 2
+        if args.command == "stability" and args.plot:  # the map's file, checked before any work
+            args.plot = plot_path(args.plot, _scenes.get(args.scene), suffix="-stability")
         if args.command == "stability":
             from .experiments.stability_cli import command
 

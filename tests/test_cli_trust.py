@@ -327,3 +327,20 @@ def test_max_steps_lets_a_long_run_through(capsys):
     assert code == 2 and "--max-steps" in err
     code, out, err = run_cli(capsys, "run", "suslov", "--t-final", "0.2", "--max-steps", "1000", "--json")
     assert code == 0 and json.loads(out)["steps"] == 200
+
+
+def test_stability_out_is_checked_before_any_work(capsys, tmp_path, monkeypatch):
+    pytest.importorskip("matplotlib")
+    from liefi.experiments import stability_cli
+
+    def boom(args):
+        raise AssertionError("the map was computed before its output was checked")
+
+    monkeypatch.setattr(stability_cli, "command", boom)
+    code, _, err = run_cli(capsys, "stability", "suslov", "--out", str(tmp_path / "missing" / "map.png"))
+    assert code == 2
+    _one_error_line(err, "out")
+    seen = {}
+    monkeypatch.setattr(stability_cli, "command", lambda args: seen.setdefault("plot", args.plot) and 0)
+    assert cli.main(["stability", "suslov", "--out", str(tmp_path)]) == 0
+    assert seen["plot"] == str(tmp_path / "suslov-stability.png")
