@@ -241,8 +241,8 @@ def _scene_job(task):
     figure names and failures.  Never raises (but ``KeyboardInterrupt``); module level, so a
     process pool can run it."""
     name, out_path, scale, count = task
-    rows, failures, figures = [], [], []
-    done = {"rows": rows, "failures": failures, "figures": figures, "scene": name}
+    rows, failures, figures, references = [], [], [], []
+    done = {"rows": rows, "failures": failures, "figures": figures, "scene": name, "references": references}
     try:
         scene = _scenes.get(name)
     except Exception as exc:  # noqa: BLE001 - e.g. the scene module is missing
@@ -260,10 +260,17 @@ def _scene_job(task):
         plan = plans[variant]
         if scene.reference == "numerical":  # once, for the longest horizon of the plan
             T = max(_horizon(scene.t_final if s.t_final is None else s.t_final, scene.dt, scale) for s in plan)
+            before = getattr(scene, "reference_seconds", 0.0)
             try:
                 scene.reference_solution(scene.variant(variant), T)
             except Exception as exc:  # noqa: BLE001 - the runs will report it
                 _log(f"{name} / {variant}: reference failed: {_one_line(exc)}")
+            else:
+                spent = getattr(scene, "reference_seconds", 0.0) - before
+                references.append({"scene": name, "variant": variant, "t_final": T, "seconds": spent,
+                                   "method": scene.reference_method(), "reused": spent == 0.0})
+                _log(f"{name} / {variant}: reference on [0, {T:g}] "
+                     + (f"computed in {spent:.2f} s" if spent else "reused (same start)"))
         results, used_rows = {}, []
         for spec in plan:
             if spec.variant_independent and spec.label in shared:
@@ -411,7 +418,7 @@ def _parallel(tasks, jobs, finished):
 
 
 def _write_summary(output, names, state, scale):
-    rows, failures, figures = [], [], []
+    rows, failures, figures, references = [], [], [], []
     for n in names:
         done = state["results"].get(n)
         if done is None:
@@ -419,6 +426,7 @@ def _write_summary(output, names, state, scale):
         rows += done["rows"]
         failures += done["failures"]
         figures += done["figures"]
+        references += done.get("references", [])
     pending = [n for n in names if n not in state["results"]]
     summary = {
         "liefi_version": __version__,
@@ -430,6 +438,7 @@ def _write_summary(output, names, state, scale):
         "scenes": names,
         "not_run": pending if (state["interrupted"] or pending) else [],
         "runs": rows,
+        "references": references,
         "figures": figures,
         "failures": failures,
     }
@@ -481,6 +490,13 @@ def markdown_table(summary):
             ("**Interrupted**: " if summary.get("interrupted") else "")
             + "not run (or not finished): " + (", ".join(summary.get("not_run", ())) or "-") + "."
         )
+    refs = summary.get("references") or []
+    if refs:
+        lines.append("")
+        lines.append("Numerical references (computed once per start, before the runs):")
+        for r in refs:
+            how = "reused (same start)" if r["reused"] else f"{r['seconds']:.2f} s"
+            lines.append(f"- {r['scene']} / {r['variant']}: {r['method']}, t in [0, {r['t_final']:g}]: {how}")
     warned = [r for r in summary["runs"] if r.get("warnings")]
     if warned:
         lines.append("")

@@ -111,6 +111,9 @@ def test_oscillator_reference_is_computed_once_per_start(tmp_path):
     assert T == pytest.approx(400 * 0.005)
     ref = [r for r in summary["runs"] if r["reference_seconds"] > 0]
     assert ref == []  # computed before the runs, not inside one
+    refs = summary["references"]  # ... and its cost is in the summary: paid by the first variant only
+    assert [(r["variant"], r["reused"]) for r in refs] == [("extended", False), ("original", True)]
+    assert refs[0]["seconds"] > 0 and "DOP853" in refs[0]["method"]
 
 
 def test_dense_reference_agrees_with_a_direct_solve(monkeypatch):
