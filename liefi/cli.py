@@ -88,46 +88,13 @@ def parse_gains(text, scene, variant=None, configuration=None):
     """
     if text is None:
         return None
+    from .feedback import parse_gains as _parse
+
     names = gain_names(scene, variant, configuration)
-    order = ",".join(names) or "(none)"
-    text = text.strip()
-    parts = [p.strip() for p in text.split(",")]
-
-    def number(s, what):
-        try:
-            v = float(s)
-        except ValueError:
-            raise UsageError(f"gains: {what} {s!r} is not a number (gain order for {scene.name}: {order})") from None
-        if not math.isfinite(v) or v < 0:
-            raise UsageError(f"gains: {what} must be a finite non-negative number, got {s!r}")
-        return v
-
-    if text == "auto":  # chosen by the library from dt and Hess V (liefi.stability)
-        return "auto"
-    if not text or any(not p for p in parts):
-        raise UsageError(f"gains: empty entry in {text!r}; give K, K1,K2,... (order {order}) or name=K,...")
-    if all("=" in p for p in parts):
-        out = default_gains(scene, names)
-        for p in parts:
-            k, v = (s.strip() for s in p.split("=", 1))
-            if k == "constraints":
-                for n in names:
-                    if n.startswith("J_"):
-                        out[n] = number(v, f"gain of {k!r}")
-            elif k in names:
-                out[k] = number(v, f"gain of {k!r}")
-            else:
-                raise UsageError(f"gains: unknown name {k!r} for scene {scene.name}; the gains are {order}")
-        return out
-    if any("=" in p for p in parts):
-        raise UsageError(f"gains: mix of name=K and plain numbers in {text!r}; use one form")
-    if len(parts) == 1:
-        return number(parts[0], "value")
-    if len(parts) != len(names):
-        raise UsageError(
-            f"gains: scene {scene.name} takes 1 or {len(names)} gains in the order {order}, got {len(parts)}"
-        )
-    return {n: number(p, f"gain of {n!r}") for n, p in zip(names, parts)}
+    try:  # the one gain parser, shared with the API
+        return _parse(text, names, defaults=default_gains(scene, names))
+    except (TypeError, ValueError) as exc:
+        raise UsageError(f"{exc} (scene {scene.name}: gain order {','.join(names) or '(none)'})") from None
 
 
 def available_schemes(scene):

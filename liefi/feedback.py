@@ -94,6 +94,84 @@ def momentum_component(system, name):
     return Invariant(name, fun, grad)
 
 
+def gain_number(v, what="the gain"):
+    """``float(v)`` for a finite non-negative gain; a ``ValueError`` naming it otherwise (a bool is not a number)."""
+    if isinstance(v, (bool, np.bool_)):
+        raise ValueError(f"gains: {what} must be a number (or gains='auto'), got {v!r} (a bool is not a gain)")
+    try:
+        x = float(v)
+    except (TypeError, ValueError):
+        raise ValueError(f"gains: {what} must be a number (or gains='auto'), got {v!r}") from None
+    if not np.isfinite(x) or x < 0:
+        raise ValueError(f"gains: {what} must be a finite non-negative number, got {v!r}")
+    return x
+
+
+def parse_gains(gains, names, *, defaults=None):
+    """The one gain parser (the API's ``gains=`` and the CLI's ``--gains``) -> ``{name: k}`` over ``names``, or ``"auto"``.
+
+    ``gains`` is a number (every gain), ``"auto"``, a dict ``{name: k}``
+    (``"constraints"`` sets every ``J_i``), or text: ``"K"``, ``"K1,K2,..."``
+    (in the order of ``names``), ``"name=K,..."``.  A dict or ``name=K`` text
+    sets the named gains over ``defaults`` (``{name: k}``; without them every
+    gain must be given).
+    """
+    names = tuple(names)
+    order = ",".join(names) or "(none)"
+    Js = [n for n in names if n.startswith("J_")]
+
+    def named(pairs):
+        out = dict(defaults or {})
+        for k, v in pairs:
+            if k == "constraints":
+                out.update({n: gain_number(v, "the gain of 'constraints'") for n in Js})
+            elif k in names:
+                out[k] = gain_number(v, f"the gain of {k!r}")
+            else:
+                raise ValueError(f"gains: unknown name {k!r}; the gains are {order}")
+        missing = [k for k in names if k not in out]
+        if missing:
+            raise ValueError(f"gains: no gain given for {missing} (the gains are {order})")
+        return {k: out[k] for k in names}
+
+    if isinstance(gains, str):
+        text = gains.strip()
+        if text == "auto":
+            return "auto"
+        parts = [p.strip() for p in text.split(",")]
+        if not text or any(not p for p in parts):
+            raise ValueError(f"gains: empty entry in {gains!r}; give K, K1,K2,... (order {order}) or name=K,...")
+        if all("=" in p for p in parts):
+            return named(tuple(x.strip() for x in p.split("=", 1)) for p in parts)
+        if any("=" in p for p in parts):
+            raise ValueError(f"gains: mix of name=K and plain numbers in {gains!r}; use one form")
+        if len(parts) == 1:
+            k = gain_number(parts[0], f"the gain {parts[0]!r} (order {order})")
+            return {n: k for n in names}
+        if len(parts) != len(names):
+            raise ValueError(f"gains: expected 1 or {len(names)} gains in the order {order}, got {len(parts)}")
+        return {n: gain_number(p, f"the gain of {n!r}") for n, p in zip(names, parts)}
+    if isinstance(gains, dict):
+        return named(gains.items())
+    if np.ndim(gains) == 0:
+        k = gain_number(gains)
+        return {n: k for n in names}
+    raise TypeError(f"gains: expected a number, a dict {{name: gain}} or 'auto', got {gains!r}")
+
+
+def target_number(name, v):
+    """A target value ``I_j0``: a finite real number, else a ``ValueError`` naming it."""
+    if isinstance(v, (bool, np.bool_)):
+        raise ValueError(f"targets: the target of {name!r} must be a finite number, got {v!r}")
+    try:
+        x = np.asarray(v, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"targets: the target of {name!r} must be a finite number, got {v!r}") from None
+    if x.ndim or not np.isfinite(x):
+        raise ValueError(f"targets: the target of {name!r} must be a finite number, got {v!r}")
+    return float(x)
+
+
 class FeedbackIntegrator:
     """The feedback-integrator vector field of a nonholonomic system.
 
@@ -236,7 +314,7 @@ class FeedbackIntegrator:
             for k, v in targets.items():
                 if k not in self.targets:
                     raise ValueError(f"targets: unknown name {k!r}; targets exist for {list(self.targets)}")
-                self.targets[k] = v
+                self.targets[k] = target_number(k, v)
         self._eh = self.targets.get("energy", 0.0)
         self._user_targets = [self.targets[u.name] for u in self.user]
         if self.gains_mode == "auto":
@@ -248,37 +326,10 @@ class FeedbackIntegrator:
 
     # --- gains -----------------------------------------------------------------------
     def _parse_gains(self, gains):
-        """``gains`` (a number or ``{name: k}``) -> ``{name: k}`` over :attr:`invariant_names`."""
-        names = self.invariant_names
-        K = self.system.K
-
-        def number(v, what):
-            try:
-                x = float(v)
-            except (TypeError, ValueError):
-                raise ValueError(
-                    f"gains: {what} must be a number (or gains='auto'), got {v!r}"
-                ) from None
-            if not np.isfinite(x) or x < 0:
-                raise ValueError(f"gains: {what} must be a finite non-negative number, got {v!r}")
-            return x
-
-        if isinstance(gains, str) or np.isscalar(gains):
-            g = {k: number(gains, "the gain") for k in names}
-        elif isinstance(gains, dict):
-            g = {}
-            for k, v in gains.items():
-                if k == "constraints":
-                    g.update({f"J_{i + 1}": number(v, "the gain of 'constraints'") for i in range(K)})
-                elif k in names:
-                    g[k] = number(v, f"the gain of {k!r}")
-                else:
-                    raise ValueError(f"gains: unknown name {k!r}; the invariants are {names}")
-            missing = [k for k in names if k not in g]
-            if missing:
-                raise ValueError(f"gains: no gain given for {missing}")
-        else:
-            raise TypeError(f"gains: expected a number, a dict {{name: gain}} or 'auto', got {gains!r}")
+        """``gains`` (a number or ``{name: k}``) -> ``{name: k}`` over :attr:`invariant_names` (:func:`parse_gains`)."""
+        g = parse_gains(gains, self.invariant_names)
+        if g == "auto":
+            raise ValueError("gains: 'auto' is chosen by run() from dt; pass it to the constructor, not here")
         return g
 
     def _set_gains(self, g):

@@ -30,7 +30,6 @@ from .schemes import split as _split
 from .stability import (
     GUARD_DRIFT,
     PILOT_GUARD_EVALS,
-    PILOT_GUARD_RTOL,
     _max_evals,
     LIMIT_BAND,
     RESOLUTION_LIMIT,
@@ -39,6 +38,7 @@ from .stability import (
     drift,
     drift_scales,
     dynamics_rate,
+    metric_defect,
     stiffness,
 )
 
@@ -108,8 +108,13 @@ def _audit(fi, ts, Ys, dt, beta, sch, scales, delta0, schedule, max_points=2000)
         if v == "error":
             t_bad, nm = float(tt[i]), str(who[i])
             t_over = float(tt[int(np.argmax(ratio > 1 + LIMIT_BAND))])
+            md = metric_defect(fi, Y[: i + 1])
+            if md:  # the data, not the gains
+                raise StabilityError(f"the run became meaningless at t={t_bad:g}: the drift of {nm} reached "
+                                     f"{float(rel[i]):.3g} x its scale. {md} No result is returned.",
+                                     t_bad, int(round(t_bad / dt)), Ys[idx[i]], [nm])
             raise StabilityError(
-                f"the run became meaningless at t ~ {t_bad:g}: the drift of {nm} reached {float(rel[i]):.3g} x "
+                f"the run became meaningless at t={t_bad:g}: the drift of {nm} reached {float(rel[i]):.3g} x "
                 f"its scale after dt*lambda_max exceeded the stability bound {beta:.4g} of {sch.name} (at t ~ "
                 f"{t_over:g}; largest dt*lambda_max seen {float(np.max(ratio)) * beta:.4g}, largest safe dt there "
                 f"{dt / float(np.max(ratio)):.4g}): reduce dt or the gains, or use gains='auto', adaptive=True "
@@ -198,6 +203,9 @@ def _advice(fi, y, t, dt, sch, beta, earlier=None):
     if len(found) == 2 and found[0][0] > 10 * found[1][0]:
         pick = found[1]
     lam, dom, y, t, label = pick
+    md = metric_defect(fi, y)
+    if md:  # the data, not the gains
+        return f"{label} (t={t:g}): {md}"
     name = getattr(sch, "name", str(sch))
     if math.isfinite(beta) and dt * lam > beta:
         safe = beta / lam
@@ -234,8 +242,9 @@ def _relabel(exc, dt, sch, extra):
     return IntegrationError(msg, exc.t, exc.step, exc.y, comps)
 
 
-#: Largest number of states (batch members x saved points) the post-run audit evaluates.
-AUDIT_STATES = 20000
+#: Largest number of states (batch members x saved points) the post-run audit evaluates
+#: (each costs a few field evaluations: the audit stays a few percent of an ensemble's loop).
+AUDIT_STATES = 2000
 #: Members of a batch on which the unforced dynamics' resolution is estimated.
 RESOLUTION_MEMBERS = 16
 
@@ -247,30 +256,6 @@ def _subsample(y, k):
     if flat.shape[0] <= k:
         return flat
     return flat[np.unique(np.linspace(0, flat.shape[0] - 1, k).astype(int))]
-
-
-def metric_defect(fi, y):
-    """A message if the metric is not positive definite at a state of ``y`` (else ``""``).
-
-    A metric that loses positive definiteness along the run makes the field
-    singular: the blow-up is the system's data, not the gains.
-    """
-    try:
-        n = fi.system.space.n
-        x = np.asarray(y, float)[..., fi.nc : fi.nc + n].reshape(-1, n)
-        with np.errstate(all="ignore"):
-            m = np.asarray(fi.system.metric(x), float)
-            m = np.broadcast_to(m, (x.shape[0],) + m.shape[-2:])
-            w = np.linalg.eigvalsh(0.5 * (m + np.swapaxes(m, -1, -2)))[..., 0]
-    except Exception:  # noqa: BLE001 -- a diagnostic only
-        return ""
-    bad = np.nonzero(~(w > 0))[0]
-    if not bad.size:
-        return ""
-    i = int(bad[0])
-    return (f"The metric is not positive definite at x = {np.round(x[i], 6).tolist()} (smallest eigenvalue "
-            f"{float(w[i]):.3g}): the system's metric turned indefinite along the run, which no choice of gains "
-            "or dt can repair; check the metric's data there.")
 
 
 class Guard:
@@ -333,7 +318,7 @@ class Guard:
                 T = self.n_steps * dt
                 budget = min(PILOT_GUARD_EVALS, _max_evals(self.n_steps, self.sch.stages))
                 rep.estimate = check(run_fi, dt, self.sch, t_final=T, y0=y0, max_evals=budget,
-                                     rtol=PILOT_GUARD_RTOL, stacklevel=self.stacklevel + 1)
+                                     stacklevel=self.stacklevel + 1)
                 rep.resolution = rep.estimate.rate
                 if rep.estimate.verdict in ("limit", "beyond"):
                     rep.warnings.append(rep.estimate.message())
@@ -399,7 +384,7 @@ class Guard:
                 if md:
                     why = "; " + md
                 raise StabilityError(
-                    f"the run became meaningless at t = {t_now:g}: the drift of {who} reached {delta:.3g} x its "
+                    f"the run became meaningless at t={t_now:g}: the drift of {who} reached {delta:.3g} x its "
                     f"scale {why}. No result is returned.",
                     t_now, s0, y, [who],
                 )

@@ -297,11 +297,12 @@ def run_feedback(fi, dt, t_final, scheme="euler", *, y0=None, save_every=None, c
             rhs += seg.rhs_evaluations
             cpu += seg.cpu_seconds
             gidx = s0 + np.round((seg.t - s0 * dt) / dt).astype(int)
-            for j in range(1, len(seg.t)):
-                if gidx[j] % save_every == 0 or gidx[j] == n_steps:
-                    ts[k] = dt * float(gidx[j])
-                    out[..., k] = seg.y[..., j]
-                    k += 1
+            keep = np.nonzero((gidx % save_every == 0) | (gidx == n_steps))[0]
+            keep = keep[keep >= 1]
+            m = keep.size
+            ts[k : k + m] = dt * gidx[keep].astype(float)
+            out[..., k : k + m] = seg.y[..., keep]
+            k += m
             y = seg.y[..., -1]
             s0 += L
             bar.update(L)
@@ -387,7 +388,7 @@ def check_result_drift(fi, t, Y, names, scheme, dt, *, limit=None):
         i = int(bad[0])
         who = drift(fi, states[i], scales)[1] if math.isfinite(d[i]) else "the state"
         raise StabilityError(
-            f"the {scheme} run became meaningless at t ~ {float(t[i]):g}: the drift of {who} reached "
+            f"the {scheme} run became meaningless at t={float(t[i]):g}: the drift of {who} reached "
             f"{d[i]:.3g} x its scale (dt = {dt:g}); the step does not resolve the motion: reduce dt. "
             "No result is returned.",
             float(t[i]), i, states[max(i - 1, 0)], [who],

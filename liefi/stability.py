@@ -77,11 +77,11 @@ SPLIT_RATE = _stiff.LinearlyImplicitSplit.optimal_rate
 PILOT_FRACTION = 0.05
 PILOT_MAX_EVALS = 6000
 PILOT_MIN_EVALS = 60
-#: The pilot a run's guard makes: this many evaluations of ``X`` at most, at a coarse
-#: tolerance (it only has to find where the stiffness grows), on at most
-#: ``PILOT_MEMBERS`` members of a batch.
+#: The pilot a run's guard makes: this many evaluations of ``X`` at most (it only has
+#: to find where the stiffness grows), on at most ``PILOT_MEMBERS`` members of a batch.
 PILOT_GUARD_EVALS = 240
-PILOT_GUARD_RTOL = 1e-3
+#: The pilot (of ``X``, which keeps every invariant) ends where its own relative drift passes this.
+PILOT_DRIFT = 1e-3
 PILOT_MEMBERS = 4
 #: In a run past the limit, a drift (relative to the invariant's scale) above this is an explosion.
 GUARD_DRIFT = 1e-2
@@ -265,49 +265,57 @@ def stable_dt(scheme, eigenvalues):
 # --------------------------------------------------------------------------------
 
 
-def pilot(fi, y0, t_final, *, max_evals=2000, rtol=1e-6):
-    """A cheap preview of the run: the extended field ``X`` (no feedback) by adaptive RK45.
+def pilot(fi, y0, t_final, *, max_evals=2000, max_rate=0.5):
+    """A cheap preview of the run: the extended field ``X`` (no feedback) by fixed-step RK4.
 
-    Returns ``(t, Y)`` with ``Y`` of shape ``(N,) + y0.shape``: the accepted
-    steps plus three dense-output points inside each, until ``t_final`` or the
-    budget of ``max_evals`` evaluations of ``X`` (so ``t[-1]`` says how far it got).
-    ``X`` keeps every invariant, so the feedback run stays near this trajectory.
+    Returns ``(t, Y)`` with ``Y`` of shape ``(N,) + y0.shape``: the start and
+    every pilot step, until ``t_final`` or the budget of ``max_evals``
+    evaluations of ``X`` (so ``t[-1]`` says how far it got).  The step ``h``
+    keeps ``h rho <= max_rate`` (``rho`` the spectral radius of ``dX/dy`` at
+    the start; RK4's local error is ``(h rho)^5 / 120 ~ 3e-4`` at 1/2: enough to
+    find where the stiffness grows) and spreads the budget over ``[0, t_final]``.  ``X`` keeps every invariant, so the
+    feedback run stays near this trajectory.
     """
-    from scipy.integrate import RK45
+    from .schemes.rk import RK4
 
     y0 = np.asarray(y0, dtype=float)
-    shape = y0.shape
     X = fi.unforced_vector_field
-
-    def fun(_t, y):
-        return np.asarray(X(y.reshape(shape)), float).reshape(-1)
-
-    ts, Ys = [0.0], [y0]
-    scale = max(1.0, float(np.max(np.abs(y0), initial=0.0)))
+    budget = max(1, int(max_evals) // RK4.stages - 1)
     with np.errstate(all="ignore"):
         try:
-            solver = RK45(fun, 0.0, y0.reshape(-1), float(t_final), rtol=rtol, atol=1e-9 * scale)
+            rho = dynamics_rate(fi, _members(y0, PILOT_MEMBERS))
         except Exception:  # noqa: BLE001 -- a pilot that cannot start leaves the estimate at y0
-            return np.array(ts), np.stack(Ys)
-        while solver.status == "running" and solver.nfev < max_evals:
-            t_prev = solver.t
+            return np.array([0.0]), y0[None]
+        h = float(t_final) / budget
+        if math.isfinite(rho) and rho > 0:
+            h = min(h, float(max_rate) / rho)
+        steps = int(min(budget, math.ceil(float(t_final) / h - 1e-9)))
+        ts, Ys, y = [0.0], [y0], y0
+        for k in range(1, steps + 1):
             try:
-                solver.step()
+                y = RK4.step(X, y, h)
             except Exception:  # noqa: BLE001
                 break
-            if solver.status == "failed" or not np.all(np.isfinite(solver.y)):
+            if not np.all(np.isfinite(y)):
                 break
-            try:
-                dense = solver.dense_output()
-                for s in (0.25, 0.5, 0.75):
-                    tt = t_prev + s * (solver.t - t_prev)
-                    ts.append(tt)
-                    Ys.append(np.asarray(dense(tt)).reshape(shape))
-            except Exception:  # noqa: BLE001
-                pass
-            ts.append(solver.t)
-            Ys.append(solver.y.reshape(shape))
-    return np.array(ts), np.stack(Ys)
+            ts.append(min(k * h, float(t_final)))
+            Ys.append(y)
+        ts, Ys = np.array(ts), np.stack(Ys)
+        # X keeps every invariant: where the pilot's own drift passes PILOT_DRIFT it has stopped
+        # following the motion (its step was set at the start), so it ends there
+        try:
+            scales = drift_scales(fi, y0)
+            jet = fi.invariant_gradients(Ys)
+            rel = np.zeros(len(ts))
+            for j, nm in enumerate(jet.names):
+                r = np.abs(jet.residual[..., j] - jet.residual[:1, ..., j]).reshape(len(ts), -1).max(axis=1)
+                rel = np.maximum(rel, np.nan_to_num(r / scales.get(nm, 1.0), nan=np.inf))
+            bad = np.nonzero(rel > PILOT_DRIFT)[0]
+            if bad.size:
+                ts, Ys = ts[: max(int(bad[0]), 1)], Ys[: max(int(bad[0]), 1)]
+        except Exception:  # noqa: BLE001 -- keep the pilot as it is
+            pass
+    return ts, Ys
 
 
 def dynamics_eigenvalues(fi, y):
@@ -345,6 +353,46 @@ def dynamics_growth(scheme, dt, eigenvalues):
     if mu.size == 0 or getattr(tab, "kind", None) != "explicit":
         return math.nan
     return float(np.max(np.abs(_R(tab, dt * mu))))
+
+
+#: A run that fails where the metric's smallest eigenvalue fell below this fraction of
+#: its value at the start is said to fail from the metric's degeneracy.
+METRIC_DEGENERACY = 0.1
+
+
+def metric_defect(fi, y, rtol=METRIC_DEGENERACY):
+    """A message if the metric loses positive definiteness at a state of ``y`` (else ``""``).
+
+    Lost: an eigenvalue ``<= 0``, or below ``rtol`` times the smallest at the
+    start: the inverse metric, the field and ``Hess V`` with it (``~ 1 /
+    eigenvalue``) blow up as the metric degenerates.  A run that fails there
+    fails from the system's data, not from its gains.
+    """
+    try:
+        n = fi.system.space.n
+        if not n:
+            return ""
+
+        def smallest(yy):
+            x = np.asarray(yy, float)[..., fi.nc : fi.nc + n].reshape(-1, n)
+            m = np.asarray(fi.system.metric(x), float)
+            m = np.broadcast_to(m, (x.shape[0],) + m.shape[-2:])
+            return x, np.linalg.eigvalsh(0.5 * (m + np.swapaxes(m, -1, -2)))[..., 0]
+
+        with np.errstate(all="ignore"):
+            _, w0 = smallest(fi.y0)
+            x, w = smallest(y)
+    except Exception:  # noqa: BLE001 -- a diagnostic only
+        return ""
+    bad = np.nonzero(~(w > rtol * float(np.min(w0))))[0]
+    if not bad.size:
+        return ""
+    i = int(bad[0])
+    what = "is not positive definite" if not w[i] > 0 else "degenerates (nearly singular)"
+    return (f"The metric {what} at x = {np.round(x[i], 6).tolist()} (smallest eigenvalue {float(w[i]):.3g}, "
+            f"{float(np.min(w0)):.3g} at the start): the motion runs into a degenerate metric, where the field "
+            "and the stiffness grow like 1/eigenvalue; no choice of gains repairs that: check the metric's data "
+            "there (or stop the run before it).")
 
 
 @dataclass
@@ -391,6 +439,8 @@ class StabilityEstimate:
     growth: float = float("nan")
     #: a few states of the pilot (start included), shape ``(k,) + y0.shape``
     samples: np.ndarray = field(repr=False, default=None)
+    #: :func:`metric_defect` along the pilot (``""``: the metric stays positive definite)
+    metric: str = ""
 
     @property
     def dt_safe(self):
@@ -498,13 +548,12 @@ def _max_evals(n_steps, stages):
     return int(min(PILOT_MAX_EVALS, max(PILOT_MIN_EVALS, PILOT_FRACTION * n_steps * stages)))
 
 
-def estimate(fi, dt, scheme="euler", *, t_final=None, y0=None, max_evals=None, resolution=True,
-             rtol=1e-6) -> StabilityEstimate:
+def estimate(fi, dt, scheme="euler", *, t_final=None, y0=None, max_evals=None, resolution=True) -> StabilityEstimate:
     """Estimate the stability limit of ``fi.run(dt, t_final, scheme)`` before running it.
 
     ``lambda_max`` is evaluated at ``y0`` and along :func:`pilot` (up to
     ``t_final``, within ``max_evals`` evaluations of ``X``; default a few
-    percent of the run's work; ``rtol`` its tolerance).  ``t_final=None``: at
+    percent of the run's work).  ``t_final=None``: at
     ``y0`` only.  For a batch ``y0`` the pilot follows :data:`PILOT_MEMBERS`
     members, the stiffest at the start among them: its cost does not grow with
     the batch.
@@ -522,7 +571,17 @@ def estimate(fi, dt, scheme="euler", *, t_final=None, y0=None, max_evals=None, r
             pick = np.unique(np.concatenate([[int(np.argmax(lam_b))],
                                              np.linspace(0, flat.shape[0] - 1, PILOT_MEMBERS - 1).astype(int)]))
             start = flat[pick]
-        ts, Ys = pilot(fi, start, t_final, max_evals=max_evals, rtol=rtol)
+        ts, Ys = pilot(fi, start, t_final, max_evals=max_evals)
+        if len(ts) > 2:  # refine around the stiffest pilot step (a fixed 16 RK4 steps)
+            with np.errstate(all="ignore"):
+                lam_p = np.nan_to_num(np.asarray(stiffness(fi, Ys).lam, float), nan=-np.inf)
+            i = int(np.argmax(lam_p.reshape(len(ts), -1).max(axis=1)))
+            j0, j1 = max(i - 1, 0), min(i + 1, len(ts) - 1)
+            t2, Y2 = pilot(fi, Ys[j0], ts[j1] - ts[j0], max_evals=4 * 17)
+            ts = np.concatenate([ts, ts[j0] + t2[1:]])
+            Ys = np.concatenate([Ys, Y2[1:]])
+            order = np.argsort(ts, kind="stable")
+            ts, Ys = ts[order], Ys[order]
     else:
         ts, Ys = np.array([0.0]), y0[None]
     with np.errstate(all="ignore"):
@@ -552,6 +611,7 @@ def estimate(fi, dt, scheme="euler", *, t_final=None, y0=None, max_evals=None, r
         getattr(sch, "name", str(scheme)), beta, float(dt), lam, lam0, float(ts[i]), float(ts[-1]),
         float(t_final if t_final is not None else 0.0), dict(fi.gains), dom, ev, rate, t_cross, growth,
         _members(Ys[np.unique(np.linspace(0, len(ts) - 1, min(len(ts), 8)).astype(int))], RESOLUTION_MEMBERS),
+        metric_defect(fi, Ys[: i + 2]) if len(ts) > 1 else "",
     )
 
 
@@ -563,7 +623,7 @@ def _members(Y, k):
     return flat[np.unique(np.linspace(0, flat.shape[0] - 1, k).astype(int))]
 
 
-def check(fi, dt, scheme="euler", *, t_final=None, y0=None, max_evals=None, rtol=1e-6, stacklevel=2) -> StabilityEstimate:
+def check(fi, dt, scheme="euler", *, t_final=None, y0=None, max_evals=None, stacklevel=2) -> StabilityEstimate:
     """:func:`estimate`, then warn at or past the limit and refuse 10x past it.
 
     Raises
@@ -578,8 +638,10 @@ def check(fi, dt, scheme="euler", *, t_final=None, y0=None, max_evals=None, rtol
         At the limit (within 1 %) or past it, with the largest safe ``dt`` and
         gain; also when ``dt`` under-resolves the unforced dynamics.
     """
-    est = estimate(fi, dt, scheme, t_final=t_final, y0=y0, max_evals=max_evals, rtol=rtol)
+    est = estimate(fi, dt, scheme, t_final=t_final, y0=y0, max_evals=max_evals)
     v = est.verdict
+    if est.metric and v != "ok":
+        raise ValueError(f"initial state: along the motion from it (a pilot of the unforced field) {est.metric}")
     if v == "refuse":
         when = "within a few steps" if not est.t_cross > 0 else f"soon after t ~ {est.t_cross:.3g}"
         raise ValueError(

@@ -124,12 +124,12 @@ class RunResult:
             "t_final": self.t_final,
             "steps": self.steps,
             "cpu_seconds": self.cpu_seconds,
+            "overhead_seconds": self.overhead_seconds,
             "rhs_evaluations": self.rhs_evaluations,
             "reference": self.reference,
             "gains": self.gains,
             "max_error": {k: float(v) for k, v in self.max_error.items()},
             "max_drift": {k: float(v) for k, v in self.max_drift.items()},
-            "overhead_seconds": self.overhead_seconds,
             "reference_seconds": self.reference_seconds,
             "backend": self.backend,
         }
@@ -402,6 +402,10 @@ class Scene:
 
         if scheme in self.extra_schemes:
             t, Y, names, cpu, steps, nfev = self.run_extra(scheme, v, dt, T, save_every, fi)
+            if check_stability:
+                from ..run import check_result_drift
+
+                check_result_drift(fi, t, Y, names, scheme, dt)  # e.g. DLA at a step that loses the motion
         elif str(scheme).lower().startswith("scipy:"):
             from ..schemes import registry as _schemes
 
@@ -411,6 +415,10 @@ class Scene:
                 from ..stability import auto_gains
 
                 fi = fi.with_gains(auto_gains(fi, dt, "euler"))
+            if check_stability:
+                from ..run import check_ivp
+
+                check_ivp(fi, ivp, T)  # an explicit method on a stiff field would run for minutes
             t_eval = np.linspace(0.0, T, min(n_steps, max_saved) + 1)
             sol, cpu = ivp.solve(fi.fun, T, fi.y0, t_eval=t_eval, rtol=rtol, atol=atol)
             if not sol.success:

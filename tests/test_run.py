@@ -1,0 +1,181 @@
+"""The run module (:mod:`liefi.run`), its guard and the guards of the other paths (issues 9 and 10)."""
+
+from __future__ import annotations
+
+import pickle
+import warnings
+
+import numpy as np
+import pytest
+
+import liefi
+from liefi import scenes
+from liefi import stability as S
+from liefi.feedback import FeedbackIntegrator, parse_gains
+from liefi.schemes import IntegrationError, steps_for
+
+
+@pytest.fixture(scope="module")
+def suslov():
+    return scenes.get("suslov")
+
+
+# --- one validator ----------------------------------------------------------------------------
+
+
+def test_dt_not_dividing_t_final_names_the_nearest_dt(suslov):
+    fi = suslov.integrator()
+    with pytest.raises(ValueError, match=r"dt: 0.003 does not divide t_final = 10.*nearest step.*dt = 0\.0030003.*\(3333 steps\)"):
+        fi.run(0.003, 10.0)
+    assert steps_for(0.25, 10.0)[2] == 40
+
+
+@pytest.mark.parametrize("kw, word", [({"dt": True}, "dt"), ({"dt": -1}, "dt"), ({"t_final": np.nan}, "t_final"),
+                                      ({"save_every": 0}, "save_every"), ({"check_every": 1.5}, "check_every"),
+                                      ({"save_every": True}, "save_every")])
+def test_run_arguments_are_validated_once(suslov, kw, word):
+    args = {"dt": 1e-3, "t_final": 0.01, **kw}
+    with pytest.raises(ValueError, match=f"^{word}: "):
+        suslov.integrator().run(args.pop("dt"), args.pop("t_final"), **args)
+
+
+# --- saving, plan, progress, overhead -------------------------------------------------------------
+
+
+def test_saving_is_capped_by_default_and_refused_past_memory(suslov, monkeypatch):
+    import liefi.run as R
+
+    fi = suslov.integrator()
+    monkeypatch.setattr(R, "DEFAULT_SAVE_BYTES", 8 * fi.n * 101)  # room for 101 states
+    sol = fi.run(1e-3, 1.0)
+    assert sol.plan.save_every == 10 and sol.t.size == 101 and sol.t[-1] == pytest.approx(1.0)
+    assert sol.plan.saved_bytes <= R.DEFAULT_SAVE_BYTES
+    monkeypatch.setattr(R, "available_memory", lambda: 2 * 8 * fi.n * 50)
+    with pytest.raises(ValueError, match="save_every: saving every 1 step.*take save_every >= 21"):
+        fi.run(1e-3, 1.0, save_every=1)
+
+
+def test_run_reports_cpu_and_overhead_apart(suslov):
+    sol = suslov.integrator().run(1e-3, 0.5)
+    assert sol.cpu_seconds > 0 and sol.overhead_seconds >= 0
+    assert sol.plan.n_steps == 500 and np.isfinite(sol.plan.expected_seconds)
+
+
+def test_progress_on_stderr_when_asked(suslov, capsys):
+    suslov.integrator().run(1e-3, 0.5, progress=True, check_stability=False)
+    assert "500" in capsys.readouterr().err
+    suslov.integrator().run(1e-3, 0.5)  # short, not a TTY: quiet
+    assert capsys.readouterr().err == ""
+
+
+def test_ensemble_guard_cost_does_not_grow_with_the_batch(suslov, monkeypatch):
+    """The pre-run pilot follows a few members of a batch, not all of them."""
+    seen = []
+    real = S.pilot
+
+    def spy(fi, y0, t_final, **kw):
+        seen.append(np.shape(y0))
+        return real(fi, y0, t_final, **kw)
+
+    monkeypatch.setattr(S, "pilot", spy)
+    fi = suslov.integrator()
+    y0 = np.repeat(fi.y0[None], 500, axis=0)
+    fi.run(1e-3, 0.2, y0=y0)
+    assert seen and all(np.prod(s[:-1]) <= S.PILOT_MEMBERS for s in seen)
+
+
+# --- guards on every path -------------------------------------------------------------------------
+
+
+def test_explicit_scipy_method_on_a_stiff_field_is_refused_up_front(suslov):
+    with pytest.raises(ValueError, match="scipy:RK45 is explicit.*scipy:LSODA.*scipy:BDF"):
+        suslov.run(scheme="scipy:RK45", gains=1e7, t_final=1.0)
+
+
+def test_dla_drift_guard():
+    osc = scenes.get("oscillator")
+    with pytest.raises(S.StabilityError, match="dla run became meaningless"):
+        osc.run(scheme="dla", dt=5.0, t_final=500.0)
+    r = osc.run(scheme="dla", dt=1e-2, t_final=20.0)
+    assert max(r.max_drift.values()) < 5e-2
+
+
+def test_imex_singular_solve_is_an_integration_error():
+    """``I + dt k a a^T`` with ``dt k |a|^2 >> 1/eps`` is singular in floating point: a named IntegrationError."""
+    sysm = liefi.NonholonomicSystem(liefi.CotangentBundle(1), np.eye(1))
+    a = np.array([1.0, 1.0])
+    inv = liefi.Invariant("a.y", lambda z: z[..., 0] + z[..., 1], lambda z: np.broadcast_to(a, np.shape(z)))
+    fi = FeedbackIntegrator(sysm, np.array([0.0, 1.0]), invariants=(inv,), gains=1e18)
+    with pytest.raises(IntegrationError, match="imex-euler.*singular to working precision") as exc:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            fi.run(1e-1, 1.0, "imex-euler")
+    assert not isinstance(exc.value, np.linalg.LinAlgError)
+
+
+def test_drift_of_huge_momenta_is_a_number(suslov):
+    fi = suslov.integrator()
+    y = fi.y0.copy()
+    y[fi.nc:] *= 1e200
+    with np.errstate(all="ignore"):
+        d, who = S.drift(fi, y, S.drift_scales(fi))
+    assert not d <= 1.0  # huge or inf, but no exception
+
+
+def test_metric_turning_indefinite_is_named(monkeypatch):
+    from liefi.guard import metric_defect
+
+    sysm = liefi.NonholonomicSystem(liefi.CotangentBundle(1), lambda x: (1.0 - x[..., 0:1, None] ** 2))
+    fi = FeedbackIntegrator(sysm, np.array([0.0, 1.0]), gains=1.0)
+    assert metric_defect(fi, np.array([0.0, 1.0])) == ""
+    assert "metric is not positive definite" in metric_defect(fi, np.array([2.0, 1.0]))
+
+
+def test_errors_pickle():
+    for e in (IntegrationError("m", 1.0, 2, np.ones(2), ["x"]), S.StabilityError("s", 3.0, 4, None, ["J_1"])):
+        e2 = pickle.loads(pickle.dumps(e))
+        assert (type(e2), str(e2), e2.t, e2.step, e2.components) == (type(e), str(e), e.t, e.step, e.components)
+
+
+# --- gains and targets ----------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("gains", [True, np.bool_(False), {"J_1": True, "energy": 1.0}])
+def test_bool_is_not_a_gain(suslov, gains):
+    with pytest.raises(ValueError, match="^gains: .*bool"):
+        suslov.integrator(gains=gains)
+
+
+@pytest.mark.parametrize("target", ["high", np.nan, np.inf, [1.0, 2.0], True])
+def test_bad_targets_are_named(suslov, target):
+    with pytest.raises(ValueError, match="^targets: the target of 'energy'"):
+        FeedbackIntegrator(suslov.system, suslov.integrator().y0, configuration=False, targets={"energy": target})
+
+
+def test_one_gain_parser_for_cli_and_api():
+    names = ("J_1", "energy")
+    assert parse_gains("7", names) == {"J_1": 7.0, "energy": 7.0}
+    assert parse_gains("7,9", names) == {"J_1": 7.0, "energy": 9.0}
+    assert parse_gains("energy=9", names, defaults={"J_1": 1.0, "energy": 2.0}) == {"J_1": 1.0, "energy": 9.0}
+    assert parse_gains({"constraints": 3, "energy": 4}, names) == {"J_1": 3.0, "energy": 4.0}
+    assert parse_gains("auto", names) == "auto"
+    for bad in ("1,2,3", "abc", "k9=1", "-1", "1,", "energy=1,2"):
+        with pytest.raises(ValueError, match="^gains: "):
+            parse_gains(bad, names)
+    import inspect
+
+    import liefi.cli
+
+    assert "parse_gains as _parse" in inspect.getsource(liefi.cli.parse_gains)
+
+
+def test_blow_up_from_an_indefinite_metric_is_not_blamed_on_the_gains():
+    """m(x) = 1 - x^2 turns indefinite at |x| = 1: the failure names the metric."""
+    sysm = liefi.NonholonomicSystem(liefi.CotangentBundle(1), lambda x: (1.0 - x[..., 0:1, None] ** 2),
+                                    sample=[0.0])
+    fi = FeedbackIntegrator(sysm, np.array([0.0, 1.0]), gains=1.0)
+    with pytest.raises((IntegrationError, ValueError)) as exc:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            fi.run(1e-3, 5.0)
+    assert "metric" in str(exc.value)
