@@ -317,6 +317,8 @@ class Guard:
             if not self.adaptive and not self.split:
                 T = self.n_steps * dt
                 budget = min(PILOT_GUARD_EVALS, _max_evals(self.n_steps, self.sch.stages))
+                if self.backend != "numpy":  # a compiled step costs ~1/1000 of a numpy evaluation
+                    budget = min(budget, PILOT_GUARD_EVALS // 2)
                 rep.estimate = check(run_fi, dt, self.sch, t_final=T, y0=y0, max_evals=budget,
                                      stacklevel=self.stacklevel + 1)
                 rep.resolution = rep.estimate.rate
@@ -347,7 +349,9 @@ class Guard:
         elif self.adaptive:
             N = 100
         else:
-            N = 200 if self.backend == "numpy" else max(2000, n_steps // 200)
+            # a check costs about ten numpy steps of one state, and hundreds of compiled ones:
+            # at most 100 checks on numpy, 20 compiled (the audit covers the states between them)
+            N = max(200, n_steps // 100) if self.backend == "numpy" else max(20000, n_steps // 20)
         if self.adaptive and self.monitor_every is None:
             r = self.report.resolution / self.dt if math.isfinite(self.report.resolution) else 1.0
             self.N_cap = int(min(50000, max(10, 0.5 / (self.dt * max(r, 1e-2)))))
@@ -429,7 +433,7 @@ class Guard:
         if not self.check_stability:
             return
         per = int(np.prod(Ys.shape[1:-1], dtype=int)) if Ys.ndim > 2 else 1
-        pts = max(2, min(2000, AUDIT_STATES // max(per, 1)))
+        pts = max(2, min(2000 if self.backend == "numpy" else 500, AUDIT_STATES // max(per, 1)))
         w = _audit(self.fi, np.asarray(ts), Ys, self.dt, self.beta, self.sch, self.scales, self.delta0,
                    (self.sched_t, self.sched_g), max_points=pts)
         if w is not None and not self.drift_warned:

@@ -189,7 +189,7 @@ def _segment_runner(sch, dt, backend, names):
     if split:
         state["backend"] = "numpy"  # "auto": the split schemes have no compiled path
 
-    def run(fi_cur, y, n, s0, save_every, check_every):
+    def run(fi_cur, y, n, s0, save_every, check_every, out=None):
         t0 = s0 * dt
         if state["backend"] != "numpy":
             from .compiled import run_feedback
@@ -205,7 +205,7 @@ def _segment_runner(sch, dt, backend, names):
         stepper = sch.bind(fi_cur) if split else sch
         try:
             return integrate(fi_cur.vector_field, y, dt, n, stepper, t0=t0, save_every=save_every,
-                             names=names, check_every=check_every)
+                             names=names, check_every=check_every, out=out)
         except IntegrationError as exc:  # t absolute, step relative
             raise IntegrationError(str(exc), exc.t, s0 + exc.step, exc.y, exc.components) from None
 
@@ -289,8 +289,11 @@ def run_feedback(fi, dt, t_final, scheme="euler", *, y0=None, save_every=None, c
     try:
         while s0 < n_steps:
             L, sub = _chunk(s0, n_steps, N, save_every)
+            # numpy writes the segment straight into the output when its start is a saved state
+            direct = runner.state["backend"] == "numpy" and s0 % save_every == 0 and sub == save_every
+            buf = out[..., k - 1 : k + L // sub + (1 if L % sub else 0)] if direct else None
             try:
-                seg = runner(run_fi, y, L, s0, sub, check_every)
+                seg = runner(run_fi, y, L, s0, sub, check_every, buf)
             except IntegrationError as exc:
                 raise guard.failure(run_fi, exc, checked) from None
             last = seg
@@ -301,7 +304,8 @@ def run_feedback(fi, dt, t_final, scheme="euler", *, y0=None, save_every=None, c
             keep = keep[keep >= 1]
             m = keep.size
             ts[k : k + m] = dt * gidx[keep].astype(float)
-            out[..., k : k + m] = seg.y[..., keep]
+            if not direct:
+                out[..., k : k + m] = seg.y[..., keep]
             k += m
             y = seg.y[..., -1]
             s0 += L

@@ -179,3 +179,79 @@ def test_blow_up_from_an_indefinite_metric_is_not_blamed_on_the_gains():
             warnings.simplefilter("ignore")
             fi.run(1e-3, 5.0)
     assert "metric" in str(exc.value)
+
+
+def test_progress_falls_back_to_a_plain_line_without_tqdm(suslov, capsys, monkeypatch):
+    import builtins
+
+    real = builtins.__import__
+
+    def no_tqdm(name, *a, **kw):
+        if name == "tqdm":
+            raise ImportError("no tqdm")
+        return real(name, *a, **kw)
+
+    monkeypatch.setattr(builtins, "__import__", no_tqdm)
+    suslov.integrator().run(1e-3, 0.5, progress=True, check_stability=False)
+    err = capsys.readouterr().err
+    assert "500/500 steps" in err
+
+
+# --- layout -------------------------------------------------------------------------------------
+
+MINE = ("feedback", "stability", "run", "guard", "schemes", "experiments")
+
+
+def _import_graph():
+    import ast
+    import pathlib
+
+    root = pathlib.Path(liefi.__file__).parent
+    edges = {}
+    for p in root.rglob("*.py"):
+        rel = p.relative_to(root.parent).with_suffix("").parts
+        mod = ".".join(rel[:-1] if rel[-1] == "__init__" else rel)
+        pkg = mod if rel[-1] == "__init__" else mod.rsplit(".", 1)[0]
+        unit = mod.split(".")[1] if "." in mod else None
+        for n in ast.walk(ast.parse(p.read_text())):  # lazy imports included
+            if isinstance(n, ast.ImportFrom) and n.level:
+                base = ".".join(pkg.split(".")[: len(pkg.split(".")) - (n.level - 1)])
+                targets = [base + "." + n.module] if n.module else [base + "." + a.name for a in n.names]
+            elif isinstance(n, ast.ImportFrom):
+                targets = [n.module or ""]
+            elif isinstance(n, ast.Import):
+                targets = [a.name for a in n.names]
+            else:
+                continue
+            for t in targets:
+                if t.startswith("liefi.") and unit and t.split(".")[1] != unit:
+                    edges.setdefault(unit, set()).add(t.split(".")[1])
+    return edges
+
+
+def test_no_import_cycle_through_the_run_machinery():
+    """feedback -> run -> guard -> stability -> schemes, experiments on top: no cycle, lazy imports included."""
+    edges = _import_graph()
+
+    def reach(a):
+        seen, todo = set(), [a]
+        while todo:
+            for b in edges.get(todo.pop(), ()):
+                if b not in seen:
+                    seen.add(b)
+                    todo.append(b)
+        return seen
+
+    for u in MINE:
+        assert u not in reach(u), f"{u} is on an import cycle"
+    assert "scenes" not in reach("stability") and "feedback" not in reach("stability")
+
+
+def test_modules_of_the_run_machinery_stay_under_800_lines():
+    import pathlib
+
+    root = pathlib.Path(liefi.__file__).parent
+    files = [root / f"{m}.py" for m in ("feedback", "stability", "run", "guard")]
+    files += list((root / "schemes").glob("*.py")) + list((root / "experiments").glob("*.py"))
+    long = {f.name: n for f in files if (n := len(f.read_text().splitlines())) > 800}
+    assert not long

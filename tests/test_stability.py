@@ -1,4 +1,4 @@
-"""The stability machinery (:mod:`liefi.stability`, :mod:`liefi.stiff`) against its defining facts.
+"""The stability machinery (:mod:`liefi.stability`, :mod:`liefi.schemes.split`, :mod:`liefi.experiments`) against its defining facts.
 
 * The Hessian of ``V`` on its zero set is ``sum_j k_j grad I_j grad I_j^T + k0 Hess P``:
   its largest eigenvalue from the small Gram matrix equals the one of the full

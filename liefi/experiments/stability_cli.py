@@ -126,7 +126,7 @@ def write_report(out_dir="docs/stability", *, scenes=None, quick=False, executor
 
 
 def main(argv=None):
-    """``python -m liefi.stability SCENE [...]`` (the same as ``liefi stability``); ``--report DIR`` regenerates the docs."""
+    """``python -m liefi.experiments.stability_cli SCENE [...]`` (the same as ``liefi stability``); ``--report DIR`` regenerates the docs."""
     import argparse
     import sys
 

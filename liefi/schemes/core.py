@@ -151,7 +151,8 @@ def _get_scheme(scheme):
     return get_scheme(scheme)
 
 
-def integrate(f, y0, dt, n_steps, scheme="euler", *, t0=0.0, save_every=1, names=(), check_every=1, on_failure=None):
+def integrate(f, y0, dt, n_steps, scheme="euler", *, t0=0.0, save_every=1, names=(), check_every=1, on_failure=None,
+              out=None):
     """Step ``y' = f(y)`` with a fixed-step explicit scheme, batch-first.
 
     Parameters
@@ -174,6 +175,8 @@ def integrate(f, y0, dt, n_steps, scheme="euler", *, t0=0.0, save_every=1, names
     on_failure : callable, optional
         ``on_failure(y_last_finite, t, step) -> str``: extra advice appended to
         the error message (e.g. a stability estimate).
+    out : ndarray (..., n, n_saved), optional
+        Where to write the saved states (e.g. a slice of a larger buffer: no copy).
 
     Raises
     ------
@@ -187,7 +190,10 @@ def integrate(f, y0, dt, n_steps, scheme="euler", *, t0=0.0, save_every=1, names
     idx = list(range(0, n_steps + 1, save_every))
     if idx[-1] != n_steps:
         idx.append(n_steps)
-    out = np.empty(y.shape + (len(idx),))
+    if out is None:
+        out = np.empty(y.shape + (len(idx),))
+    elif out.shape != y.shape + (len(idx),):
+        raise ValueError(f"out: expected shape {y.shape + (len(idx),)}, got {out.shape}")
     out[..., 0] = y
     k = 1
     last_good, last_good_step = y, 0
