@@ -6,7 +6,7 @@ from liefi.groups import SE2
 
 def main(t_final=10.0):
     # A planar body (SE(2), matrix embedding) carrying a rotor at angle psi (X = S^1):
-    # the mass tensor depends on psi, and the two constraints are not orthonormal.
+    # the mass tensor depends on psi, and the two constraints are written on velocities.
     def metric(x):                                   # x[..., 0] = psi; P = (Pi_theta, Pi_x, Pi_y, p_psi)
         c = np.cos(x[..., 0]); one = np.ones_like(c); zero = 0 * c
         return np.stack([np.stack([2 + 0.5 * c, zero, 0.3 * one, 0.4 * one], -1),
@@ -14,13 +14,13 @@ def main(t_final=10.0):
                          np.stack([0.3 * one, zero, one, zero], -1),
                          np.stack([0.4 * one, zero, zero, 0.5 * one], -1)], -2)
 
-    def constraints(x):                              # rows e_1(psi), e_2(psi)
+    def A(x):                                        # A(psi) v = 0 on v = (omega, v_x, v_y, psi')
         s = np.sin(x[..., 0]); one = np.ones_like(s); zero = 0 * s
-        return np.stack([np.stack([zero, zero, one, zero], -1),            # no side slip
+        return np.stack([np.stack([zero, zero, one, zero], -1),            # no side slip: v_y = 0
                          np.stack([0.2 * s, one, zero, -one], -1)], -2)    # rotor rolls with the body
 
-    racer = liefi.NonholonomicSystem(liefi.TrivialPrincipalBundle(SE2(), 1, names=("psi",)),
-                                     metric, constraints)
+    racer = liefi.NonholonomicSystem.from_velocity_constraints(            # liefi forms e_i = m^-1 a_i
+        liefi.TrivialPrincipalBundle(SE2(), 1, names=("psi",)), metric, A)
     z0 = racer.project(np.array([0.3, 1.0, 0.5, 0.0, -0.2]))     # (psi, Pi_theta, Pi_x, Pi_y, p_psi) on J = 0
     print("J(z0) =", racer.constraint_momenta(z0))
     print("lambda~(z0) =", racer.extended_multipliers(z0))        # derived, by complex-step derivatives in psi

@@ -1,6 +1,7 @@
 """liefi: feedback integrators for nonholonomic mechanical systems."""
 from .phase_space import CotangentBundle, LieGroupPhaseSpace, PhaseSpace, TrivialPrincipalBundle
 from .system import NonholonomicSystem
+from .sympy_input import from_sympy
 from . import groups, reduction
 
 __version__ = "0.1.0"

@@ -10,10 +10,23 @@ from . import _diff
 def as_float_array(value, name):
     """``np.array(value, dtype=float)``, or a ``ValueError`` naming ``name`` (strings, ragged lists ...)."""
     try:
-        with np.errstate(all="ignore"):
-            return np.array(value, dtype=float)
+        raw = np.asarray(value)
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{name}: expected an array of real numbers, got {value!r} ({exc})") from None
+    if np.iscomplexobj(raw) and np.any(raw.imag != 0):
+        raise ValueError(
+            f"{name}: complex values (largest imaginary part {np.max(np.abs(raw.imag)):.3g}); liefi "
+            "needs real data -- pass the real array you meant (liefi does not drop imaginary parts)"
+        )
+    try:
+        with np.errstate(all="ignore"):
+            return np.array(raw.real if np.iscomplexobj(raw) else value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name}: expected an array of real numbers, got {value!r} ({exc})") from None
+
+
+#: Random points (besides the sample point) at which complex-step safety is checked.
+N_PROBES = 3
 
 
 class DataFunction:
@@ -99,10 +112,66 @@ class DataFunction:
             return self(x), np.asarray(self._derivative(x))
         return _diff.jacobian(self.fun, x)
 
+    def check_real(self, x):
+        """Raise a named error if the datum returns complex values (nonzero imaginary part) at real ``x``."""
+        if self.constant:
+            return
+        val = np.asarray(self.fun(np.asarray(x, dtype=float)))
+        if np.iscomplexobj(val) and np.any(val.imag != 0):
+            raise ValueError(
+                f"{self.name}: returns complex values at real x = {x} (largest imaginary part "
+                f"{np.max(np.abs(val.imag)):.3g}); it must be real for real x"
+            )
+
     def check_differentiable(self, x):
-        """Raise a named error if the derivative (complex-step or supplied) is wrong at ``x``."""
+        """Raise a named error if the derivative (complex-step or supplied) is wrong at ``x``.
+
+        A single point is not enough: a function that drops the imaginary part (an
+        in-place fill into a float array, ``np.real``, ``.astype(float)``) has a zero
+        complex-step derivative, which passes wherever the true derivative also vanishes
+        (``cos`` at ``x = 0``).  So the complex step is also run at :data:`N_PROBES`
+        further points around ``x`` (fixed seed: reproducible), where a datum whose
+        complex-step derivative is *exactly* zero while its finite difference is not
+        has dropped the imaginary part.  Only that signature is an error there: a
+        probe point may lie near a singularity of the user's data (a chart's gimbal
+        lock), where finite differences themselves are poor; points where the datum
+        is not finite are skipped.
+        """
         if self.constant or not self.n:
             return
+        x = np.asarray(x, dtype=float)
+        self._check_differentiable_at(x)
+        if x.ndim != 1 or self._derivative is not None:
+            return
+        rng = np.random.default_rng(20261122)
+        scale = np.maximum(1.0, np.abs(x))
+        for _ in range(N_PROBES):
+            self._check_imaginary_part_kept(x + 0.5 * scale * rng.uniform(-1.0, 1.0, size=x.shape))
+
+    def _check_imaginary_part_kept(self, x):
+        """Named error if the complex step of the datum is exactly zero where finite differences are not."""
+        try:
+            with np.errstate(all="ignore"):
+                _, jc = _diff.jacobian(self.fun, x)
+                h = 1e-6 * np.maximum(1.0, np.abs(x))
+                jf = np.stack(
+                    [(np.asarray(self.fun(x + h[k] * e), float) - np.asarray(self.fun(x - h[k] * e), float)) / (2 * h[k])
+                     for k, e in enumerate(np.eye(self.n))], 0)
+        except Exception:  # noqa: BLE001 -- outside the datum's domain (or raising there): not a probe point
+            return
+        if not (np.all(np.isfinite(jc)) and np.all(np.isfinite(jf))):
+            return
+        dropped = (jc == 0) & (np.abs(jf) > 1e-6 * max(1.0, float(np.max(np.abs(jf), initial=0.0))))
+        if np.any(dropped):
+            raise ValueError(
+                f"{self.name}: its complex-step derivative is exactly zero at x = {x} where finite "
+                f"differences give up to {np.max(np.abs(jf[dropped])):.3g}: the function drops the "
+                "imaginary part of its argument (in-place assignment into a float array, np.real, "
+                ".astype(float), abs(), comparisons ...). Write it with operations that accept complex "
+                "input (np.sin, np.stack, +, * ...), or pass its derivative explicitly."
+            )
+
+    def _check_differentiable_at(self, x):
         if self._derivative is None:
             _diff.check_complex_step(self.fun, x, self.name)
             return

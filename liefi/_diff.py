@@ -95,8 +95,8 @@ def check_complex_step(fun, x, name: str, *, rtol: float = 1e-5):
     scale = max(1.0, float(np.max(np.abs(jf), initial=0.0)))
     if not np.allclose(jc, jf, rtol=rtol, atol=rtol * scale):
         raise ValueError(
-            f"{name}: its complex-step derivative disagrees with finite differences "
-            f"(max difference {np.max(np.abs(jc - jf)):.3g}). The function is not "
+            f"{name}: its complex-step derivative disagrees with finite differences at "
+            f"x = {x} (max difference {np.max(np.abs(jc - jf)):.3g}). The function is not "
             "complex-step safe: avoid abs(), np.real, comparisons and np.maximum on its "
             "argument, or pass its derivative explicitly."
         )

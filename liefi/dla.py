@@ -141,6 +141,12 @@ def _as_real_array(x, name):
     return a
 
 
+def _real(a):
+    """``a`` as a float array (kept as it is when traced: an object array of the compiled engine)."""
+    a = np.asarray(a)
+    return a if a.dtype == object else a.astype(float)
+
+
 def _check_h(h):
     if isinstance(h, bool) or not isinstance(h, Real) and not (
         isinstance(h, np.ndarray) and h.ndim == 0 and np.isrealobj(h)
@@ -287,7 +293,7 @@ class DLAIntegrator:
                 raise ValueError("constraints: the rows of A are linearly dependent.")
 
     @classmethod
-    def from_system(cls, system):
+    def from_system(cls, system, *, data=None):
         r"""The DLA integrator of a :class:`~liefi.NonholonomicSystem` on :math:`T^*\mathbb R^n`.
 
         The Lagrangian data are read off the Hamiltonian data:
@@ -303,6 +309,9 @@ class DLAIntegrator:
         ----------
         system : NonholonomicSystem
             On a :class:`~liefi.CotangentBundle` with a constant metric.
+        data : optional
+            The data accessor (default :class:`liefi.reduction.core.NumpyData`);
+            the compiled engine passes its tracing one and traces :meth:`update`.
 
         Returns
         -------
@@ -332,18 +341,26 @@ class DLAIntegrator:
                 "system: the DLA integrator needs a constant metric (mass matrix); this "
                 "system's metric depends on q"
             )
+        if system.vector_potential is not None:
+            raise ValueError(
+                "system: the DLA integrator is written for H = 1/2 p.M^-1 p + U; this system "
+                "has a vector_potential (a term linear in the momenta), which it does not treat"
+            )
+        from liefi.reduction.core import NUMPY_DATA
+
+        data = NUMPY_DATA if data is None else data
         M = np.asarray(system.metric.value, dtype=float)
         pot, cons = system.potential, system.constraints
 
         potential = None if pot.constant else pot.fun
-        potential_gradient = None if pot.constant else (lambda q: pot.with_derivative(q)[1])
+        potential_gradient = None if pot.constant else (lambda q: data.value_and_derivative(pot, q)[1])
         if system.K == 0:
             constraints = None
         elif cons.constant:
             constraints = cons.value @ M
         else:
             def constraints(q):
-                return np.asarray(cons(q)) @ M
+                return np.asarray(data.value(cons, q)) @ M
 
         return cls(M, potential, constraints, potential_gradient=potential_gradient)
 
@@ -357,7 +374,7 @@ class DLAIntegrator:
     def _grad_U(self, q):
         """:math:`\\nabla U(q)`, shape ``q.shape``."""
         if self.potential_gradient is not None:
-            g = np.asarray(self.potential_gradient(q), dtype=float)
+            g = _real(self.potential_gradient(q))
             name = "potential_gradient"
         elif self.potential is not None:
             if not self._checked_complex_step:
@@ -380,7 +397,7 @@ class DLAIntegrator:
         """``(A, A M^{-1}, A M^{-1} A^T)`` at ``q``, shapes ``(..., K, n)``, ``(..., K, n)``, ``(..., K, K)``."""
         if self._constant_A is not None:
             return self._constant_A, self._constant_AMinv, self._constant_S
-        A = np.asarray(self._constraints(q), dtype=float)
+        A = _real(self._constraints(q))
         if A.ndim < 2 or A.shape[-1] != self.n:
             raise ValueError(
                 f"constraints: A(q) must have shape (..., K, {self.n}) for q of shape {q.shape}, got {A.shape}."
@@ -405,7 +422,7 @@ class DLAIntegrator:
         """
         A, AMinv, S = self._A(q)
         K = A.shape[-2]
-        if not np.all(np.isfinite(A)):
+        if A.dtype != object and not np.all(np.isfinite(A)):
             raise DLANonFiniteError("A(q)")
         if K == 0:
             mu = np.zeros(delta.shape[:-1] + (0,))
@@ -421,15 +438,25 @@ class DLAIntegrator:
         out = delta - np.einsum("...kj,...k->...j", AMinv, mu)  # M^{-1} is symmetric
         return (out, mu) if with_impulse else out
 
+    def update(self, q_prev, q_curr, h):
+        """The formula of one DLA update: ``(q_next, h^2 lambda, grad U(q_curr))``, no checks.
+
+        ``q_{i+2} = q_{i+1} + P (q_{i+1} - q_i - h^2 M^{-1} grad U(q_{i+1}))`` with ``P``
+        the ``M``-orthogonal projection onto ``ker A(q_{i+1})`` (class docstring).
+        Written for any array type: the compiled engine traces it
+        (:func:`liefi.engine.compile_dla`).
+        """
+        g = self._grad_U(q_curr)
+        delta = (q_curr - q_prev) - (h * h) * (g @ self.mass_inv)
+        step, mu = self._project(q_curr, delta, with_impulse=True)
+        return q_curr + step, mu, g
+
     def _advance(self, q_prev, q_curr, h):
-        """One DLA update; returns ``(q_next, h^2 lambda)``."""
+        """One DLA update with its checks; returns ``(q_next, h^2 lambda)``."""
         with np.errstate(over="ignore", invalid="ignore"):
-            g = self._grad_U(q_curr)
-            if not np.all(np.isfinite(g)):
-                raise DLANonFiniteError("grad U(q)")
-            delta = (q_curr - q_prev) - (h * h) * (g @ self.mass_inv)
-            step, mu = self._project(q_curr, delta, with_impulse=True)
-            q_next = q_curr + step
+            q_next, mu, g = self.update(q_prev, q_curr, h)
+        if not np.all(np.isfinite(g)):
+            raise DLANonFiniteError("grad U(q)")
         if not np.all(np.isfinite(mu)):
             raise DLANonFiniteError("lambda")
         if not np.all(np.isfinite(q_next)):

@@ -24,6 +24,7 @@ Everything is batch-first; :meth:`FeedbackIntegrator.fun` is the
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -49,10 +50,26 @@ class Invariant:
     fun: object
     grad: object = None
 
-    def value_and_grad(self, z):
-        if self.grad is not None:
-            return np.asarray(self.fun(z)), np.asarray(self.grad(z))
-        return _diff.gradient(self.fun, z)
+    def value_and_grad(self, z, data=_core.NUMPY_DATA):
+        """``(I(z), dI/dz)``: ``grad`` if given, else by complex step (or traced, with the engine's ``data``)."""
+        return data.value_and_gradient(self.fun, z, self.grad, f"invariant {self.name!r}")
+
+
+@dataclass(frozen=True)
+class ParameterLayout:
+    """Where each gain and target sits in the parameter vector ``p`` of the feedback field.
+
+    :meth:`FeedbackIntegrator.field_parts` reads every gain and target from ``p``
+    (so one compiled kernel serves every gain).  Indices into the last axis of ``p``.
+    """
+
+    J: slice  #: the gains ``k_{J_i}`` (empty without the constraints)
+    energy: int | None  #: the gain of the energy
+    energy_target: int | None  #: its target ``h~_0`` (or ``h_0``)
+    user: tuple  #: the gains of the user invariants
+    user_target: tuple  #: their targets
+    penalty: int | None  #: the gain ``k_0`` of the embedding penalty
+    size: int  #: length of ``p``
 
 
 @dataclass(frozen=True)
@@ -315,8 +332,11 @@ class FeedbackIntegrator:
                 if k not in self.targets:
                     raise ValueError(f"targets: unknown name {k!r}; targets exist for {list(self.targets)}")
                 self.targets[k] = target_number(k, v)
-        self._eh = self.targets.get("energy", 0.0)
-        self._user_targets = [self.targets[u.name] for u in self.user]
+        #: target of the penalized energy (``h~`` or ``h`` at ``y0`` unless given)
+        self.energy_target = self.targets.get("energy", 0.0)
+        #: targets of the user invariants, in the order of ``self.user``
+        self.user_targets = [self.targets[u.name] for u in self.user]
+        self._parameters = None
         if self.gains_mode == "auto":
             # Unit-rate gains (largest eigenvalue of Hess V at y0 equal to 1, every
             # invariant weighted by 1/|grad I_j|^2); run() scales them to dt.
@@ -334,7 +354,55 @@ class FeedbackIntegrator:
 
     def _set_gains(self, g):
         self.gains = dict(g)
-        self._kJ = np.array([g[f"J_{i + 1}"] for i in range(self.system.K)]) if self.use_constraints else None
+        self._parameters = None  # the parameter vector, rebuilt on first use
+
+    @cached_property
+    def parameter_layout(self) -> ParameterLayout:
+        """The :class:`ParameterLayout` of :meth:`parameters` (gains, then targets)."""
+        i = 0
+        J = slice(0, 0)
+        energy = energy_target = penalty = None
+        if self.use_constraints:
+            J = slice(0, self.system.K)
+            i = self.system.K
+        if self.use_energy:
+            energy, energy_target = i, i + 1
+            i += 2
+        user = tuple(range(i, i + 2 * len(self.user), 2))
+        user_target = tuple(j + 1 for j in user)
+        i += 2 * len(self.user)
+        if self.use_penalty:
+            penalty = i
+            i += 1
+        return ParameterLayout(J, energy, energy_target, user, user_target, penalty, i)
+
+    def parameters(self, gains=None):
+        """The parameter vector ``p`` (gains and targets, :attr:`parameter_layout`) of the field.
+
+        ``gains`` (a dict ``{name: k}``, optional) overrides :attr:`gains`.  Shape
+        ``(size,)``, or ``(..., size)`` when a target is given per trajectory.
+        """
+        if gains is None and self._parameters is not None:
+            return self._parameters
+        g = self.gains if gains is None else gains
+        cols = []
+        if self.use_constraints:
+            cols += [g[f"J_{i + 1}"] for i in range(self.system.K)]
+        if self.use_energy:
+            cols += [g["energy"], self.energy_target]
+        for u, tgt in zip(self.user, self.user_targets):
+            cols += [g[u.name], tgt]
+        if self.use_penalty:
+            cols.append(g["penalty"])
+        try:  # the common case: every gain and target a number
+            p = np.array(cols, dtype=float)
+        except (TypeError, ValueError):  # per-trajectory targets (an ensemble)
+            cols = [np.asarray(c, dtype=float) for c in cols]
+            shape = np.broadcast_shapes(*(c.shape for c in cols))
+            p = np.stack([np.broadcast_to(c, shape) for c in cols], -1)
+        if gains is None:
+            self._parameters = p
+        return p
 
     def with_gains(self, gains):
         """A copy with other (fixed) gains; same system, invariants, targets and ``A``.
@@ -411,9 +479,9 @@ class FeedbackIntegrator:
         if self.use_energy:
             E, dE = (t.ht, t.dht) if self.energy == "extended" else (t.h, t.dh)
             names.append("energy")
-            res.append(E - self._eh)
+            res.append(E - self.energy_target)
             grads.append(dE)
-        for u, tgt in zip(self.user, self._user_targets):
+        for u, tgt in zip(self.user, self.user_targets):
             val, grad = u.value_and_grad(z)
             names.append(u.name)
             res.append(val - tgt)
@@ -428,32 +496,42 @@ class FeedbackIntegrator:
         return InvariantJet(tuple(names), r, D, k)
 
     # --- V and its gradient -----------------------------------------------------------
-    def _parts(self, y):
-        """(X(y), grad V(y), V(y)) in one pass over the system's terms."""
-        y = np.asarray(y, dtype=float)
+    def field_parts(self, y, params=None, *, data=_core.NUMPY_DATA):
+        """``(X(y), grad V(y), V(y))`` in one pass over the system's terms.
+
+        ``X`` is the extended field (at the projection for ``field="projected"``)
+        with the reconstruction of ``g``; ``V`` the Lyapunov function of the module
+        docstring.  Every gain and target is read from ``params``
+        (:meth:`parameters` by default, laid out by :attr:`parameter_layout`), and
+        the data through the accessor ``data`` (:class:`liefi.reduction.core.NumpyData`):
+        the compiled engine runs this very method on traced arrays.
+        """
+        y = _core.as_real(y)
+        p = self.parameters() if params is None else params
+        lay = self.parameter_layout
         g, z = self.split(y)
         sys = self.system
         # the field (at the projection for field="projected") and the terms at z for V
-        zdot, xi, t = _core.field_terms(sys, z, kind=self.field)
+        zdot, xi, t = _core.field_terms(sys, z, kind=self.field, data=data)
 
         V = 0.0
         gz = 0.0
         if self.use_constraints:
-            kJ = self._kJ * t.J
+            kJ = p[..., lay.J] * t.J
             V = V + 0.5 * np.einsum("...k,...k->...", kJ, t.J)
             gz = gz + np.einsum("...k,...kj->...j", kJ, t.dJ)
         if self.use_energy:
             E, dE = (t.ht, t.dht) if self.energy == "extended" else (t.h, t.dh)
-            dEv = E - self._eh
-            k = self.gains["energy"]
+            dEv = E - p[..., lay.energy_target]
+            k = p[..., lay.energy]
             V = V + 0.5 * k * dEv**2
-            gz = gz + (k * dEv)[..., None] * dE
-        for u, tgt in zip(self.user, self._user_targets):
-            val, grad = u.value_and_grad(z)
-            dv = val - tgt
-            k = self.gains[u.name]
+            gz = gz + np.asarray(k * dEv)[..., None] * dE
+        for u, ik, it in zip(self.user, lay.user, lay.user_target):
+            val, grad = u.value_and_grad(z, data)
+            dv = val - p[..., it]
+            k = p[..., ik]
             V = V + 0.5 * k * dv**2
-            gz = gz + (k * dv)[..., None] * grad
+            gz = gz + np.asarray(k * dv)[..., None] * grad
         gz = np.broadcast_to(gz, z.shape)
 
         if self.configuration:
@@ -461,9 +539,9 @@ class FeedbackIntegrator:
             gdot = G.config_rate(g, xi)
             X = np.concatenate([np.broadcast_to(gdot, y.shape[:-1] + gdot.shape[-1:]), zdot], -1)
             if self.use_penalty:
-                k0 = self.gains["penalty"]
+                k0 = p[..., lay.penalty]
                 V = V + k0 * G.penalty(g)
-                gg = k0 * G.penalty_grad(g)
+                gg = np.asarray(k0)[..., None] * G.penalty_grad(g)
             else:
                 gg = np.zeros(g.shape)
             gradV = np.concatenate([np.broadcast_to(gg, y.shape[:-1] + (self.nc,)), gz], -1)
@@ -473,19 +551,23 @@ class FeedbackIntegrator:
 
     def lyapunov(self, y):
         """``V(y)`` (shape ``(...)``); zero exactly on the target invariant set."""
-        return self._parts(y)[2]
+        return self.field_parts(y)[2]
 
     def grad_lyapunov(self, y):
         """``grad V(y)`` (shape ``(..., n)``), exact to rounding."""
-        return self._parts(y)[1]
+        return self.field_parts(y)[1]
 
-    def unforced_vector_field(self, y):
+    def unforced_vector_field(self, y, params=None, *, data=_core.NUMPY_DATA):
         """The extended field ``X(y)`` alone (the feedback integrator with zero gains)."""
-        return self._parts(y)[0]
+        return self.field_parts(y, params, data=data)[0]
 
-    def vector_field(self, y):
-        """``X(y) - A grad V(y)``, batch-first: ``(..., n) -> (..., n)``."""
-        X, gV, _ = self._parts(y)
+    def vector_field(self, y, params=None, *, data=_core.NUMPY_DATA):
+        """``X(y) - A grad V(y)``, batch-first: ``(..., n) -> (..., n)``.
+
+        ``params`` and ``data`` as in :meth:`field_parts` (the compiled engine
+        traces this method with symbolic ``y`` and ``params``).
+        """
+        X, gV, _ = self.field_parts(y, params, data=data)
         if self.A is not None:
             gV = np.einsum("ij,...j->...i", self.A, gV)
         return X - gV

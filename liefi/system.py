@@ -8,7 +8,12 @@ A system is a phase space (:mod:`liefi.phase_space`) and three data:
 * ``constraints`` ``e(x)``: ``K`` independent vectors (rows, shape ``(K, D)``)
   defining the constraint set ``C = {<P, e_i(x)> = 0}``; they need *not* be
   orthonormal for ``m`` (Remark ``(remark:nonhol:general)``);
-* ``potential`` ``U(x)`` (default 0).
+* ``potential`` ``U(x)`` (default 0);
+* ``vector_potential`` ``A(x)`` (default 0), shape ``(D,)``: the Hamiltonian is
+  ``h = 1/2 <P - A(x), m(x)^{-1} (P - A(x))> + U(x)``, the velocities are
+  ``v = m^{-1} (P - A)`` and the constraints ``<e_i^flat, v> = 0`` read
+  ``J_i = <P - A(x), e_i(x)> = 0`` (a gauge shift ``A = grad S``, a gyrostat's
+  rotor momentum ``A = l``, a charged particle's ``q A``).
 
 Everything else -- ``H~``, ``lambda``, ``lambda~``, the constrained, extended
 and reduced vector fields, the reconstruction -- is derived in
@@ -40,7 +45,13 @@ class NonholonomicSystem:
         Constraint vectors ``e_i(x)`` as rows (a 1-D array is one constraint).
     potential : callable, optional
         ``U(x)`` (``(..., n) -> (...)``).
-    metric_derivative, constraints_derivative, potential_gradient : callable, optional
+    vector_potential : array_like (D,) or callable, optional
+        ``A(x)`` (``(..., n) -> (..., D)``), the momentum shift in
+        ``h = 1/2 <P - A, m^{-1} (P - A)> + U``; the constraint set is then
+        ``C = {<P - A(x), e_i(x)> = 0}`` (zero velocity along ``e_i^flat``).
+        Default none (no cost).  On a Lie group (no shape variables) it is a
+        constant ``l in g*``, e.g. a gyrostat's rotor momentum.
+    metric_derivative, constraints_derivative, potential_gradient, vector_potential_derivative : callable, optional
         Analytic ``d/dx`` of the data, shape ``(..., n, *shape)``; by default the
         complex step is used.
     sample : array_like (n,), optional
@@ -57,6 +68,15 @@ class NonholonomicSystem:
     check : bool
         Check the data at ``sample`` (symmetry, positive definiteness,
         independence, complex-step safety).  Default True.
+
+    Attributes
+    ----------
+    metric_inverse : ndarray (D, D) or None
+        ``m^{-1}`` when the metric is constant (cached; ``None`` otherwise).
+    flat_constraints : ndarray (K, D) or None
+        The rows ``e_i^flat = m e_i`` when metric and constraints are constant.
+    gram_inverse : ndarray (K, K) or None
+        ``C^{-1}``, ``C^{li} = <e_l^flat, e_i>``, when metric and constraints are constant.
 
     Raises
     ------
@@ -75,6 +95,8 @@ class NonholonomicSystem:
         metric_derivative=None,
         constraints_derivative=None,
         potential_gradient=None,
+        vector_potential=None,
+        vector_potential_derivative=None,
         sample=None,
         orthonormalize: bool = False,
         check: bool = True,
@@ -84,7 +106,10 @@ class NonholonomicSystem:
         self.space = space
         n, D = space.n, space.D
         if n == 0:
-            for name, val in (("metric", metric), ("constraints", constraints), ("potential", potential)):
+            for name, val in (
+                ("metric", metric), ("constraints", constraints), ("potential", potential),
+                ("vector_potential", vector_potential),
+            ):
                 if callable(val):
                     raise ValueError(
                         f"{name}: a system on a Lie group has no shape variables, so its "
@@ -132,16 +157,117 @@ class NonholonomicSystem:
         self.potential = DataFunction(
             0.0 if potential is None else potential, (), n, "potential", potential_gradient, sample
         )
+        #: ``A(x)`` as a :class:`DataFunction` of shape ``(D,)``, or None (no vector potential)
+        self.vector_potential = None
+        if vector_potential is not None:
+            self.vector_potential = DataFunction(
+                vector_potential, (D,), n, "vector_potential", vector_potential_derivative, sample
+            )
+        elif vector_potential_derivative is not None:
+            raise ValueError("vector_potential_derivative: given without a vector_potential")
         self.constant = self.metric.constant and self.constraints.constant
+        #: ``m^{-1}`` of a constant metric (``None`` if the metric depends on ``x``)
+        self.metric_inverse = None
+        #: rows ``e_i^flat = m e_i`` (``(K, D)``) and the inverse Gram matrix ``C^{-1}``
+        #: (``(K, K)``, ``C = E m E^T``) when metric and constraints are constant, else ``None``
+        self.flat_constraints = self.gram_inverse = None
         if self.metric.constant:
-            self._minv = _checked_inverse(self.metric.value, "metric")
+            self.metric_inverse = _checked_inverse(self.metric.value, "metric")
         if self.constant:
             E, m = self.constraints.value, self.metric.value
-            self._Eflat = E @ m
-            self._C = self._Eflat @ E.T
-            self._Cinv = _gram_inverse(self._C)
+            self.flat_constraints = E @ m
+            self.gram_inverse = _gram_inverse(self.flat_constraints @ E.T)
         if check:
+            space.group.check()  # the group's differentiated methods (liefi.groups.LieGroup.check)
             self.check(np.zeros(n) if sample is None else sample)
+
+    # --- constraints as people write them ----------------------------------
+    @classmethod
+    def from_velocity_constraints(cls, space, metric, A, potential=None, *, scaling="unit", **kw):
+        """A system from Pfaffian constraints on velocities, ``A(x) v = 0``.
+
+        Parameters
+        ----------
+        space : PhaseSpace
+        metric : array_like (D, D) or callable
+            Mass tensor ``m(x)``: the kinetic energy is ``1/2 <v, m v>``.
+        A : array_like (K, D) or callable
+            Rows ``a_i(x)`` with ``<a_i, v> = 0`` on the velocities ``v = (xi, x')``
+            (body velocity for the group part, ``x'`` for the shape part), as
+            written in textbooks and by sympy.physics.mechanics (``A(q) q' = 0``).
+            Batch-first ``(..., n) -> (..., K, D)`` and complex-step safe if callable
+            (a 1-D array or ``(..., D)`` function is one constraint).
+        potential : callable, optional
+            ``U(x)``.
+        scaling : {"unit", "orthonormal", None}
+            How the constraint vectors ``e_i`` are scaled (the constraint set and,
+            on it, the motion do not depend on it; the gains do):
+
+            * ``"unit"`` (default): ``e_i = m^{-1} a_i / sqrt(<a_i, m^{-1} a_i>)``, so
+              the Gram matrix ``C = E m E^T`` has unit diagonal at every ``x``.
+              ``J_i = <e_i^flat, v>`` is then the velocity along the ``i``-th
+              forbidden direction in the kinetic-energy norm, ``J_i^2 <= 2 T``
+              whatever the units or the scale the user wrote ``a_i`` in, so a gain
+              on ``J_i`` is a rate in the same units as the gain on the energy,
+              and each ``J_i`` still belongs to the user's row ``i``.
+            * ``"orthonormal"``: ``C = I`` (``orthonormalize=True``): the paper's
+              main-text extension, for which ``h`` is a first integral everywhere;
+              ``J_i`` mixes rows ``1..i``.
+            * ``None``: ``e_i = m^{-1} a_i`` as given (the row scaling then sets the
+              stiffness of ``J_i``).
+        **kw
+            Passed to :class:`NonholonomicSystem` (``vector_potential``, ``sample``,
+            ``check`` ...).
+
+        Notes
+        -----
+        With ``v = m^{-1}(P - A_vec)`` (``A_vec`` the ``vector_potential``, default 0)
+        the constraint ``<a_i, v> = 0`` is ``<P - A_vec, e_i> = 0`` with ``e_i =
+        m^{-1} a_i``, i.e. ``e_i^flat = a_i``: the constraint forces act along the
+        rows ``a_i`` (Lagrange--d'Alembert).  A scaling by a constant leaves the
+        extended field unchanged; the ``x``-dependent normalisation of
+        ``"unit"`` changes it off ``C`` only (by a term proportional to ``J``),
+        and ``h~`` and every ``J_i`` are first integrals either way.
+        """
+        if scaling not in ("unit", "orthonormal", None):
+            raise ValueError(f"scaling: expected 'unit', 'orthonormal' or None, got {scaling!r}")
+        if "constraints" in kw or "orthonormalize" in kw:
+            raise TypeError("from_velocity_constraints: give the constraints as A (rows a_i); "
+                            "the scaling is chosen with scaling=")
+        if not isinstance(space, PhaseSpace):
+            raise TypeError(f"space: expected a liefi PhaseSpace, got {space!r}")
+        n, D = space.n, space.D
+        x0 = np.zeros(n) if kw.get("sample") is None else np.asarray(kw["sample"], float)
+        if callable(A):
+            try:
+                probe = np.asarray(A(x0))
+            except Exception as exc:  # noqa: BLE001 -- user code: say which datum failed
+                raise ValueError(f"A: calling it at x = {x0} failed: {exc!r}") from exc
+            fun = A
+            if probe.ndim == 1:
+                fun = lambda x, f=A: np.asarray(f(x))[..., None, :]  # noqa: E731
+                probe = probe[None, :]
+        else:
+            probe = np.atleast_2d(as_float_array(A, "A"))
+            fun = None
+        if probe.ndim != 2 or probe.shape[-1] != D:
+            raise ValueError(f"A: expected constraint rows of shape (K, {D}) (one row per constraint, "
+                             f"one column per velocity {space.momentum_names}), got {probe.shape}")
+        norms = np.linalg.norm(np.asarray(probe, complex), axis=-1)
+        if np.any(norms == 0):
+            raise ValueError(f"A: row(s) {np.flatnonzero(norms == 0).tolist()} are zero at x = {x0}; "
+                             "drop them or fix the constraint")
+
+        def rows(x):
+            a = fun(x) if fun is not None else probe
+            m = metric(x) if callable(metric) else np.asarray(metric, float)
+            e = np.swapaxes(np.linalg.solve(m, np.swapaxes(a, -1, -2)), -1, -2)  # e_i = m^{-1} a_i
+            if scaling == "unit":
+                e = e / np.sqrt(np.sum(a * e, -1))[..., None]
+            return e
+
+        constraints = rows if (fun is not None or callable(metric)) else rows(x0)
+        return cls(space, metric, constraints, potential, orthonormalize=scaling == "orthonormal", **kw)
 
     # --- names and sizes ---------------------------------------------------
     @property
@@ -183,8 +309,15 @@ class NonholonomicSystem:
         U = np.asarray(self.potential(x), float)
         if not np.all(np.isfinite(U)):
             raise ValueError(f"potential: non-finite value at x = {x}")
+        data = [self.metric, self.constraints, self.potential]
+        if self.vector_potential is not None:
+            data.append(self.vector_potential)
+            if not np.all(np.isfinite(np.asarray(self.vector_potential(x), float))):
+                raise ValueError(f"vector_potential: non-finite values at x = {x}")
+        for datum in data:
+            datum.check_real(x)
         if self.space.n:
-            for datum in (self.metric, self.constraints, self.potential):
+            for datum in data:
                 datum.check_differentiable(x)
 
     # --- the derived quantities (formulas in liefi.reduction.core) -----------
@@ -229,7 +362,7 @@ class NonholonomicSystem:
 
         ``known`` maps ``D - K`` momentum names (``space.momentum_names``) to values;
         the other ``K`` components are solved from the ``K`` linear constraints
-        ``E(x) P = 0``.  Returns ``z = (x, P)`` with ``J(z) = 0``.
+        ``E(x) (P - A(x)) = 0``.  Returns ``z = (x, P)`` with ``J(z) = 0``.
         """
         names = self.space.momentum_names
         unknown = [i for i, s in enumerate(names) if s not in known]
@@ -247,7 +380,10 @@ class NonholonomicSystem:
                 f"known: the constraints do not determine {[names[i] for i in unknown]} at "
                 f"x = {x}; give other components"
             )
-        P[unknown] = np.linalg.solve(A, -E @ P)
+        rhs = -E @ P
+        if self.vector_potential is not None:  # J = E (P - A(x))
+            rhs = rhs + E @ np.asarray(self.vector_potential(x), float)
+        P[unknown] = np.linalg.solve(A, rhs)
         return np.concatenate([x, P])
 
     def project(self, z):

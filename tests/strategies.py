@@ -21,7 +21,9 @@ The systems are the paper's three kinds (Section 2):
 The ``x``-dependent data are batch-first and complex-step safe:
 ``m(x) = M0 + sin(x.c1) S1 + cos(x.c2) S2`` (SPD by construction), rows of
 ``E(x) = E0 + sin(x.d) E1`` (independent by construction, *not* orthonormal
-for ``m``), ``U(x) = 1/2 x.Q x + a sin(x.b)``.  With ``orthonormal=True`` the
+for ``m``), ``U(x) = 1/2 x.Q x + a sin(x.b)``; with ``vector_potential`` a
+momentum shift ``A(x) = A0 + sin(x.f) A1 + G x`` (entries of size ~0.3-0.5) (constant ``A0`` on a Lie
+group), so that ``h = 1/2 (P - A).m^{-1}(P - A) + U`` and ``J = E (P - A)``.  With ``orthonormal=True`` the
 rows are Gram--Schmidt orthonormalized in ``m(x)`` by analytic operations
 (no conjugation), so the Gram matrix is the identity for every ``x``.
 
@@ -45,7 +47,7 @@ from hypothesis import strategies as st
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 from liefi import CotangentBundle, LieGroupPhaseSpace, NonholonomicSystem, TrivialPrincipalBundle  # noqa: E402
-from liefi.groups import S1, SE2, SO2, SO3, Rn  # noqa: E402
+from liefi.groups import S1, SE2, SE3, SO2, SO3, Rn  # noqa: E402
 from liefi.reduction import evaluate as _evaluate  # noqa: E402
 
 # ---------------------------------------------------------------------------
@@ -63,6 +65,10 @@ GROUPS = [
     pytest.param(Rn(2), id="R2"),
     pytest.param(SE2() * S1(), id="SE2xS1"),
     pytest.param(SO3() * Rn(1), id="SO3xR1"),
+    pytest.param(SE3(), id="SE3"),
+    # the rotation block not first: a product must offset every factor's blocks
+    pytest.param(S1() * SO3(), id="S1xSO3"),
+    pytest.param(Rn(1) * SO2() * SE3(), id="R1xSO2xSE3"),
 ]
 
 
@@ -95,7 +101,7 @@ PROPERTY = settings(max_examples=MAX_EXAMPLES, deadline=None, suppress_health_ch
 
 #: Settings of the tests that build a random system per example (~10-20 ms each,
 #: a third of it hypothesis' own bookkeeping): half as many examples per
-#: parametrization.  Each such test runs over the 17 entries of ``SPACES``, so a
+#: parametrization.  Each such test runs over the 23 entries of ``SPACES``, so a
 #: property is still checked on ~200 random systems per run, within the suite's
 #: one-minute budget.
 SYSTEM_PROPERTY = settings(
@@ -222,6 +228,11 @@ class Case:
     orthonormal: bool
     constant_gram: bool  #: Gram matrix C = E m E^T independent of x
     rng: np.random.Generator = field(repr=False)
+    vector_potential: object = None  #: batch-first A(x), or None
+
+    def shift(self, x):
+        """``A(x)`` (0 without a vector potential)."""
+        return 0.0 if self.vector_potential is None else self.vector_potential(x)
 
     @property
     def space(self):
@@ -240,7 +251,7 @@ class Case:
         return self.system.project(self.random_state(shape, scale))
 
 
-def build_case(kind, group, rng, K, n, orthonormal=False):
+def build_case(kind, group, rng, K, n, orthonormal=False, vector_potential=False):
     """Build a random :class:`Case` of the given kind (see module docstring)."""
     if kind == "lie":
         space = LieGroupPhaseSpace(group)
@@ -258,10 +269,11 @@ def build_case(kind, group, rng, K, n, orthonormal=False):
     if n == 0:
         m_const = M0
         E_const = gram_schmidt(E0, M0) if orthonormal else E0
-        system = NonholonomicSystem(space, m_const, E_const if K else None)
+        A_const = 0.5 * rng.normal(size=D) if vector_potential else None
+        system = NonholonomicSystem(space, m_const, E_const if K else None, vector_potential=A_const)
         return Case(
             kind, system, lambda x: m_const, lambda x: E_const, lambda x: 0.0 * np.sum(x, -1),
-            orthonormal, True, rng,
+            orthonormal, True, rng, None if A_const is None else (lambda x: A_const),
         )
 
     lmin = np.linalg.eigvalsh(M0).min()
@@ -297,15 +309,24 @@ def build_case(kind, group, rng, K, n, orthonormal=False):
     def potential(x):
         return 0.5 * np.einsum("...i,ij,...j->...", x, Qp, x) + a * np.sin(x @ b)
 
-    system = NonholonomicSystem(space, metric, constraints if K else None, potential)
-    return Case(kind, system, metric, constraints, potential, orthonormal, orthonormal or K == 0, rng)
+    shift = None
+    if vector_potential:
+        A0, A1, f = 0.5 * rng.normal(size=D), 0.3 * rng.normal(size=D), rng.normal(size=n)
+        G = 0.3 * rng.normal(size=(D, n))
+
+        def shift(x):
+            return A0 + np.sin(x @ f)[..., None] * A1 + np.einsum("ij,...j->...i", G, x)
+
+    system = NonholonomicSystem(space, metric, constraints if K else None, potential, vector_potential=shift)
+    return Case(kind, system, metric, constraints, potential, orthonormal, orthonormal or K == 0, rng, shift)
 
 
 @st.composite
-def cases(draw, spec, *, min_K=0, orthonormal=None, max_n=2):
+def cases(draw, spec, *, min_K=0, orthonormal=None, max_n=2, vector_potential=None):
     """A random :class:`Case` for ``spec = (kind, group)`` (an entry of :data:`SPACES`).
 
-    ``K`` runs from ``min_K`` to ``D - 1``; ``orthonormal`` None draws it.
+    ``K`` runs from ``min_K`` to ``D - 1``; ``orthonormal`` and ``vector_potential``
+    None draw them.
     """
     kind, group = spec
     if kind == "lie":
@@ -321,8 +342,9 @@ def cases(draw, spec, *, min_K=0, orthonormal=None, max_n=2):
         pytest.skip(f"D = {D}: no room for {min_K} constraint(s) (K <= D - 1)")
     K = draw(st.integers(min_K, D - 1))
     orth = draw(st.booleans()) if orthonormal is None else orthonormal
+    vp = draw(st.booleans()) if vector_potential is None else vector_potential
     seed = draw(SEEDS)
-    return build_case(kind, group, np.random.default_rng(seed), K, n, orth)
+    return build_case(kind, group, np.random.default_rng(seed), K, n, orth, vp)
 
 
 # ---------------------------------------------------------------------------
@@ -336,9 +358,11 @@ def _solve(A, b):
 
 def oracle(case, z):
     """``(h, h~, J)`` at ``z`` from the raw data: ``h = 1/2 P.m^-1 P + U``,
-    ``J = E P``, ``C = E m E^T``, ``h~ = h - 1/2 J.C^-1 J`` (``(def:H:tilde:general)``)."""
+    ``J = E P``, ``C = E m E^T``, ``h~ = h - 1/2 J.C^-1 J`` (``(def:H:tilde:general)``),
+    with ``P`` replaced by the kinetic momentum ``P - A(x)`` when there is a vector potential."""
     n = case.space.n
     x, P = z[..., :n], z[..., n:]
+    P = P - case.shift(x)
     m = np.broadcast_to(case.metric(x), P.shape[:-1] + P.shape[-1:] * 2)
     U = case.potential(x)
     h = 0.5 * dot(P, _solve(m, P)) + U

@@ -37,6 +37,61 @@ def names_parameter(exc, params):
 # --- targeted: the system's data --------------------------------------------------------------
 
 
+def _racer_metric_filled_in_place(x):
+    """The README racer's metric written the tempting way: ``cos`` filled into a float array.
+
+    The fill drops the imaginary part of the complex step, so liefi would see
+    ``dm/dpsi = 0``; at ``psi = 0`` that is also the true derivative of ``cos``."""
+    x = np.asarray(x)
+    m = np.zeros(x.shape[:-1] + (4, 4))
+    m[..., 0, 0] = 2 + 0.5 * np.cos(x[..., 0])  # ComplexWarning: imaginary part discarded
+    m[..., 0, 2] = m[..., 2, 0] = 0.3
+    m[..., 0, 3] = m[..., 3, 0] = 0.4
+    m[..., 1, 1] = m[..., 2, 2] = 1.0
+    m[..., 3, 3] = 0.5
+    return m
+
+
+def test_complex_step_unsafe_datum_with_zero_derivative_at_the_sample_is_caught():
+    """Issue 10 item 9: checked at several points, not only at ``x = 0`` (where ``cos' = 0``)."""
+    space = TrivialPrincipalBundle(SE2(), 1, names=("psi",))
+    rows = np.array([[0.0, 0.0, 1.0, 0.0]])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # numpy's ComplexWarning from the fill
+        with pytest.raises(ValueError, match="metric: its complex-step derivative (disagrees|is exactly zero)"):
+            NonholonomicSystem(space, _racer_metric_filled_in_place, rows)
+        # the same function with its derivative supplied is accepted (the check is on the derivative)
+        def dm(x):
+            x = np.asarray(x)
+            out = np.zeros(x.shape[:-1] + (1, 4, 4))
+            out[..., 0, 0, 0] = -0.5 * np.sin(x[..., 0])
+            return out
+
+        NonholonomicSystem(space, _racer_metric_filled_in_place, rows, metric_derivative=dm)
+
+
+@pytest.mark.parametrize("unsafe", ["real", "astype"])
+def test_other_complex_step_unsafe_potentials_are_caught(unsafe):
+    def potential(x):
+        c = np.cos(x[..., 0])
+        return np.real(c) if unsafe == "real" else c.astype(float)
+
+    with pytest.raises(ValueError, match="potential: its complex-step derivative (disagrees|is exactly zero)"):
+        NonholonomicSystem(CotangentBundle(1), np.eye(1), None, potential)
+
+
+def test_complex_constant_metric_is_refused():
+    """Issue 10 item 10: a complex constant metric was taken with its imaginary part dropped."""
+    with pytest.raises(ValueError, match="metric: complex values"):
+        NonholonomicSystem(LieGroupPhaseSpace(SO3()), np.diag([1.0, 2.0, 3.0]) + 0.1j * np.eye(3))
+    with pytest.raises(ValueError, match="constraints: complex values"):
+        NonholonomicSystem(LieGroupPhaseSpace(SO3()), np.eye(3), [[1.0, 1j, 0.0]])
+    with pytest.raises(ValueError, match="metric: returns complex values"):
+        NonholonomicSystem(CotangentBundle(1), lambda x: (1 + 0.1j) * np.ones(np.shape(x)[:-1] + (1, 1)))
+    # a complex array with zero imaginary part is a real array
+    NonholonomicSystem(LieGroupPhaseSpace(SO3()), np.eye(3) + 0j)
+
+
 def test_non_symmetric_metric():
     with pytest.raises(ValueError, match="metric: not symmetric.*\\(m \\+ m.T\\) / 2"):
         NonholonomicSystem(CotangentBundle(2), [[1.0, 0.5], [0.0, 1.0]])

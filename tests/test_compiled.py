@@ -16,7 +16,10 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 import liefi
-from liefi import FeedbackIntegrator, Invariant, compiled, scenes
+from liefi import FeedbackIntegrator, Invariant, scenes
+from liefi import engine as compiled
+from liefi.engine import cache as _cache
+from liefi.engine import codegen, kernels, trace
 from liefi.reduction import core as _core
 from liefi.schemes import IntegrationError
 from hypothesis import HealthCheck, settings
@@ -66,13 +69,13 @@ def test_traced_derivative_is_the_complex_step_derivative(fun):
     """d/dx of a traced function (symbolic) equals liefi's complex-step derivative to rounding."""
     x0 = np.array([0.7, 1.3])
     _, want = liefi._diff.gradient(fun, x0)
-    with compiled.trace() as tr:
+    with trace.trace() as tr:
         x = tr.symbols("y", 2)
-        val = compiled._call_datum(fun, x, (), "f")
-        jac = compiled.jacobian(val, list(x))
-        src = compiled.function_source("f", np.concatenate([val.reshape(1), jac.reshape(-1)]), ("y", "p", "out"))
+        val = trace._call_datum(fun, x, (), "f")
+        jac = trace.jacobian(val, list(x))
+        src = codegen.function_source("f", np.concatenate([val.reshape(1), jac.reshape(-1)]), ("y", "p", "out"))
     ns = {}
-    exec(compiled._HEADER.format(imports=compiled._PYTHON_IMPORTS) + src, ns)
+    exec(codegen.module_text(src, "python", False), ns)
     out = np.empty(3)
     ns["f"](x0, np.zeros(0), out)
     assert rel(out[0], fun(x0)) < 1e-14
@@ -120,7 +123,7 @@ def test_generated_field_equals_numpy_field(spec, data):
     names = FeedbackIntegrator(sys_, y0, configuration=cfg).invariant_names
     gains = {k: float(case.rng.uniform(0.5, 3.0)) for k in names}
     fi = FeedbackIntegrator(sys_, y0, configuration=cfg, energy=energy, gains=gains)
-    p = compiled.parameters(fi)
+    p = fi.parameters()
     y = y0 + 0.1 * case.rng.normal(size=y0.shape)
     f = compiled.compile_feedback(fi, engine="python")
     assert rel(f.rhs(y, p), fi.vector_field(y)) < TOL
@@ -134,6 +137,21 @@ def test_generated_field_equals_numpy_field(spec, data):
     assert rel(c.rhs(y, np.zeros(0)), want) < TOL
 
 
+@pytest.mark.parametrize("spec", SPACES)
+@FIELD_PROPERTY
+@given(data=st.data())
+def test_vector_potential_is_compiled_without_engine_code(spec, data):
+    """A datum the engine has no code for (the vector potential ``A(x)``, added to the core only)
+    reaches the compiled field through the traced core: generated == numpy."""
+    case = data.draw(cases(spec, vector_potential=True))
+    sys_ = case.system
+    z0 = case.constrained_state()
+    fi = FeedbackIntegrator(sys_, z0, configuration=False, gains=1.5)
+    z = z0 + 0.1 * case.rng.normal(size=z0.shape)
+    f = compiled.compile_feedback(fi, engine="python")
+    assert rel(f.rhs(z, fi.parameters()), fi.vector_field(z)) < TOL
+
+
 @pytest.mark.parametrize("name", SCENES)
 def test_scene_fields_equal_numpy(name):
     """Every scene, every variant, reduced and with the configuration: generated == numpy."""
@@ -143,7 +161,7 @@ def test_scene_fields_equal_numpy(name):
         for cfg in (False, True):
             fi = sc.integrator(v, configuration=cfg)
             f = compiled.compile_feedback(fi, engine="python")
-            p = compiled.parameters(fi)
+            p = fi.parameters()
             for _ in range(3):
                 y = fi.y0 + 0.05 * rng.normal(size=fi.n)
                 assert rel(f.rhs(y, p), fi.vector_field(y)) < TOL, (name, v, cfg)
@@ -162,7 +180,7 @@ def test_orthonormalized_system_is_traced():
     fi = FeedbackIntegrator(sys_, z0, energy="original", gains=2.0, configuration=False)
     f = compiled.compile_feedback(fi, engine="python")
     z = z0 + 0.1 * case.rng.normal(size=z0.shape)
-    assert rel(f.rhs(z, compiled.parameters(fi)), fi.vector_field(z)) < TOL
+    assert rel(f.rhs(z, fi.parameters()), fi.vector_field(z)) < TOL
     assert np.linalg.solve is not None and np.linalg.solve(np.eye(2), np.ones(2)).dtype == float
 
 
@@ -175,7 +193,7 @@ def test_projected_field_and_user_invariants():
     fi = FeedbackIntegrator(sys_, y0, invariants=("constraints", "energy", inv), field="projected", gains=3.0)
     f = compiled.compile_feedback(fi, engine="python")
     y = y0 + 0.1 * np.random.default_rng(0).normal(size=y0.shape)
-    assert rel(f.rhs(y, compiled.parameters(fi)), fi.vector_field(y)) < TOL
+    assert rel(f.rhs(y, fi.parameters()), fi.vector_field(y)) < TOL
 
 
 # --------------------------------------------------------------------------------------
@@ -231,6 +249,8 @@ def test_compiled_divergence_raises_like_numpy():
 
 
 @needs_numba
+@pytest.mark.skipif(not hasattr(liefi.groups.LieGroup, "orthogonal_matrices"),
+                    reason="the groups do not declare orthogonal_matrices yet (merged from the groups branch)")
 def test_projection_keeps_every_invariant():
     """The Newton projection after every step keeps R^T R = I, J, h and user invariants to 1e-13."""
     from liefi.bench import invariant_drifts
@@ -267,8 +287,8 @@ def test_compiled_dla_equals_liefi_dla():
 
 def test_backend_numba_without_numba_falls_back(monkeypatch):
     """Without numba the numpy path runs, and a CompilationWarning says so."""
-    monkeypatch.setattr(compiled, "_numba", None)
-    monkeypatch.setattr(compiled, "_WARNED", set())
+    monkeypatch.setattr(_cache, "_numba", None)
+    monkeypatch.setattr(kernels, "_WARNED", set())
     sc = scenes.get("suslov")
     fi = sc.integrator()
     want = fi.run(1e-3, 0.05)
@@ -279,7 +299,7 @@ def test_backend_numba_without_numba_falls_back(monkeypatch):
 
 def test_backend_auto_falls_back_for_untraceable_data(monkeypatch):
     """An untraceable datum: backend='auto' warns and runs the numpy path (same numbers)."""
-    monkeypatch.setattr(compiled, "_WARNED", set())
+    monkeypatch.setattr(kernels, "_WARNED", set())
 
     def potential(x):
         return np.where(x[..., 0] > 0, x[..., 0] ** 2, x[..., 0] ** 2)
@@ -293,3 +313,281 @@ def test_backend_auto_falls_back_for_untraceable_data(monkeypatch):
     if compiled.available():
         assert any(issubclass(x.category, compiled.CompilationWarning) and "potential" in str(x.message) for x in w)
     np.testing.assert_array_equal(got.y, want.y)
+
+
+# --------------------------------------------------------------------------------------
+# one source: the engine traces the core, it has no copy of it
+# --------------------------------------------------------------------------------------
+
+
+def _fresh_knife_edge_fi():
+    """A knife-edge integrator on a new system object (so no kernel of it is cached)."""
+    sc = scenes.get("knife-edge")
+    sys0 = sc.system
+    sys_ = liefi.NonholonomicSystem(sys0.space, sys0.metric.value, sys0.constraints.fun, sys0.potential.fun)
+    return FeedbackIntegrator(sys_, sc.initial_state(sc.variant()), gains=2.0)
+
+
+def test_single_source_core_change_reaches_both_backends(monkeypatch):
+    """Monkeypatch one core formula -- the force term of the reduced field -- and both backends
+    change alike: the compiled kernel is the trace of the core, not a copy of it."""
+    fi = _fresh_knife_edge_fi()
+    y = fi.y0 + 0.1 * np.random.default_rng(7).normal(size=fi.n)
+    before = fi.vector_field(y)
+    field = _core._field
+
+    def field_with_a_force(system, z, dH, lam, Eflat):  # an extra force -0.3 sin(x) on the momenta
+        f = field(system, z, dH, lam, Eflat)
+        n = system.space.n
+        return np.concatenate([f[..., :n], f[..., n:] - 0.3 * np.sin(z[..., n:])], -1)
+
+    monkeypatch.setattr(_core, "_field", field_with_a_force)
+    numpy_after = fi.vector_field(y)
+    compiled_after = compiled.compile_feedback(fi, engine="python").rhs(y, fi.parameters())
+    assert rel(numpy_after, before) > 1e-3  # the change is visible ...
+    assert rel(compiled_after, numpy_after) < TOL  # ... and the compiled field has it too
+
+
+def test_single_source_dla_step_is_traced(monkeypatch):
+    """The compiled DLA kernel is the trace of DLAIntegrator.update: a change to it reaches the kernel."""
+    from liefi.dla import DLAIntegrator
+
+    sc = scenes.get("oscillator")
+    sys0 = sc.system
+    sys_ = liefi.NonholonomicSystem(sys0.space, sys0.metric.value, sys0.constraints.fun, sys0.potential.fun)
+    update = DLAIntegrator.update
+
+    def damped(self, q_prev, q_curr, h):
+        q, mu, g = update(self, q_prev, q_curr, h)
+        return q - 0.01 * (q_curr - q_prev), mu, g
+
+    monkeypatch.setattr(DLAIntegrator, "update", damped)
+    dla = DLAIntegrator.from_system(sys_)
+    q0, q1 = dla.initial_pair(np.array([0.5, 0.2, -0.1]), np.array([0.1, 0.3, 0.0]), 1e-2)
+    want = dla.run(q0, q1, 1e-2, 50, save_every=10)
+    mod = compiled.compile_dla(sys_, engine="python").module
+    qp, qc = q0.copy(), q1.copy()
+    for _ in range(49):
+        out = np.empty(3)
+        mod.dla_update(qp, qc, np.array([1e-2]), out)
+        qp, qc = qc, out
+    assert rel(qc, want.q[:, -1]) < TOL
+
+
+# --------------------------------------------------------------------------------------
+# user groups: an override that cannot be traced falls back, never raises the internal error
+# --------------------------------------------------------------------------------------
+
+
+def _rigid_body_with(group):
+    space = liefi.LieGroupPhaseSpace(group)
+    sys_ = liefi.NonholonomicSystem(space, np.diag([1.0, 2.0, 3.0]), [[0.0, 0.0, 1.0]])
+    y0 = np.concatenate([group.identity_config(), sys_.project(np.array([0.3, -0.2, 0.1]))])
+    return FeedbackIntegrator(sys_, y0, gains=1.0)
+
+
+class _OrientedSO3(liefi.groups.SO3):
+    """SO(3) with an extra orientation penalty ``1/2 (det R - 1)^2``: ``np.linalg.det`` is complex-step
+    safe (the group passes its checks) but cannot be traced."""
+
+    def penalty(self, g):
+        d = np.linalg.det(self.config_to_matrix(g))
+        return super().penalty(g) + 0.5 * (d - 1.0) ** 2
+
+    def penalty_grad(self, g):
+        R = self.config_to_matrix(g)
+        d = np.linalg.det(R)
+        cofactor = d[..., None, None] * np.swapaxes(np.linalg.inv(R), -1, -2)
+        return super().penalty_grad(g) + self.matrix_to_config((d - 1.0)[..., None, None] * cofactor)
+
+
+def test_untraceable_group_override_is_named():
+    fi = _rigid_body_with(_OrientedSO3())
+    with pytest.raises(compiled.NotCompilable, match=r"det.*in penalty"):
+        compiled.compile_feedback(fi, engine="python")
+
+
+def test_untraceable_group_override_falls_back_under_auto(monkeypatch):
+    """backend='auto' with an untraceable group method: a CompilationWarning and the numpy run."""
+    monkeypatch.setattr(kernels, "_WARNED", set())
+    fi = _rigid_body_with(_OrientedSO3())
+    want = fi.run(1e-2, 0.2)
+    if not compiled.available():
+        pytest.skip("numba is not installed (auto runs numpy without tracing)")
+    with pytest.warns(compiled.CompilationWarning, match="penalty"):
+        got = fi.run(1e-2, 0.2, backend="auto")
+    np.testing.assert_array_equal(got.y, want.y)
+
+
+# --------------------------------------------------------------------------------------
+# the kernel cache: private, self-healing, never fatal
+# --------------------------------------------------------------------------------------
+
+
+@pytest.fixture
+def kernel_env(monkeypatch, tmp_path):
+    """A clean kernel table and a private cache directory ``tmp_path/private`` (returned)."""
+    private = tmp_path / "private"
+    monkeypatch.setenv("LIEFI_CACHE_DIR", str(private))
+    monkeypatch.setattr(kernels, "_KERNELS", {})
+    monkeypatch.setattr(kernels, "_WARNED", set())
+    _cache.clear_memory()
+    yield private
+    _cache.clear_memory()
+
+
+def _numba_cache_files(directory, name):
+    pc = directory / "__pycache__"
+    return sorted(p for p in pc.glob(name + ".*")) if pc.exists() else []
+
+
+_EVIL = '''
+import pathlib
+pathlib.Path({marker!r}).write_text("planted code ran")
+'''
+
+
+class _Evil:
+    """A pickle that runs code when loaded (what a planted numba cache file can do)."""
+
+    def __init__(self, marker):
+        self.marker = marker
+
+    def __reduce__(self):
+        import pathlib
+
+        return (pathlib.Path.write_text, (pathlib.Path(self.marker), "planted pickle ran"))
+
+
+@needs_numba
+@pytest.mark.parametrize("unsafe", ["world-writable", "foreign-owned"])
+def test_planted_kernel_is_never_imported(kernel_env, monkeypatch, tmp_path, unsafe):
+    """A cache directory writable by others or owned by another user is never read: kernel files
+    and numba cache files planted there do not run; kernels go to a private temporary directory."""
+    import os
+    import pickle
+
+    fi = _fresh_knife_edge_fi()
+    y = fi.y0 + 0.01
+    cf = compiled.compile_feedback(fi)
+    want = cf.rhs(y, fi.parameters())  # compiles and writes numba's cache files
+    name = cf.kernel.name
+    planted_files = _numba_cache_files(kernel_env, name)
+    assert planted_files  # numba cached the kernel next to its source
+
+    bad = tmp_path / "shared"
+    (bad / "__pycache__").mkdir(parents=True)
+    marker = tmp_path / "marker"
+    (bad / (name + ".py")).write_text(cf.kernel.text + _EVIL.format(marker=str(marker)))
+    for f in planted_files:
+        (bad / "__pycache__" / f.name).write_bytes(pickle.dumps(_Evil(str(marker))))
+    if unsafe == "world-writable":
+        os.chmod(bad, 0o777)
+    else:
+        os.chmod(bad, 0o700)
+        monkeypatch.setattr(_cache, "_uid", lambda: os.getuid() + 1)
+    monkeypatch.setenv("LIEFI_CACHE_DIR", str(bad))
+    monkeypatch.setattr(kernels, "_KERNELS", {})
+    _cache.clear_memory()
+    with pytest.warns(compiled.KernelCacheWarning, match="owned by another user" if unsafe == "foreign-owned" else "writable by group or others"):
+        cf2 = compiled.compile_feedback(fi)
+    got = cf2.rhs(y, fi.parameters())
+    assert not marker.exists()
+    if unsafe == "world-writable":  # a private temporary directory instead
+        assert cf2.kernel.path is not None and not cf2.kernel.path.startswith(str(bad))
+        assert _cache.check_private(os.path.dirname(cf2.kernel.path)) is None
+    else:  # (the simulated uid owns no directory at all, so the kernel is compiled in memory)
+        assert cf2.kernel.path is None
+    np.testing.assert_array_equal(got, want)
+
+
+@needs_numba
+def test_corrupt_cache_heals(kernel_env):
+    """A truncated kernel file and corrupt numba cache files are detected and rebuilt."""
+    fi = _fresh_knife_edge_fi()
+    y = fi.y0 + 0.01
+    cf = compiled.compile_feedback(fi)
+    want = cf.rhs(y, fi.parameters())
+    path = cf.kernel.path
+    files = _numba_cache_files(kernel_env, cf.kernel.name)
+    assert path and files
+    text = open(path).read()
+    with open(path, "w") as fh:  # truncated kernel
+        fh.write(text[: len(text) // 2])
+    for f in files:  # truncated / garbage numba cache
+        data = f.read_bytes()
+        f.write_bytes(data[: len(data) // 3] if f.suffix == ".nbc" else b"garbage\n")
+    kernels._KERNELS.clear()
+    _cache.clear_memory()
+    cf2 = compiled.compile_feedback(fi)
+    assert rel(cf2.rhs(y, fi.parameters()), want) == 0.0
+    assert open(path).read() == text
+
+    # numba's cache alone corrupt (the kernel file intact): the first call fails, is healed, and reruns
+    files = _numba_cache_files(kernel_env, cf.kernel.name)
+    for f in files:
+        f.write_bytes(b"garbage\n")
+    kernels._KERNELS.clear()
+    _cache.clear_memory()
+    cf3 = compiled.compile_feedback(fi)
+    assert rel(cf3.rhs(y, fi.parameters()), want) == 0.0
+    assert all(f.read_bytes() != b"garbage\n" for f in _numba_cache_files(kernel_env, cf.kernel.name))
+
+
+@needs_numba
+def test_read_only_cache_falls_back(kernel_env, monkeypatch):
+    """A read-only filesystem (no cache directory, no temporary directory): the kernel is compiled in
+    memory, and the run under backend='auto' gives the numpy numbers (to 1e-12) without raising."""
+    import errno
+    import tempfile
+
+    def read_only(*a, **k):
+        raise OSError(errno.EROFS, "Read-only file system")
+
+    monkeypatch.setattr(_cache, "_make_dir", read_only)
+    monkeypatch.setattr(tempfile, "mkdtemp", read_only)
+    fi = _fresh_knife_edge_fi()
+    want = fi.run(1e-2, 0.2, check_stability=False)
+    with pytest.warns(compiled.KernelCacheWarning, match="in memory"):
+        got = fi.run(1e-2, 0.2, backend="auto", check_stability=False)
+    assert rel(got.y, want.y) < TOL
+    assert not kernel_env.exists()
+
+
+def test_any_compile_failure_falls_back_under_auto(kernel_env, monkeypatch):
+    """A failure to write, load or compile the kernel under backend='auto': numpy runs, with a CompilationWarning."""
+    import errno
+
+    def broken(*a, **k):
+        raise OSError(errno.EROFS, "Read-only file system")
+
+    monkeypatch.setattr(_cache, "load", broken)
+    fi = _fresh_knife_edge_fi()
+    want = fi.run(1e-2, 0.2, check_stability=False)
+    if not compiled.available():
+        pytest.skip("numba is not installed (auto runs numpy without compiling)")
+    with pytest.warns(compiled.CompilationWarning, match="Read-only file system"):
+        got = fi.run(1e-2, 0.2, backend="auto", check_stability=False)
+    np.testing.assert_array_equal(got.y, want.y)
+
+
+def test_cache_directory_is_created_private(kernel_env):
+    """The cache directory is created with mode 0700 and passes the ownership/mode check."""
+    import os
+    import stat
+
+    assert _cache.kernel_dir() == str(kernel_env)
+    assert stat.S_IMODE(os.stat(kernel_env).st_mode) == 0o700
+    assert _cache.check_private(str(kernel_env)) is None
+
+
+def test_overhead_is_reported_once(kernel_env):
+    """The one-off cost (trace, load, first-call compile) is reported by the first run only,
+    apart from the loop's cpu_seconds."""
+    fi = _fresh_knife_edge_fi()
+    cf = compiled.compile_feedback(fi, engine="python")
+    a = cf.run(fi.y0, fi.parameters(), 1e-2, 20)
+    b = cf.run(fi.y0, fi.parameters(), 1e-2, 20)
+    assert a.overhead_seconds > 0 and a.overhead_seconds >= cf.build_seconds
+    assert b.overhead_seconds == 0.0
+    assert a.cpu_seconds >= 0 and b.cpu_seconds >= 0

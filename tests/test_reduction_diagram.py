@@ -1,7 +1,8 @@
 """Extension commutes with reduction: the diagrams of Sections 2.2 and 2.3, numerically.
 
 For a reduced system on ``g*`` or ``g* x T*X`` (random SPD mass tensor, random
-*non-orthonormal* constraint rows, random potential; and the paper's Suslov,
+*non-orthonormal* constraint rows, random potential, and half the time a random
+vector potential ``A(x)``, constant on ``g*``; and the paper's Suslov,
 Chaplygin, vertical-disk and roller-racer data) :func:`liefi.reduction.unreduce`
 writes down the unreduced canonical system on ``T*Q`` in a chart ``q = (s, x)``.
 liefi then extends *both* with the same generic code, and the projection
@@ -195,7 +196,9 @@ def random_systems(draw, case):
 
     On ``g* x T*S^1`` the mass tensor, the constraints and the potential depend on
     ``psi``: ``m = L L^T + c I`` with ``L = A0 + sin(psi) A1 + cos(psi) A2``,
-    ``E = [I_K 0] + R0 + sin(psi) R1 + cos(2 psi) R2`` (roller-racer-like).
+    ``E = [I_K 0] + R0 + sin(psi) R1 + cos(2 psi) R2`` (roller-racer-like),
+    ``A = a0 + sin(psi) a1 + cos(psi) a2`` when a vector potential is drawn (a
+    constant ``a0`` on ``g*``: a gyrostat's rotor momentum).
     """
     d, n = case.group.dim, case.n
     D = d + n
@@ -225,13 +228,27 @@ def random_systems(draw, case):
             psi = np.asarray(x)[..., 0]
             return u[0] * np.cos(psi) + u[1] * np.sin(2 * psi)
 
+    vector_potential = None
+    if draw(st.booleans()):
+        a0, a1, a2 = (_array(draw, (D,)) for _ in range(3))
+        if n == 0:
+            vector_potential = a0
+        else:
+
+            def vector_potential(x):
+                psi = np.asarray(x)[..., 0, None]
+                return a0 + np.sin(psi) * a1 + np.cos(psi) * a2
+
     q, p = draw(states(case, D))
     # independent constraints at every drawn shape point (else the system is singular)
     for xi in q[:, d:] if n else [np.zeros(0)]:
         E = constraints(xi) if callable(constraints) else constraints
         m = metric(xi) if callable(metric) else metric
         assume(K == 0 or np.linalg.cond(E @ m @ E.T) < 1e6)
-    reduced = NonholonomicSystem(case.space(), metric, constraints if K else None, potential, sample=q[0, d:])
+    reduced = NonholonomicSystem(
+        case.space(), metric, constraints if K else None, potential,
+        vector_potential=vector_potential, sample=q[0, d:],
+    )
     return reduced, q, p
 
 

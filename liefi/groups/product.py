@@ -13,7 +13,8 @@ class ProductGroup(LieGroup):
     """Direct product ``G_1 x ... x G_r`` (algebra and embedding concatenated).
 
     ``SE2() * SO2()`` builds one.  The bracket is block diagonal, matrices are
-    block diagonal, and the penalty is the sum of the factors' penalties.
+    block diagonal, and the orthogonal blocks (hence the penalty) are the
+    factors', offset.
     """
 
     def __init__(self, *factors):
@@ -90,14 +91,10 @@ class ProductGroup(LieGroup):
             [f.matrix_to_config(G[..., self._mat[i] : self._mat[i + 1], self._mat[i] : self._mat[i + 1]]) for i, f in enumerate(self.factors)], -1
         )
 
-    def penalty(self, g):
-        return sum(f.penalty(a) for f, a in zip(self.factors, self._parts(g, self._cfg)))
-
-    def penalty_grad(self, g):
-        return np.concatenate([f.penalty_grad(a) for f, a in zip(self.factors, self._parts(g, self._cfg))], -1)
-
-    def penalty_hessian_bound(self):
-        return max((f.penalty_hessian_bound() for f in self.factors), default=0.0)
+    def orthogonal_matrices(self, g):
+        """The factors' orthogonal blocks, each read from its factor's slice of ``g``."""
+        g = np.asarray(g)
+        return [R for f, a in zip(self.factors, self._parts(g, self._cfg)) for R in f.orthogonal_matrices(a)]
 
 
 def _unique(names):

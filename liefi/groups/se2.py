@@ -94,13 +94,6 @@ class SE2(LieGroup):
         G = np.asarray(G)
         return np.concatenate([self.rotation_group.matrix_to_config(G[..., :2, :2]), G[..., :2, 2]], -1)
 
-    def penalty(self, g):
-        return self.rotation_group.penalty(self._split(np.asarray(g))[0])
-
-    def penalty_grad(self, g):
-        g = np.asarray(g)
-        r, t = self._split(g)
-        return np.concatenate([self.rotation_group.penalty_grad(r), np.zeros_like(t)], -1)
-
-    def penalty_hessian_bound(self):
-        return self.rotation_group.penalty_hessian_bound()
+    def orthogonal_matrices(self, g):
+        """The rotation factor's blocks (the 2x2 matrix with ``SO2()``, none with ``S1()``)."""
+        return self.rotation_group.orthogonal_matrices(self._split(np.asarray(g))[0])

@@ -22,7 +22,7 @@ class SO2(MatrixLieGroup):
 
     dim = 1
     matrix_dim = 2
-    orthogonal = True
+    orthogonal_blocks = ((0, 2),)
 
     def __init__(self, name: str = "theta"):
         #: name of the angle: momentum ``Pi_<name>``; matrix entries ``R11 ... R22``

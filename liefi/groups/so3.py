@@ -16,7 +16,7 @@ class SO3(MatrixLieGroup):
 
     dim = 3
     matrix_dim = 3
-    orthogonal = True
+    orthogonal_blocks = ((0, 3),)
     algebra_names = ("Pi_1", "Pi_2", "Pi_3")
 
     def hat(self, xi):

@@ -1,13 +1,16 @@
 """The extension of a nonholonomic system, computed from its data (Section 2).
 
 For a system with momentum ``P = (mu, p_x)``, metric ``m(x)``, constraint
-vectors ``e_i(x)`` (rows of ``E``) and potential ``U(x)``:
+vectors ``e_i(x)`` (rows of ``E``), potential ``U(x)`` and vector potential
+``A(x)`` (default 0; write ``Pi = P - A(x)``, the kinetic momentum, and
+``v = m^{-1} Pi`` the velocity):
 
-* constraint momenta ``J_i = <P, e_i>``, Gram matrix
+* constraint momenta ``J_i = <Pi, e_i>`` (the constraint ``<e_i^flat, v> = 0``
+  on velocities), Gram matrix
   ``C^{li} = <e_l^flat, e_i> = (E m E^T)_{li}`` and its inverse ``C_{li}``
   (Remark ``(remark:nonhol:general)``);
-* ``h = 1/2 <P, m^{-1} P> + U`` and the extended Hamiltonian
-  ``h~ = h - 1/2 J^T C^{-1} J`` (``(def:H:tilde:general)``; with orthonormal
+* ``h = 1/2 <Pi, m^{-1} Pi> + U`` and the extended Hamiltonian
+  ``h~ = h - 1/2 J^T C^{-1} J = h(P - e^flat C^{-1} J)`` (``(def:H:tilde:general)``; with orthonormal
   ``e_i`` this is ``(def:H:tilde)``, ``(def:reduced:h:tilde)``,
   ``(def:reduced:h:tilde:QG:trivial)``);
 * multipliers ``lambda = C^{-1} {h, J}`` (``(lambda:general)``) and
@@ -18,9 +21,22 @@ vectors ``e_i(x)`` (rows of ``E``) and potential ``U(x)``:
   (``(bam:qp)``, ``(new:red:bam)``, ``(new:red:bam:QG:trivial)``), and the
   reconstruction ``g' = g . dh~/dmu``.
 
+With ``A``, ``dh/dP = v``, ``dJ_i/dP = e_i`` as before and the ``x``-gradients
+gain ``-(dA/dx)^T v`` and ``-(dA/dx)^T e_i``; the proofs that ``h~`` and ``J``
+are first integrals of the extended field (``<e_l^flat, dh~/dP> = J_l - (C C^{-1}
+J)_l = 0``) and that it equals the constrained field on ``J = 0`` (there
+``C^{-1} J = 0``) go through unchanged, since they use only these gradients.
+
 Everything is evaluated in one pass by :func:`evaluate`; every ``x``
 derivative comes from the data's complex-step (or analytic) derivatives, so
 the results are exact to rounding.  Nothing here knows any particular system.
+
+The formulas are written once, for any array type: the numpy path calls them on
+float (or complex) arrays, and the compiled engine (:mod:`liefi.engine`) calls
+the very same functions on object arrays of traced scalars to generate its
+code.  What differs between the two is only how the data are read, which a
+*data accessor* says (:class:`NumpyData` here, ``liefi.engine.trace.TracedData``
+for tracing).
 """
 
 from __future__ import annotations
@@ -28,6 +44,51 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
+from .. import _diff
+
+
+class NumpyData:
+    """How the formulas read a system's data: numbers, derivatives by complex step.
+
+    A data accessor has three methods; :func:`evaluate`, the feedback field
+    (:meth:`liefi.FeedbackIntegrator.field_parts`) and the DLA step take one as
+    ``data=``.  This one evaluates the data on float arrays; the compiled engine
+    passes one that traces them (``liefi.engine.trace.TracedData``), so both
+    backends run the same formulas.
+    """
+
+    @staticmethod
+    def value(datum, x):
+        """``datum(x)`` for a :class:`~liefi._data.DataFunction`."""
+        return datum(x)
+
+    @staticmethod
+    def value_and_derivative(datum, x):
+        """``(datum(x), d datum/dx)`` (derivative ``None`` for a constant datum)."""
+        return datum.with_derivative(x)
+
+    @staticmethod
+    def value_and_gradient(fun, z, grad=None, name=""):
+        """``(fun(z), d fun/dz)`` of a scalar function: ``grad(z)`` if given, else by complex step."""
+        if grad is not None:
+            return np.asarray(fun(z)), np.asarray(grad(z))
+        return _diff.gradient(fun, z)
+
+
+#: the accessor of the numpy path (the default everywhere)
+NUMPY_DATA = NumpyData()
+
+
+def is_traced(a) -> bool:
+    """Whether ``a`` is an array of traced scalars (object dtype): then no float casts apply."""
+    return isinstance(a, np.ndarray) and a.dtype == object
+
+
+def as_real(a):
+    """``a`` as a float array, or unchanged when it is traced (object dtype)."""
+    a = np.asarray(a)
+    return a if a.dtype == object else a.astype(float, copy=False)
 
 
 @dataclass(frozen=True)
@@ -50,14 +111,15 @@ class Terms:
 def _state(z):
     """``z`` as a float array, or kept complex (for a complex step through liefi's functions)."""
     z = np.asarray(z)
-    return z if np.iscomplexobj(z) else z.astype(float, copy=False)
+    return z if z.dtype == object or np.iscomplexobj(z) else z.astype(float, copy=False)
 
 
 def small_inverse(C):
     """Inverse of a batch of small matrices; closed forms for 1x1 and 2x2 (the common K).
 
     ``np.linalg.inv`` costs ~20 us of overhead per call, more than the rest of a
-    step of a small system; the closed forms are exact to rounding.
+    step of a small system; the closed forms are exact to rounding.  (While the
+    compiled engine traces, ``np.linalg.inv`` accepts traced matrices.)
     """
     K = C.shape[-1]
     if K == 0:
@@ -71,8 +133,16 @@ def small_inverse(C):
     return np.linalg.inv(C)
 
 
-def evaluate(system, z) -> Terms:
-    """Compute :class:`Terms` at the reduced states ``z`` (shape ``(..., nz)``)."""
+def evaluate(system, z, *, data=NUMPY_DATA) -> Terms:
+    """Compute :class:`Terms` at the reduced states ``z`` (shape ``(..., nz)``).
+
+    ``data``: the data accessor (:class:`NumpyData`, or the engine's tracing one
+    when ``z`` holds traced scalars).  The constant parts (``m^{-1}`` of a
+    constant metric, ``e_i^flat`` and ``C^{-1}`` of constant data) are the
+    system's cached :attr:`~liefi.NonholonomicSystem.metric_inverse`,
+    :attr:`~liefi.NonholonomicSystem.flat_constraints` and
+    :attr:`~liefi.NonholonomicSystem.gram_inverse`.
+    """
     sp = system.space
     n, d, D, K = sp.n, sp.d, sp.D, system.K
     z = np.asarray(z)
@@ -80,35 +150,45 @@ def evaluate(system, z) -> Terms:
         # A complex step through liefi's own functions (e.g. an Invariant built from
         # system.extended_hamiltonian): exact when the data do not depend on x; with
         # x-dependent data it would nest two complex steps, which is not exact.
-        if n and not (system.constant and system.potential.constant):
+        if n and not (
+            system.constant and system.potential.constant
+            and (system.vector_potential is None or system.vector_potential.constant)
+        ):
             raise TypeError(
                 "z: complex input (a complex step through liefi's functions) is supported "
                 "only for systems whose data do not depend on x; give the Invariant an "
                 "explicit grad= instead"
             )
-    else:
+    elif z.dtype != object:
         z = z.astype(float, copy=False)
     x, P = z[..., :n], z[..., n:]
     batch = z.shape[:-1]
 
-    m, dm = system.metric.with_derivative(x)
-    E, dE = system.constraints.with_derivative(x)
-    U, dU = system.potential.with_derivative(x)
+    m, dm = data.value_and_derivative(system.metric, x)
+    E, dE = data.value_and_derivative(system.constraints, x)
+    U, dU = data.value_and_derivative(system.potential, x)
+    # Vector potential: h = 1/2 <P - A, m^{-1}(P - A)> + U and J = <P - A, e_i>; every
+    # formula below is in the kinetic momentum Pi = P - A(x), plus the x-derivative
+    # terms -dA^T v in dh/dx and -dA^T e_i in dJ_i/dx (added where those are formed).
+    Pi, dA = P, None
+    if system.vector_potential is not None:
+        A, dA = data.value_and_derivative(system.vector_potential, x)
+        Pi = P - A
     if system.metric.constant:
-        minv = system._minv
+        minv = system.metric_inverse
     else:
         minv = small_inverse(m)
     if system.constant:
-        Eflat, Cinv = system._Eflat, system._Cinv
+        Eflat, Cinv = system.flat_constraints, system.gram_inverse
     else:
         Eflat = E @ m
         Cinv = small_inverse(Eflat @ np.swapaxes(E, -1, -2))
 
-    v = np.einsum("...ij,...j->...i", minv, P)  # dh/dP = P^sharp
-    J = np.einsum("...kj,...j->...k", E, P)
+    v = np.einsum("...ij,...j->...i", minv, Pi)  # dh/dP = (P - A)^sharp, the velocity
+    J = np.einsum("...kj,...j->...k", E, Pi)
     w = np.einsum("...kl,...l->...k", Cinv, J)  # C^{-1} J
     dht_dP = v - np.einsum("...kj,...k->...j", E, w)
-    h = 0.5 * np.einsum("...i,...i->...", P, v) + U
+    h = 0.5 * np.einsum("...i,...i->...", Pi, v) + U
     ht = h - 0.5 * np.einsum("...k,...k->...", J, w)
 
     dh_dx = np.zeros(batch + (n,))
@@ -119,12 +199,15 @@ def evaluate(system, z) -> Terms:
             dh_dx = dh_dx + dU
         if dm is not None:
             dh_dx = dh_dx - 0.5 * np.einsum("...i,...kij,...j->...k", v, dm, v)
+        if dA is not None:
+            dh_dx = dh_dx - np.einsum("...kj,...j->...k", dA, v)
+            dJ_dx = dJ_dx - np.einsum("...kj,...ij->...ki", dA, E)
         dht_dx = dh_dx
         if K:
             Et = np.swapaxes(E, -1, -2)
             dC = 0.0
             if dE is not None:
-                dJ_dx = np.einsum("...kij,...j->...ki", dE, P)
+                dJ_dx = dJ_dx + np.einsum("...kij,...j->...ki", dE, Pi)
                 dEm = dE @ m[..., None, :, :]
                 dC = dEm @ Et[..., None, :, :]
                 dC = dC + np.swapaxes(dC, -1, -2)
@@ -162,7 +245,7 @@ def _field(system, z, dH, lam, Eflat):
 
 
 def hamiltonian(system, z):
-    """The original (reduced) Hamiltonian ``h = 1/2 <P, m^{-1} P> + U``."""
+    """The original (reduced) Hamiltonian ``h = 1/2 <P - A, m^{-1} (P - A)> + U``."""
     return evaluate(system, z).h
 
 
@@ -172,7 +255,7 @@ def extended_hamiltonian(system, z):
 
 
 def constraint_momenta(system, z):
-    """``J_i = <P, e_i(x)>``, shape ``(..., K)``; the constraint set is ``J = 0``."""
+    """``J_i = <P - A(x), e_i(x)>``, shape ``(..., K)``; the constraint set is ``J = 0``."""
     return evaluate(system, z).J
 
 
@@ -234,21 +317,21 @@ def _project_with(system, z, t):
     return np.concatenate([z[..., :n], P], -1)
 
 
-def field_terms(system, z, *, kind="extended", terms=None):
+def field_terms(system, z, *, kind="extended", terms=None, data=NUMPY_DATA):
     """The reduced field and the body velocity in one pass: ``(zdot, xi, t_z)``.
 
     ``kind``: ``"extended"``, ``"constrained"`` or ``"projected"`` (the extended
     field at :func:`project` ``(z)``).  ``t_z`` are the terms *at z* (what a
     Lyapunov function needs), so a caller evaluates the system once for the
     extended field and twice for the projected one.  ``terms``: ``evaluate(system, z)``
-    if the caller already has it.
+    if the caller already has it; ``data``: the accessor passed to :func:`evaluate`.
     """
     if kind not in ("extended", "constrained", "projected"):
         raise ValueError(f"kind: expected 'extended', 'constrained' or 'projected', got {kind!r}")
-    t_z = evaluate(system, z) if terms is None else terms
+    t_z = evaluate(system, z, data=data) if terms is None else terms
     if kind == "projected":
         z_eval = _project_with(system, z, t_z)
-        t = evaluate(system, z_eval)
+        t = evaluate(system, z_eval, data=data)
     else:
         z_eval, t = z, t_z
     dH = t.dh if kind == "constrained" else t.dht
@@ -287,16 +370,16 @@ def poisson_bracket(system, z, df, dg):
     return system.space.bracket(z, df, dg)
 
 
-def full_vector_field(system, y, *, kind="extended"):
+def full_vector_field(system, y, *, kind="extended", data=NUMPY_DATA):
     """The field on ``y = (g, z)``: reconstruction of the group element plus the reduced field.
 
     ``kind`` is ``"extended"`` (``g' = g . dh~/dmu`` with the extended field),
     ``"constrained"`` (``g' = g . dh/dmu`` with the constrained field) or
-    ``"projected"``.
+    ``"projected"``.  ``data``: the accessor passed to :func:`evaluate`.
     """
     y = _state(y)
     nc = system.space.group.config_dim
     g, z = y[..., :nc], y[..., nc:]
-    zdot, xi, _ = field_terms(system, z, kind=kind)
+    zdot, xi, _ = field_terms(system, z, kind=kind, data=data)
     gdot = system.space.group.config_rate(g, xi)
     return np.concatenate([np.broadcast_to(gdot, zdot.shape[:-1] + gdot.shape[-1:]), zdot], -1)

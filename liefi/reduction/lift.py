@@ -172,8 +172,9 @@ def unreduce(system, chart, chart_jacobian, *, names=None, sample=None, check: b
 
         M(q) = B^T m(x) B, \\qquad e_i(q) = B^{-1} e_i(x), \\qquad U(q) = U(x),
 
-    so that ``H(q, p) = h(pi(q, p))``, ``<p, e_i(q)> = <P, e_i(x)>`` and the
-    Gram matrices agree, ``E_Q M E_Q^T = E m E^T``.  ``pi(q, p) = (G(s), (x,
+    and a vector potential becomes ``A(q) = B^T A(x)``, so that ``H(q, p) =
+    h(pi(q, p))``, ``<p - A(q), e_i(q)> = <P - A(x), e_i(x)>`` and the Gram
+    matrices agree, ``E_Q M E_Q^T = E m E^T``.  ``pi(q, p) = (G(s), (x,
     T^{-T} p_s, p_x))``.  By the commutative diagrams of Sections 2.2 and 2.3,
     ``pi`` maps the canonical extended field ``(bam:qp)`` (general form,
     Remark ``(remark:nonhol:general)``) of the returned system onto the
@@ -329,6 +330,22 @@ def unreduce(system, chart, chart_jacobian, *, names=None, sample=None, check: b
             x = parts(np.asarray(q, dtype=float))[1]
             return x_derivative(system.potential, x, x.shape[:-1])[1]
 
+    # --- vector potential A(q) = B^T A(x) (so that p - A(q) = B^T (P - A(x))) --------
+    vector_potential = vector_potential_derivative = None
+    if system.vector_potential is not None:
+
+        def vector_potential(q):
+            s, x = parts(q)
+            B = bmat(pi.body_jacobian(s))
+            A = np.asarray(system.vector_potential(x))
+            return np.einsum("...ak,...a->...k", B, A)
+
+        def vector_potential_derivative(q):
+            s, x = parts(np.asarray(q, dtype=float))
+            B, dB = with_dB(s)
+            A, dA = x_derivative(system.vector_potential, x, B.shape[:-2])
+            return np.einsum("...lak,...a->...lk", dB, A) + np.einsum("...ak,...la->...lk", B, dA)
+
     unreduced = NonholonomicSystem(
         CotangentBundle(D, names + tuple(space.shape_names)),
         metric,
@@ -337,6 +354,8 @@ def unreduce(system, chart, chart_jacobian, *, names=None, sample=None, check: b
         metric_derivative=metric_derivative,
         constraints_derivative=constraints_derivative if system.K else None,
         potential_gradient=potential_gradient,
+        vector_potential=vector_potential,
+        vector_potential_derivative=vector_potential_derivative,
         sample=q0,
         check=check,
     )

@@ -19,6 +19,10 @@ REGISTRY = {
     "roller-racer": "roller_racer",
     "heisenberg": "heisenberg",
     "oscillator": "oscillator",
+    "nonreversible-oscillator": "nonreversible",
+    "nonreversible-contact-oscillator": "nonreversible",
+    "nonreversible-knife-edge": "nonreversible_knife_edge",
+    "rigid-body": "rigid_body",
 }
 
 

@@ -1,0 +1,70 @@
+"""liefi's compiled engine: the library's own functions traced into scalar code and compiled.
+
+The numpy path (:meth:`liefi.FeedbackIntegrator.vector_field` ->
+:func:`liefi.reduction.core.evaluate`) is batch-first and generic, about 20
+microseconds per call whatever the system.  The engine runs *those same
+functions* once on arrays of symbols (:mod:`liefi.engine.trace`), prints the
+recorded graph as straight-line code (:mod:`liefi.engine.codegen`), loads it
+through a private, self-healing cache (:mod:`liefi.engine.cache`) and runs the
+whole fixed-step loop compiled by numba (:mod:`liefi.engine.runners`).  There
+is no second copy of any formula: a change to the core changes both backends
+(``tests/test_compiled.py`` checks this).  The kernels themselves are in
+:mod:`liefi.engine.kernels`.
+
+The compiled and numpy paths agree to ``1e-12``: the formulas are the same,
+only the order of a few floating-point sums differs.  Without numba the
+generated code still runs as plain Python (``engine="python"``, slow: for
+debugging and tests); ``FeedbackIntegrator.run(backend="numba"/"auto")`` then
+warns (:class:`CompilationWarning`) and runs the numpy path, as it does for an
+untraceable datum or group method and for any cache or compile failure.
+
+Modules
+-------
+trace    -- :class:`Sym` scalars, tracing sessions, symbolic derivatives, :class:`TracedData`
+codegen  -- straight-line source of a graph; the stepping, projection and DLA loops
+cache    -- the private kernel directory, loading, healing corrupt entries
+runners  -- :class:`CompiledField` and :class:`CompiledDLA`: running the loaded kernels
+kernels  -- what is traced (the feedback, constrained and DLA kernels) and the ``run`` hook
+"""
+
+from __future__ import annotations
+
+from .cache import KernelCacheWarning, available
+from .kernels import (
+    compile_constrained,
+    compile_dla,
+    compile_feedback,
+    dla_applies,
+    invariant_residuals,
+    parameters,
+    projection_targets,
+    run_feedback,
+)
+from .runners import CompiledDLA, CompiledField, KernelLoadError
+from .trace import CompilationWarning, NotCompilable
+
+__all__ = [
+    "available",
+    "CompilationWarning",
+    "KernelCacheWarning",
+    "KernelLoadError",
+    "NotCompilable",
+    "compile_feedback",
+    "compile_constrained",
+    "compile_dla",
+    "dla_applies",
+    "invariant_residuals",
+    "parameters",
+    "projection_targets",
+    "run_feedback",
+    "CompiledField",
+    "CompiledDLA",
+]
+
+
+def __getattr__(name):
+    if name == "NUMBA_ERROR":  # set when an import of numba failed (read live, not at import time)
+        from . import cache
+
+        return cache.NUMBA_ERROR
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

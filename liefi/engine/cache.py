@@ -1,0 +1,294 @@
+"""Loading generated kernels: a private, self-healing on-disk cache (or none).
+
+Numba caches what it compiles next to the source file (``__pycache__``), so a
+second process loads a kernel instead of compiling it.  Those cache files are
+pickles: whoever can write into the cache directory can make liefi run their
+code.  Hence:
+
+* **Private.**  The directory (``$LIEFI_CACHE_DIR``, default
+  ``$XDG_CACHE_HOME/liefi/kernels`` or ``~/.cache/liefi/kernels``) is created
+  with mode ``0700`` and used only if it is a real directory owned by this user
+  and not writable by group or others (:func:`check_private`).  Otherwise --
+  and when it cannot be created or written, e.g. on a read-only filesystem --
+  kernels go to a fresh private directory made by :func:`tempfile.mkdtemp`
+  for this process (removed at exit), or, if that fails too, are compiled in
+  memory without a disk cache.  A :class:`KernelCacheWarning` says which.
+  There is no predictable shared fallback (such as ``$TMPDIR/liefi-kernels-<uid>``).
+* **Never runs what it did not write.**  A module is executed from the text
+  liefi generated, never read back from disk; the file on disk (which numba's
+  cache is keyed on) is rewritten whenever it differs from that text, and the
+  numba cache files of a rewritten module are removed.
+* **Self-healing.**  A numba cache entry that fails to load (truncated,
+  corrupt) is removed and the kernel compiled afresh (:func:`heal`).
+
+Nothing here knows what a kernel computes.
+"""
+
+from __future__ import annotations
+
+import atexit
+import hashlib
+import os
+import shutil
+import stat
+import sys
+import tempfile
+import threading
+import time
+import warnings
+
+import numpy as np
+
+from .codegen import module_text
+
+#: numba (optional: ``liefi[fast]``), imported on first use; ``None`` once an import failed
+_numba = False
+#: why numba could not be imported (``None`` until an import failed)
+NUMBA_ERROR = None
+
+
+class KernelCacheWarning(RuntimeWarning):
+    """The kernel cache directory is not used (not private, not writable); the message says why and what instead."""
+
+
+def numba_module():
+    """The numba module, or ``None`` when it cannot be imported (the reason in :data:`NUMBA_ERROR`)."""
+    global _numba, NUMBA_ERROR
+    if _numba is False:
+        try:
+            import numba
+
+            _numba = numba
+        except Exception as exc:  # noqa: BLE001 -- any import failure means "no numba"
+            _numba = None
+            NUMBA_ERROR = f"{type(exc).__name__}: {exc}"
+    return _numba
+
+
+def available() -> bool:
+    """True when numba is importable (the compiled engine can run at full speed)."""
+    return numba_module() is not None
+
+
+# ======================================================================================
+# the directory
+# ======================================================================================
+
+
+def _uid():
+    """This process's user id (``None`` where there is none); the owner a cache directory must have."""
+    return os.getuid() if hasattr(os, "getuid") else None
+
+
+def default_cache_dir():
+    """``$LIEFI_CACHE_DIR``, else ``$XDG_CACHE_HOME/liefi/kernels``, else ``~/.cache/liefi/kernels``."""
+    d = os.environ.get("LIEFI_CACHE_DIR")
+    if d:
+        return os.path.abspath(d)
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return os.path.join(os.path.abspath(base), "liefi", "kernels")
+
+
+def check_private(path):
+    """``None`` if ``path`` is a directory owned by this user and writable by no one else, else the reason."""
+    try:
+        st = os.lstat(path)
+    except OSError as exc:
+        return f"cannot be read ({exc.strerror or exc})"
+    if stat.S_ISLNK(st.st_mode):
+        return "is a symbolic link"
+    if not stat.S_ISDIR(st.st_mode):
+        return "is not a directory"
+    uid = _uid()
+    if uid is not None and st.st_uid != uid:
+        return f"is owned by another user (uid {st.st_uid}, this process runs as uid {uid})"
+    if st.st_mode & (stat.S_IWGRP | stat.S_IWOTH):
+        return f"is writable by group or others (mode {stat.S_IMODE(st.st_mode):04o}); chmod 700 it"
+    return None
+
+
+def _make_dir(path):
+    """Create ``path`` (mode 0700) if missing; return the reason it cannot serve as a cache, or ``None``."""
+    os.makedirs(path, mode=0o700, exist_ok=True)
+    for p in (path, os.path.join(path, "__pycache__")):
+        if p != path and not os.path.lexists(p):
+            continue
+        why = check_private(p)
+        if why is not None:
+            return f"{p} {why}"
+    fd, probe = tempfile.mkstemp(dir=path, prefix=".probe")
+    os.close(fd)
+    os.remove(probe)
+    return None
+
+
+_DIRS: dict = {}
+_DIR_LOCK = threading.RLock()
+
+
+def kernel_dir():
+    """The private directory kernels are written to, or ``None`` (compile in memory).
+
+    Resolved once per process for each value of :func:`default_cache_dir`.
+    """
+    want = default_cache_dir()
+    with _DIR_LOCK:
+        if want in _DIRS:
+            return _DIRS[want]
+        try:
+            why = _make_dir(want)
+        except OSError as exc:
+            why = f"{want} cannot be created or written ({exc.strerror or exc})"
+        if why is None:
+            _DIRS[want] = want
+            return want
+        try:
+            got = tempfile.mkdtemp(prefix="liefi-kernels-")
+            atexit.register(shutil.rmtree, got, True)
+            if check_private(got) is not None:  # pragma: no cover -- mkdtemp makes it 0700 and ours
+                raise OSError("the temporary directory is not private")
+            instead = f"kernels go to the private temporary directory {got} for this process"
+        except OSError:
+            got = None
+            instead = "kernels are compiled in memory (no disk cache: every process compiles them again)"
+        warnings.warn(
+            f"liefi: the kernel cache is not used: {why}; {instead}. Set LIEFI_CACHE_DIR to a directory "
+            "of your own (mode 700) to keep compiled kernels between runs.",
+            KernelCacheWarning,
+            stacklevel=4,
+        )
+        _DIRS[want] = got
+        return got
+
+
+# ======================================================================================
+# the modules
+# ======================================================================================
+
+_MODULES: dict = {}
+_LOCK = threading.RLock()
+
+
+class Kernel:
+    """A generated module as loaded: ``module``, its ``name``, ``path`` (``None``: in memory) and ``load_seconds``."""
+
+    def __init__(self, module, name, path, text, engine, load_seconds):
+        self.module, self.name, self.path, self.text = module, name, path, text
+        self.engine, self.load_seconds = engine, load_seconds
+        self._claimed = False
+
+    def claim(self):
+        """True for the first caller only: the one whose run reports :attr:`load_seconds`."""
+        first, self._claimed = not self._claimed, True
+        return first
+
+
+def _atomic_write(path, text):
+    """Write ``text`` to ``path`` atomically (a private temporary file in the same directory, then rename)."""
+    fd, tmp = tempfile.mkstemp(dir=os.path.dirname(path), prefix=".kernel", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.remove(tmp)
+        except OSError:
+            pass
+        raise
+
+
+def _intact(path, text):
+    try:
+        with open(path) as fh:
+            return fh.read() == text
+    except (OSError, UnicodeDecodeError):
+        return False
+
+
+def purge(directory, name):
+    """Remove numba's (and Python's) cache files of the module ``name`` in ``directory``."""
+    pc = os.path.join(directory, "__pycache__")
+    try:
+        entries = os.listdir(pc)
+    except OSError:
+        return
+    for f in entries:
+        if f.startswith(name + "."):
+            try:
+                os.remove(os.path.join(pc, f))
+            except OSError:
+                pass
+
+
+def _execute(name, path, text):
+    """A new module executing ``text`` (never the file's content) with ``__file__ = path``."""
+    mod = type(sys)(name)
+    mod.__file__ = path or f"<{name}>"
+    sys.modules[name] = mod
+    exec(compile(text, mod.__file__, "exec"), mod.__dict__)  # noqa: S102 -- liefi's own generated code
+    return mod
+
+
+def load(source, engine="numba"):
+    """The :class:`Kernel` of generated ``source`` (cached per process by the hash of its text).
+
+    ``engine="numba"``: the module's file is written to :func:`kernel_dir` (so that
+    numba's on-disk cache works) or, without a usable directory, the module is
+    compiled in memory; ``engine="python"``: the generated code runs as plain
+    Python (no numba, no files).
+    """
+    if engine not in ("numba", "python"):
+        raise ValueError(f"engine: expected 'numba' or 'python', got {engine!r}")
+    nb = numba_module() if engine == "numba" else None
+    if engine == "numba" and nb is None:
+        raise RuntimeError(f"numba is not available ({NUMBA_ERROR}); install liefi[fast] or use engine='python'")
+    tag = f"{engine}-{nb.__version__ if nb else ''}-{np.__version__}"
+    key = hashlib.sha256((tag + source).encode()).hexdigest()[:32]
+    with _LOCK:
+        got = _MODULES.get(key)
+        if got is not None:
+            return got
+        t = time.perf_counter()
+        name = f"liefi_kernel_{key}"
+        directory = kernel_dir() if engine == "numba" else None
+        path = None
+        if directory is not None:
+            path = os.path.join(directory, name + ".py")
+            text = module_text(source, engine, cache=True)
+            try:
+                if not _intact(path, text):  # missing, truncated or foreign: numba's cache of it is stale too
+                    purge(directory, name)
+                    _atomic_write(path, text)
+            except OSError as exc:
+                warnings.warn(f"liefi: cannot write the kernel {path} ({exc}); compiling it in memory",
+                              KernelCacheWarning, stacklevel=3)
+                path = None
+        if path is None:
+            text = module_text(source, engine, cache=False)
+        mod = _execute(name, path, text)
+        got = Kernel(mod, name, path, text, engine, time.perf_counter() - t)
+        _MODULES[key] = got
+        return got
+
+
+def heal(kernel):
+    """Drop the on-disk numba cache of ``kernel`` and execute its module afresh (after a failed load).
+
+    Returns the new module (also stored in ``kernel.module``).
+    """
+    with _LOCK:
+        if kernel.path is not None:
+            purge(os.path.dirname(kernel.path), kernel.name)
+            if not _intact(kernel.path, kernel.text):
+                _atomic_write(kernel.path, kernel.text)
+        kernel.module = _execute(kernel.name, kernel.path, kernel.text)
+        return kernel.module
+
+
+def clear_memory():
+    """Forget the kernels loaded in this process (the next :func:`load` executes them again; for tests)."""
+    with _LOCK:
+        _MODULES.clear()
+    with _DIR_LOCK:
+        _DIRS.clear()

@@ -1,0 +1,256 @@
+r"""Gains chosen for accuracy: the feedback rate that minimizes a drift bound, per scheme, step and horizon.
+
+The feedback term ``-k_j (I_j - I_j0) grad I_j`` relaxes the residual
+``r_j = I_j - I_j0`` at the rate ``kappa_j = k_j |grad I_j|^2`` (the eigenvalue
+of ``Hess V`` along ``grad I_j`` on the invariant set).  The gain is chosen
+through the dimensionless rate ``z = dt * kappa``: the gains are
+:func:`liefi.stability.unit_rate_gains` (every invariant weighted by
+``1 / |grad I_j|^2``, the penalty by ``1/2``, largest eigenvalue of
+``Hess V`` equal to 1) times ``z / dt``.  Both factors are unit-invariant: a
+change of the units of a state variable or of an invariant changes
+``|grad I_j|^2`` and ``k_j`` together, and ``z`` is a number.
+
+Derivation
+----------
+*One step, the residual of one invariant.*  Near the invariant set the
+residual of ``I_j`` obeys, to first order, the Prothero--Robinson problem
+
+.. math:: e' = -\kappa\, e, \qquad e = y_\perp - \varphi(t),
+
+where ``y_perp`` is the state's coordinate along ``grad I_j / |grad I_j|`` and
+``varphi(t)`` the position of the level set along that (moving) normal: the
+level set turns with the motion, at the rate ``omega`` of the unforced field
+``X``, so ``varphi^{(l)} ~ omega^l`` (in units of the state).  One step of an
+explicit Runge--Kutta scheme ``(A, b, c)`` of order ``p`` from ``e_0`` gives
+(stages ``E = (I + zA)^{-1}(e_0 1 + Delta)``, ``Delta_i`` the stage defects)
+
+.. math:: e_1 = R(-z)\, e_0 + \delta(z), \qquad
+          \delta(z) = \sum_{l \ge 2} h^l \varphi^{(l)}
+          \Big[\varepsilon_l - z\, b^T (I + zA)^{-1} d_l\Big],
+
+with ``epsilon_l = b^T c^{l-1}/(l-1)! - 1/l!`` (zero for ``l <= p``: the
+scheme's own local error, ``l = p + 1``) and the stage defects
+``d_l = A c^{l-1}/(l-1)! - c^l/l!`` (not zero from ``l = 2`` on: explicit
+schemes have stage order 1).  The second term is the feedback's own
+truncation error: ``z^a (h omega)^l`` with ``a + l >= p + 1`` (the order
+conditions), i.e. for ``z ~ h omega`` it is of the scheme's order, but at
+``z = O(1)`` it is ``O(h^2)`` whatever ``p`` -- the order reduction that
+makes the drift of a feedback integrator with gains matched to the step fall
+like ``dt^2``.  With ``varphi^{(l)} ~ omega^l`` the bound per step is
+
+.. math:: \delta(z) \le \sum_{l=2}^{p+1} (h\omega)^l\,
+          \big|\varepsilon_l - z\, b^T (I + zA)^{-1} d_l\big| .
+
+*Many steps.*  Over ``N = T/h`` steps the injected ``delta`` is contracted
+by ``|R(-z)|`` per step, so the residual stays below
+
+.. math:: D(z) = \delta(z)\; \frac{1 - |R(-z)|^N}{1 - |R(-z)|}
+
+(``N delta(0)``: the linear drift of the scheme alone, at ``z = 0``), plus
+the rounding errors, a random walk ``u sqrt(sum_n |R|^{2n})`` (``u = 2^-53``
+relative): without feedback it grows like ``u sqrt(N)``, which sets the
+drift of a high-order scheme at a small step.  The
+accurate rate is ``z* = argmin D(z)`` over ``[0, beta)`` (``beta`` the real
+stability bound).  It depends on the scheme, on ``h omega`` and on ``N``
+only:
+
+* Euler (``p = 1``): ``d_2 = 0``, ``delta`` does not depend on ``z``, and
+  ``D`` is least where ``|R(-z)| = |1 - z|`` vanishes: ``z* = 1``, Bae &
+  Chang's optimal fixed gain ``alpha = 1/(h L0)`` (J. Bae and D. E. Chang,
+  "Feedback integrators revisited", arXiv:2512.01528).
+* RK4: ``epsilon_5 = 1/2880`` and the first stage-defect term is
+  ``z^3 (h omega)^2 / 96``; for ``z = x h omega``,
+  ``D ~ (h omega)^4 (1/2880 + x^3/96)/x``, least at ``x^3 = 1/60``:
+  ``kappa* ~ 0.26 omega`` -- the feedback should relax the invariants
+  *slower than the motion itself turns*, not at the step's stability limit
+  (``z ~ 1.6``, the previous automatic choice, costs a factor
+  ``~ (1.6/(h omega))^3`` in the local error).
+* Short horizons (``N |1 - R(-z)| << 1`` for every useful ``z``): the
+  contraction never acts and ``D`` grows with ``z``: ``z* = 0``, no feedback.
+
+``omega`` is the spectral radius of ``dX/dy`` (unit-invariant: eigenvalues
+survive a change of state units; it scales as 1/time), the largest over the
+states given; where it vanishes (a free motion) the horizon ``1/T`` is used.
+
+*Invariants the scheme keeps exactly* (:func:`exactly_kept`): an invariant
+with a constant gradient ``a`` that is a first integral of the field
+(``a . X(y) = 0`` for every ``y``, on and off the invariant set) and is
+orthogonal to the gradients of the other penalized invariants (so that their
+feedback does not move it) is kept to rounding by every Runge--Kutta scheme
+applied to the feedback field (``a . y_{n+1} = a . y_n + h sum b_i a . F(Y_i)``,
+``a . F = 0``); its residual stays zero, its feedback term vanishes
+identically and only costs work.  Its gain is 0 and it should be left out of
+``V`` (``invariants=`` of :class:`~liefi.FeedbackIntegrator`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .schemes import ExplicitRungeKutta, get_scheme
+from .stability import dynamics_rate, positive_number, real_stability_bound, unit_rate_gains
+
+
+#: Rounding error injected per step, relative to the state's scale (unit roundoff of float64).
+ROUNDOFF = 2.0**-53
+
+
+def _tableau(scheme):
+    sch = get_scheme(scheme)
+    if not isinstance(sch, ExplicitRungeKutta):
+        raise ValueError(
+            f"scheme: accurate gains are derived for explicit Runge-Kutta tableaux, got {scheme!r}; "
+            "use 'euler', 'heun', 'midpoint', 'rk3' or 'rk4'"
+        )
+    s = sch.stages
+    A = np.array([list(r) + [0.0] * (s - len(r)) for r in sch.A], float)
+    b = np.array(sch.b, float)
+    c = A.sum(axis=1)
+    return sch, A, b, c
+
+
+def local_defect(scheme, z, hw):
+    r"""The bound ``delta(z)`` on the residual injected per step (module docstring), for rates ``z``.
+
+    ``z``: ``dt * kappa`` (array); ``hw``: ``dt * omega``.  Returns an array
+    shaped like ``z``, in units of ``|varphi|`` (the state's scale).
+    """
+    sch, A, b, c = _tableau(scheme)
+    s = len(b)
+    p = sch.order
+    z = np.atleast_1d(np.asarray(z, float))
+    out = np.zeros(z.shape)
+    M = np.eye(s)[None] + z[:, None, None] * A[None]  # (nz, s, s)
+    for l in range(2, p + 2):
+        eps = b @ c ** (l - 1) / math.factorial(l - 1) - 1.0 / math.factorial(l)
+        d = A @ c ** (l - 1) / math.factorial(l - 1) - c**l / math.factorial(l)
+        w = np.linalg.solve(M, np.broadcast_to(d, z.shape + (s,))[..., None])[..., 0]
+        out += hw**l * np.abs(eps - z * (w @ b))
+    return out
+
+
+def drift_bound(scheme, z, hw, n_steps):
+    r"""The residual bound after ``N`` steps (module docstring), relative to the state's scale.
+
+    ``D(z) = delta(z) (1 - |R|^N)/(1 - |R|) + u sqrt((1 - |R|^{2N})/(1 - |R|^2))``,
+    ``R = R(-z)``, ``u`` = :data:`ROUNDOFF` (a random walk of rounding errors).
+    """
+    sch, A, b, c = _tableau(scheme)
+    z = np.atleast_1d(np.asarray(z, float))
+    R = np.abs(np.array([1.0 + zi * -b @ np.linalg.solve(np.eye(len(b)) + zi * A, np.ones(len(b))) for zi in z]))
+    N = float(n_steps)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        geo = np.where(np.abs(1.0 - R) < 1e-12, N, (1.0 - R**N) / (1.0 - R))
+    geo = np.where(R >= 1.0, np.maximum(geo, N), geo)
+    R2 = R * R
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        geo2 = np.where(np.abs(1.0 - R2) < 1e-12, N, (1.0 - R2**N) / (1.0 - R2))
+    geo2 = np.where(R >= 1.0, np.maximum(geo2, N), geo2)
+    return local_defect(scheme, z, hw) * geo + ROUNDOFF * np.sqrt(geo2)
+
+
+def accurate_rate(scheme, dt, omega, t_final, *, grid=4001):
+    """``z* = argmin_z D(z)`` on ``[0, 0.95 beta]`` (``z = dt * kappa``; module docstring).
+
+    ``omega``: the rate of the unforced motion (1/time); ``t_final``: the horizon.
+    Returns 0 when no feedback beats the scheme alone.
+    """
+    dt = positive_number(dt, "dt")
+    t_final = positive_number(t_final, "t_final")
+    omega = float(omega)
+    if not (omega > 0 and math.isfinite(omega)):
+        omega = 1.0 / t_final
+    beta = real_stability_bound(scheme)
+    zmax = 0.95 * (beta if math.isfinite(beta) else 2.0)
+    hw = dt * omega
+    n = max(1, int(round(t_final / dt)))
+    # a log grid resolves small rates (z ~ h omega) and a linear one the stability range
+    zs = np.unique(np.concatenate([[0.0], np.geomspace(1e-6 * min(hw, 1.0), zmax, grid)]))
+    D = drift_bound(scheme, zs, hw, n)
+    i = int(np.argmin(D))
+    # no feedback unless it buys a clear factor (the bound is a model, not a measurement)
+    return float(zs[i]) if D[i] < 0.5 * D[0] else 0.0
+
+
+def unforced_rate(fi, y=None):
+    """``omega``: spectral radius of ``dX/dy`` (the unforced field), max over the states ``y`` (default ``fi.y0``)."""
+    y = fi.y0 if y is None else np.asarray(y, float)
+    return dynamics_rate(fi, y)
+
+
+def exactly_kept(fi, scheme="rk4", y=None, *, n_samples=6, rel=1e-2, tol=1e-10):
+    """Names of the penalized invariants every Runge--Kutta scheme keeps to rounding.
+
+    An invariant qualifies when its gradient ``a`` is constant, it is a first
+    integral of the (extended) field, and the feedback of every invariant that
+    does not qualify leaves it alone (``a . grad I_k = 0``): checked at ``y``
+    (default ``fi.y0``) and ``n_samples`` states around it, off the invariant
+    set (relative perturbation ``rel``, fixed seed).  Then ``a . y`` is
+    unchanged by the whole feedback field, ``a . y_{n+1} = a . y_n`` for any
+    RK step, and its feedback term vanishes identically (module docstring).
+    A linear first integral of ``X`` alone is not enough: the energy's
+    feedback ``-k (h - h0) grad h`` moves ``a . y`` when ``a . grad h != 0``
+    (Suslov's ``J_1``, the roller racer's ``J_2``), and then its own feedback
+    is needed.  The embedding penalty (quadratic) never qualifies.
+    ``scheme`` must be a Runge--Kutta tableau.
+    """
+    _tableau(scheme)
+    y0 = fi.y0 if y is None else np.asarray(y, float)
+    y0 = np.asarray(y0, float).reshape(-1, fi.n)[0]
+    rng = np.random.default_rng(12345)
+    scale = np.maximum(np.abs(y0), 1e-3 * max(1.0, float(np.max(np.abs(y0)))))
+    Y = np.concatenate([y0[None], y0 + rel * scale * rng.standard_normal((n_samples, fi.n))])
+    jet = fi.invariant_gradients(Y)
+    X = fi.unforced_vector_field(Y)
+    norms = np.linalg.norm(jet.grad, axis=-1)  # (s, m)
+    linear = []
+    for j in range(len(jet.names)):
+        G = jet.grad[:, j, :]
+        gn = float(np.max(norms[:, j]))
+        if gn == 0.0:
+            continue
+        constant = np.max(np.abs(G - G[0])) <= tol * gn
+        xn = np.maximum(np.linalg.norm(X, axis=-1), 1e-300)
+        integral = np.max(np.abs(np.einsum("sn,sn->s", G, X)) / (gn * xn)) <= tol
+        if constant and integral:
+            linear.append(j)
+    # the other invariants' feedback must not move it: a . grad I_k = 0 for every I_k not kept
+    kept = list(linear)
+    changed = True
+    while changed:
+        changed = False
+        for j in list(kept):
+            a = jet.grad[0, j, :]
+            for k in range(len(jet.names)):
+                if k in kept:
+                    continue
+                dots = np.abs(jet.grad[:, k, :] @ a) / np.maximum(norms[:, k] * np.linalg.norm(a), 1e-300)
+                if np.max(dots) > tol:
+                    kept.remove(j)
+                    changed = True
+                    break
+    return tuple(jet.names[j] for j in kept)
+
+
+def accurate_gains(fi, dt, scheme="rk4", t_final=None, y=None) -> dict:
+    """Gains minimizing the drift bound ``D(z)`` for ``scheme``, ``dt`` and the horizon ``t_final``.
+
+    ``{name: k}`` over ``fi.invariant_names``: :func:`liefi.stability.unit_rate_gains`
+    at ``y`` (default ``fi.y0``) times ``z*/dt``, ``z* = accurate_rate(scheme, dt,
+    omega, t_final)`` with ``omega`` the unforced field's rate at ``y``
+    (module docstring); the invariants of :func:`exactly_kept` get 0.
+    ``t_final`` defaults to ``1000 dt``.  Unit-invariant.
+    """
+    dt = positive_number(dt, "dt")
+    T = 1000.0 * dt if t_final is None else positive_number(t_final, "t_final")
+    y = fi.y0 if y is None else np.asarray(y, float)
+    z = accurate_rate(scheme, dt, unforced_rate(fi, y), T)
+    gains = {k: float(v) * z / dt for k, v in unit_rate_gains(fi, y).items()}
+    for name in exactly_kept(fi, scheme, y):
+        gains[name] = 0.0
+    return gains
+
+
+__all__ = ["accurate_gains", "accurate_rate", "drift_bound", "exactly_kept", "local_defect", "unforced_rate"]

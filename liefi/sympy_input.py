@@ -1,0 +1,195 @@
+"""Systems from sympy: a Lagrangian and Pfaffian constraints, as sympy.physics.mechanics users hold them.
+
+:func:`from_sympy` reads
+
+.. math:: L(q, \\dot q) = \\tfrac12 \\dot q^T M(q) \\dot q + b(q) \\cdot \\dot q - U(q),
+          \\qquad a_i(q) \\cdot \\dot q = 0 \\quad (i = 1 \\dots K),
+
+extracts ``M = d^2 L / dqd^2``, ``b = dL/dqd (qd = 0)``, ``U = -L(qd = 0)`` and the
+rows ``a_i = d c_i / dqd``, and builds the :class:`~liefi.NonholonomicSystem` on
+``T*R^n`` with the Legendre transform ``p = M qd + b``: metric ``M``, vector
+potential ``b``, potential ``U`` and the velocity constraints ``a_i``
+(:meth:`~liefi.NonholonomicSystem.from_velocity_constraints`, which forms
+``e_i = M^{-1} a_i``), so that ``H = 1/2 (p - b).M^{-1}(p - b) + U``.  Every
+datum is lambdified to a batch-first numpy function that accepts complex input
+(sympy's numpy printer maps ``sin``, ``sqrt``, ``exp`` ... to the numpy
+ufuncs), so liefi's complex-step derivatives are exact.
+
+sympy is an optional dependency (``pip install "liefi[sympy]"``), imported only here.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["from_sympy", "NotQuadraticError", "NonlinearConstraintError"]
+
+
+class NotQuadraticError(ValueError):
+    """``L`` is not kinetic energy quadratic in the velocities plus terms linear in them plus a potential."""
+
+
+class NonlinearConstraintError(ValueError):
+    """A constraint is not linear and homogeneous in the velocities (``a(q) . qd = 0``)."""
+
+
+def _sympy():
+    try:
+        import sympy
+    except ImportError:  # pragma: no cover - depends on the environment
+        raise ImportError(
+            "liefi.from_sympy needs sympy: pip install \"liefi[sympy]\" (or pip install sympy)"
+        ) from None
+    return sympy
+
+
+def _symbols(sympy, seq, name):
+    seq = list(seq) if isinstance(seq, (list, tuple)) else None
+    if not seq:
+        raise ValueError(f"{name}: expected a non-empty list of sympy Symbols")
+    for s in seq:
+        if not isinstance(s, (sympy.Symbol, sympy.Function, sympy.Derivative)) or (
+            isinstance(s, sympy.Function) and not isinstance(s, sympy.core.function.AppliedUndef)
+        ):
+            raise ValueError(f"{name}: expected sympy Symbols (or dynamicsymbols), got {s!r}")
+    if len(set(seq)) != len(seq):
+        raise ValueError(f"{name}: the symbols must be distinct, got {seq}")
+    return seq
+
+
+def _batch_function(sympy, x_syms, exprs, shape):
+    """``(..., n) -> (..., *shape)`` numpy function of the sympy expressions (complex safe); a
+    constant array if none depends on ``x``."""
+    flat = [sympy.sympify(e) for e in exprs]
+    if not any(e.free_symbols & set(x_syms) for e in flat):
+        return np.array([complex(e).real for e in flat], float).reshape(shape)
+    f = sympy.lambdify(x_syms, flat, modules="numpy", cse=True)
+    n = len(x_syms)
+
+    def fun(x):
+        x = np.asarray(x)
+        batch = x.shape[:-1]
+        vals = [np.broadcast_to(np.asarray(v), batch) for v in f(*[x[..., i] for i in range(n)])]
+        return np.stack(vals, -1).reshape(batch + tuple(shape))
+
+    return fun
+
+
+def from_sympy(L, q, qd, constraints=(), names=None, *, scaling="unit", **kw):
+    """A :class:`~liefi.NonholonomicSystem` on ``CotangentBundle(len(q))`` from a sympy Lagrangian.
+
+    Parameters
+    ----------
+    L : sympy expression
+        The Lagrangian ``1/2 qd.M(q) qd + b(q).qd - U(q)``: quadratic in the
+        velocities, with an optional part linear in them (a vector potential:
+        gyroscopic or magnetic terms) and a potential.
+    q, qd : list of sympy Symbol
+        The coordinates and their velocities, in the same order
+        (``sympy.physics.mechanics.dynamicsymbols`` ``q(t)``, ``q(t).diff(t)`` work too).
+    constraints : sequence of sympy expressions
+        ``c_i(q, qd)``, each linear and homogeneous in ``qd``: the constraint is
+        ``c_i = a_i(q) . qd = 0``.
+    names : sequence of str, optional
+        Names of the coordinates (default ``str(q_i)``).
+    scaling : {"unit", "orthonormal", None}
+        Scaling of the constraint vectors, see
+        :meth:`~liefi.NonholonomicSystem.from_velocity_constraints`.
+    **kw
+        Passed on (``sample``, ``check`` ...).
+
+    Returns
+    -------
+    NonholonomicSystem
+        State ``(q, p)`` with ``p = M qd + b``.
+
+    Raises
+    ------
+    NotQuadraticError
+        If ``L`` is not polynomial of degree at most 2 in ``qd``.
+    NonlinearConstraintError
+        If a constraint is not linear and homogeneous in ``qd``.
+    ValueError
+        For symbols other than ``q`` and ``qd`` in the expressions (substitute numbers
+        for parameters), or data liefi refuses (an indefinite ``M``, dependent rows).
+    """
+    sympy = _sympy()
+    from .phase_space import CotangentBundle
+    from .system import NonholonomicSystem
+
+    q = _symbols(sympy, q, "q")
+    qd = _symbols(sympy, qd, "qd")
+    n = len(q)
+    if len(qd) != n:
+        raise ValueError(f"qd: expected {n} velocities (one per coordinate in q), got {len(qd)}")
+    # plain symbols for the coordinates and velocities (dynamicsymbols: velocities first)
+    X = [sympy.Dummy(f"x{i}") for i in range(n)]
+    V = [sympy.Dummy(f"v{i}") for i in range(n)]
+    to_plain = dict(zip(qd, V))
+    to_plain_q = dict(zip(q, X))
+
+    def plain(expr, what):
+        try:
+            e = sympy.sympify(expr)
+        except (sympy.SympifyError, TypeError) as exc:
+            raise ValueError(f"{what}: not a sympy expression ({exc})") from None
+        e = e.xreplace(to_plain).xreplace(to_plain_q)
+        extra = e.free_symbols - set(X) - set(V)
+        if extra:
+            raise ValueError(
+                f"{what}: contains symbols {sorted(map(str, extra))} that are neither in q nor in qd; "
+                "substitute numbers for the parameters (expr.subs({...})) first"
+            )
+        return e
+
+    Lp = plain(L, "L")
+    try:
+        poly = sympy.Poly(sympy.expand(Lp), *V)
+    except sympy.PolynomialError as exc:
+        raise NotQuadraticError(
+            f"L: not a polynomial in the velocities qd ({exc}); liefi needs a kinetic energy "
+            "quadratic in qd, plus terms linear in qd, plus a potential"
+        ) from None
+    if poly.total_degree() > 2:
+        raise NotQuadraticError(
+            f"L: of degree {poly.total_degree()} in the velocities qd; liefi needs a kinetic energy "
+            "quadratic in qd (1/2 qd.M(q) qd), plus terms linear in qd, plus a potential"
+        )
+    zero = {v: 0 for v in V}
+    M = [[sympy.diff(Lp, V[i], V[j]) for j in range(n)] for i in range(n)]
+    b = [sympy.diff(Lp, V[i]).xreplace(zero) for i in range(n)]
+    U = -Lp.xreplace(zero)
+
+    rows = []
+    for k, c in enumerate(constraints):
+        cp = plain(c, f"constraints[{k}]")
+        try:
+            cpoly = sympy.Poly(sympy.expand(cp), *V)
+        except sympy.PolynomialError:
+            cpoly = None
+        if cpoly is None or cpoly.total_degree() > 1:
+            raise NonlinearConstraintError(
+                f"constraints[{k}]: {c} is not linear in the velocities qd; liefi treats linear "
+                "nonholonomic constraints a(q) . qd = 0"
+            )
+        if sympy.simplify(cp.xreplace(zero)) != 0:
+            raise NonlinearConstraintError(
+                f"constraints[{k}]: {c} has a term without velocities (affine constraint); liefi "
+                "treats linear homogeneous constraints a(q) . qd = 0"
+            )
+        rows.append([sympy.diff(cp, V[j]) for j in range(n)])
+
+    metric = _batch_function(sympy, X, [e for row in M for e in row], (n, n))
+    potential = None if sympy.simplify(U) == 0 else _batch_function(sympy, X, [U], ())
+    vector_potential = None
+    if any(sympy.simplify(e) != 0 for e in b):
+        vector_potential = _batch_function(sympy, X, b, (n,))
+    if names is None:
+        names = tuple(str(s.func) if isinstance(s, sympy.core.function.AppliedUndef) else str(s) for s in q)
+    space = CotangentBundle(n, names=names)
+    if not rows:
+        return NonholonomicSystem(space, metric, None, potential, vector_potential=vector_potential, **kw)
+    A = _batch_function(sympy, X, [e for row in rows for e in row], (len(rows), n))
+    return NonholonomicSystem.from_velocity_constraints(
+        space, metric, A, potential, scaling=scaling, vector_potential=vector_potential, **kw
+    )
