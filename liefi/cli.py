@@ -8,7 +8,7 @@
                     [--gains K | --gains K1,K2,... | --gains name=K,...] [--variant NAME]
                     [--configuration] [--save-every N] [--no-check-stability] [--adaptive]
                     [--json] [--out FILE.png|DIR]
-    liefi reproduce [--out DIR] [--only SCENE[,SCENE]] [--t-final-scale S] [--jobs N]
+    liefi reproduce [--out DIR] [--only SCENE[,SCENE] | --all] [--t-final-scale S] [--jobs N]
     liefi stability SCENE [--scheme S] [--gains K1,K2,...] [--out FILE.png] [--estimate] [--json]
     liefi bench SCENE|all [--t-final T] [--out DIR] [--scheduler ADDR] [--quick] [--long-horizon T]
 
@@ -292,7 +292,8 @@ def cmd_reproduce(args):
 
     plotting.require_matplotlib()  # the figures are the point: fail before any work
     try:
-        summary = reproduce.reproduce(args.out, only=only, t_final_scale=args.t_final_scale, jobs=args.jobs)
+        summary = reproduce.reproduce(args.out, only=only, t_final_scale=args.t_final_scale, jobs=args.jobs,
+                                      all_scenes=args.all)
     except reproduce.OutputError as exc:
         raise UsageError(str(exc)) from None
     print(reproduce.markdown_table(summary))
@@ -403,6 +404,8 @@ def build_parser():
     )
     pp.add_argument("--out", default="./liefi-out", metavar="DIR", help="output directory (default ./liefi-out)")
     pp.add_argument("--only", default=None, metavar="SCENE[,SCENE]", help="run only these scenes")
+    pp.add_argument("--all", action="store_true",
+                    help="also the scenes beyond the paper (default: the paper's experiments only)")
     pp.add_argument("--t-final-scale", type=float, default=1.0, dest="t_final_scale", metavar="S",
                     help="(for tests) multiply every horizon by S, e.g. 0.01 for a quick smoke run")
     pp.add_argument("--jobs", type=_positive_int("jobs"), default=None, metavar="N",

@@ -1,6 +1,7 @@
 """``liefi reproduce``: every experiment of the paper's Section 3, its figures and a summary.
 
-What runs: every scene and every variant of :data:`liefi.scenes.REGISTRY`, each
+What runs: every scene of the paper (``Scene.in_paper``; ``all_scenes``: every
+scene of :data:`liefi.scenes.REGISTRY`) and every variant, each
 with the runs the scene asks for (:meth:`liefi.scenes.Scene.paper_runs`: by
 default one run at the paper's ``dt``, ``t_final``, scheme and gains, the
 configuration included when the scene's figures need it).  A run that does not
@@ -332,15 +333,29 @@ def _ignore_sigint():
 # --------------------------------------------------------------------------------------
 # everything
 # --------------------------------------------------------------------------------------
-def reproduce(out="./liefi-out", *, only=None, t_final_scale=1.0, jobs=None):
+def paper_scenes():
+    """The names of the scenes that are the paper's experiments (``Scene.in_paper``), in order."""
+    out = []
+    for n in _scenes.names():
+        try:
+            if not getattr(_scenes.get(n), "in_paper", True):
+                continue
+        except Exception:  # noqa: BLE001 - a scene that does not load is reported by its job
+            pass
+        out.append(n)
+    return out
+
+
+def reproduce(out="./liefi-out", *, only=None, t_final_scale=1.0, jobs=None, all_scenes=False):
     """Run the paper's experiments, write figures and ``summary.{md,json}`` to ``out``.
 
-    ``out`` is checked first (:func:`prepare_output`).  ``jobs``: worker processes
+    The scenes are ``only``, else the paper's (:func:`paper_scenes`; every registered
+    scene with ``all_scenes``).  ``out`` is checked first (:func:`prepare_output`).  ``jobs``: worker processes
     for independent scenes (default: the number of CPUs, at most the number of
     scenes; 1 runs everything in this process).  Returns the summary dict
     (``runs``, ``failures``, ``figures``, ``wall_seconds``, ``interrupted``, ...).
     """
-    names = list(only or _scenes.names())
+    names = list(only or (_scenes.names() if all_scenes else paper_scenes()))
     jobs = _jobs(jobs, len(names))
     output = prepare_output(out)
     scale = float(t_final_scale)

@@ -138,6 +138,16 @@ def test_dense_reference_agrees_with_a_direct_solve(monkeypatch):
         sc.reference_solution(v, 3.0)(np.array([5.0]))
 
 
+def test_reproduce_runs_the_papers_scenes_by_default():
+    from liefi import reproduce
+
+    paper = reproduce.paper_scenes()
+    assert paper[:8] == ["suslov", "knife-edge", "chaplygin", "chaplygin-so2", "vertical-disk", "roller-racer",
+                         "heisenberg", "oscillator"]
+    assert all(scenes.get(n).in_paper for n in paper)
+    assert [n for n in scenes.names() if n not in paper] == [n for n in scenes.names() if not scenes.get(n).in_paper]
+
+
 def test_stability_cases_are_scene_data():
     assert scenes.get("roller-racer").stability_cases == ("near-singular",)
     assert scenes.get("heisenberg").stability_cases == ("far from origin",)

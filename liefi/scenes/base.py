@@ -163,6 +163,8 @@ class Scene:
     error_variables: tuple = ()
     #: schemes besides liefi's RK tableaux and ``scipy:METHOD`` this scene supports
     extra_schemes: tuple = ()
+    #: one of the paper's experiments: ``liefi reproduce`` runs it (others: ``--only`` or ``--all``)
+    in_paper: bool = True
     #: the scene's figures need the group element integrated (e.g. ``||R^T R - I||``)
     figures_need_configuration: bool = False
     #: tolerances of the numerical reference (DOP853 on the constrained field)
