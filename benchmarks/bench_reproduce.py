@@ -31,7 +31,7 @@ def _compiled_dla():
     """Make the oscillator scene's ``run_extra("dla")`` step with the compiled DLA kernel."""
     import numpy as np
 
-    from liefi import compiled, scenes
+    from liefi import engine, scenes
     from liefi.dla import DLAIntegrator
 
     sc = scenes.get("oscillator")
@@ -39,12 +39,12 @@ def _compiled_dla():
     orig = cls.run_extra
 
     def run_extra(self, scheme, variant, dt, T, save_every, fi):
-        if scheme != "dla" or not compiled.available():
+        if scheme != "dla" or not engine.available():
             return orig(self, scheme, variant, dt, T, save_every, fi)
         n = self.system.space.n
         y0 = np.asarray(self.initial_state(variant), float)
         q0, q1 = DLAIntegrator.from_system(self.system).initial_pair(y0[:n], y0[n:], dt)
-        t, q, p, cpu, updates = compiled.compile_dla(self.system).run(q0, q1, dt, int(round(T / dt)), save_every=save_every)
+        t, q, p, cpu, updates = engine.compile_dla(self.system).run(q0, q1, dt, int(round(T / dt)), save_every=save_every)
         return t, np.concatenate([q, p], 0), self.system.state_names, cpu, updates, updates
 
     cls.run_extra = run_extra
@@ -57,7 +57,7 @@ def main(argv=None):
     ap.add_argument("--out", default=None)
     ap.add_argument("--only", default=None)
     ap.add_argument("--compiled-dla", action="store_true", dest="compiled_dla",
-                    help="step the oscillator's DLA runs with liefi.compiled.compile_dla (the wiring proposed "
+                    help="step the oscillator's DLA runs with liefi.engine.compile_dla (the wiring proposed "
                          "for OscillatorScene.run_extra) instead of liefi.dla's numpy loop")
     a = ap.parse_args(argv)
     if not a.warm:

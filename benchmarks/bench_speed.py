@@ -46,7 +46,7 @@ sys.path.insert(0, HERE)
 import numba  # noqa: E402
 
 import hand_kernels  # noqa: E402
-from liefi import FeedbackIntegrator, compiled, scenes  # noqa: E402
+from liefi import FeedbackIntegrator, engine, scenes  # noqa: E402
 from liefi.schemes import integrate  # noqa: E402
 
 CASES = (("suslov", True), ("knife-edge", False), ("roller-racer", False))
@@ -88,15 +88,15 @@ def single(name, configuration, n_steps, repeat, rng):
     w = time.perf_counter()
     fi.run(dt, dt, "euler", backend="numba", check_stability=False)
     setup = time.perf_counter() - w
-    cf = compiled.compile_feedback(fi)
+    cf = engine.compile_feedback(fi)
     compile_s = sum(cf.compile_seconds.values())
     # the user-facing loop: FeedbackIntegrator.run with its default stability guard (segments + monitor)
     t_liefi, sol = _best(lambda: fi.run(dt, n_steps * dt, "euler", save_every=n_steps, backend="numba"), repeat)
     # without the stability guard (its fixed per-run costs remain: see the printed note)
     t_bare, _ = _best(lambda: fi.run(dt, n_steps * dt, "euler", save_every=n_steps, backend="numba",
                                      check_stability=False), repeat)
-    # the engine alone: liefi.compiled's loop, what FeedbackIntegrator.run calls
-    p = compiled.parameters(fi)
+    # the engine alone: liefi.engine's loop, what FeedbackIntegrator.run calls
+    p = engine.parameters(fi)
     t_engine, _ = _best(lambda: cf.run(fi.y0, p, dt, n_steps, "euler", save_every=n_steps), repeat)
     # hand kernel
     w = time.perf_counter()
@@ -213,7 +213,7 @@ def main(argv=None):
               f"{r['ratio_liefi_over_hand']:8.2f} {r['ratio_unguarded_over_hand']:9.2f} {r['ratio_engine_over_hand']:8.2f} "
               f"{r['liefi_setup_seconds']:6.2f}s {r['hand_vs_liefi_field_max_rel']:10.1e}")
     print("\nrun(): FeedbackIntegrator.run(backend='numba') as a user calls it, the stability guard of liefi.stability"
-          " on (default);\nno guard: run(..., check_stability=False); engine: liefi.compiled's loop alone"
+          " on (default);\nno guard: run(..., check_stability=False); engine: liefi.engine's loop alone"
           " (CompiledField.run, what run() calls).\nThe differences are fixed per-run costs of the guard (a pilot"
           " estimate of Hess V, the scheme's optimal rate), not per-step costs.\n"
           "setup: first call in this process (trace + generate + numba compile, or load numba's on-disk cache);"

@@ -62,7 +62,7 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 
-from liefi import bench, compiled, scenes  # noqa: E402
+from liefi import bench, engine, scenes  # noqa: E402
 from liefi.stability import auto_gains  # noqa: E402
 from liefi.schemes import IntegrationError  # noqa: E402
 
@@ -125,9 +125,9 @@ def run_fi(sc, v, scheme, dt, T, gains, n_save):
         if gains == "auto":
             fi = fi.with_gains(auto_gains(fi, dt, scheme, y=fi.y0, t_final=T))
         n = int(round(T / dt))
-        cf = compiled.compile_feedback(fi)
+        cf = engine.compile_feedback(fi)
         cf.warmup(scheme)
-        sol = cf.run(fi.y0, compiled.parameters(fi), dt, n, scheme, save_every=max(1, n // n_save), names=fi.names)
+        sol = cf.run(fi.y0, engine.parameters(fi), dt, n, scheme, save_every=max(1, n // n_save), names=fi.names)
         out.update(t=sol.t, y=sol.y, cpu_seconds=sol.cpu_seconds, rhs_evaluations=sol.rhs_evaluations)
         if gains == "auto":
             out["message"] = "gains " + ", ".join(f"{k}={x:.3g}" for k, x in fi.gains.items())

@@ -54,7 +54,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 
-from liefi import compiled, scenes  # noqa: E402
+from liefi import engine, scenes  # noqa: E402
 from liefi.gains import accurate_gains  # noqa: E402
 from liefi.scenes.rigid_body import splitting  # noqa: E402
 from liefi.stability import auto_gains, stiffness  # noqa: E402
@@ -103,10 +103,10 @@ def run_fi(fi, gains, h, n, se, scheme, cache):
     """One compiled FI run with fixed gains; returns ``(Y, cpu, rhs)``."""
     key = id(fi)
     if key not in cache:
-        cache[key] = compiled.compile_feedback(fi)
+        cache[key] = engine.compile_feedback(fi)
     cf = cache[key]
     cf.warmup(scheme)
-    p = compiled.parameters(fi, gains)
+    p = engine.parameters(fi, gains)
     sol = cf.run(fi.y0, p, h, n, scheme, save_every=se, names=fi.names)
     return sol.y, sol.cpu_seconds, sol.rhs_evaluations
 
@@ -115,7 +115,7 @@ def run_adaptive(fi, h, n, se, cache):
     """Bae & Chang's periodic adaptive gain with Euler: segments of :data:`PERIOD` time units."""
     key = id(fi)
     if key not in cache:
-        cache[key] = compiled.compile_feedback(fi)
+        cache[key] = engine.compile_feedback(fi)
     cf = cache[key]
     cf.warmup("euler")
     seg = int(round(PERIOD / h))
@@ -126,7 +126,7 @@ def run_adaptive(fi, h, n, se, cache):
         m = min(seg, n - done)
         L = SAFETY * float(hess_frobenius(fi, y))
         gains = {k: v / (h * L) for k, v in fi.gains.items()}
-        sol = cf.run(y, compiled.parameters(fi, gains), h, m, "euler", save_every=se, names=fi.names)
+        sol = cf.run(y, engine.parameters(fi, gains), h, m, "euler", save_every=se, names=fi.names)
         out.append(sol.y[:, 1:])
         cpu += sol.cpu_seconds
         rhs += sol.rhs_evaluations
@@ -151,7 +151,7 @@ def main(argv=None):
         with open(a.table) as f:
             print(table(json.load(f)["rows"]), end="")
         return None
-    if not compiled.available():
+    if not engine.available():
         sys.exit("this benchmark needs numba")
     warnings.simplefilter("ignore")
     os.makedirs(a.out, exist_ok=True)
@@ -169,9 +169,9 @@ def main(argv=None):
     from scipy.integrate import solve_ivp
 
     zero = {k: 0.0 for k in fi.gains}
-    free = compiled.compile_feedback(fi, feedback=False)
+    free = engine.compile_feedback(fi, feedback=False)
     t_eval = np.linspace(0.0, T, a.n_save + 1)
-    sol = solve_ivp(free.fun(compiled.parameters(fi)), (0.0, T), fi.y0, method="DOP853", t_eval=t_eval,
+    sol = solve_ivp(free.fun(engine.parameters(fi)), (0.0, T), fi.y0, method="DOP853", t_eval=t_eval,
                     rtol=1e-13, atol=1e-13)
     Yref = sol.y
     n, se = steps(a.h_ref)
@@ -212,10 +212,10 @@ def main(argv=None):
                     Y, cpu, rhs = run_fi(fi, zero, h, n, se, "rk4", cache)
                 elif meth == "projected RK4":
                     if proj is None:
-                        proj = compiled.compile_constrained(fi, projection=True)
+                        proj = engine.compile_constrained(fi, projection=True)
                         proj.warmup("rk4", project=True)
                     sol = proj.run(fi.y0, np.zeros(0), h, n, "rk4", save_every=se, names=fi.names,
-                                   project=compiled.projection_targets(fi))
+                                   project=engine.projection_targets(fi))
                     Y, cpu, rhs = sol.y, sol.cpu_seconds, sol.rhs_evaluations
                 else:
                     _, Y, cpu = splitting(fi.y0[:9], fi.y0[9:], sc.inertia, h, n, se)

@@ -600,9 +600,9 @@ class FeedbackIntegrator:
 
         ``backend``: ``"numpy"`` (default, the reference implementation),
         ``"numba"`` or ``"auto"``: the same field generated as scalar code from
-        the system's data and the whole loop compiled (:mod:`liefi.compiled`;
+        the system's data and the whole loop compiled (:mod:`liefi.engine`;
         agrees with numpy to 1e-12).  When numba is missing or a datum cannot
-        be traced, a :class:`liefi.compiled.CompilationWarning` says so and the
+        be traced, a :class:`liefi.engine.CompilationWarning` says so and the
         numpy path runs.
 
         ``scheme``: a tableau of :mod:`liefi.schemes` (``"euler"``, ``"rk4"``, ...)

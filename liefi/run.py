@@ -11,7 +11,7 @@ scheme of the registry (:mod:`liefi.schemes.registry`), it
    and the expected time, from the measured cost of one step;
 3. asks the stability guard (:class:`liefi.guard.Guard`, a policy) for the
    starting gains and the pre-run checks, then runs in segments on the chosen
-   backend (numpy, or the compiled engine :func:`liefi.compiled.run_feedback`),
+   backend (numpy, or the compiled engine :func:`liefi.engine.run_feedback`),
    consulting the guard between segments and auditing the saved states after;
 4. shows progress on stderr for runs expected to take more than
    :data:`PROGRESS_SECONDS` (``tqdm`` when installed, ``liefi[progress]``; a
@@ -192,7 +192,7 @@ def _segment_runner(sch, dt, backend, names):
     def run(fi_cur, y, n, s0, save_every, check_every, out=None):
         t0 = s0 * dt
         if state["backend"] != "numpy":
-            from .compiled import run_feedback
+            from .engine import run_feedback
 
             try:
                 sol = run_feedback(fi_cur, dt, n, sch, y, save_every, check_every, state["backend"])

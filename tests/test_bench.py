@@ -22,10 +22,10 @@ from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 import numpy as np
 import pytest
 
-from liefi import bench, compiled, scenes
+from liefi import bench, engine, scenes
 from liefi.sweep import ResultStore, SweepInterrupted, TaskError, open_executor, run_sweep
 
-pytestmark = pytest.mark.skipif(not compiled.available(), reason="the work-precision harness runs compiled kernels")
+pytestmark = pytest.mark.skipif(not engine.available(), reason="the work-precision harness runs compiled kernels")
 
 #: one small grid: the Suslov problem with R, Euler and RK45, every method family
 SMALL = dict(t_final=0.5, dts=[5e-3], rtols=[1e-6], schemes=("euler",), ivp_methods=("RK45",), n_save=10)

@@ -5,7 +5,7 @@ import warnings
 import numpy as np
 import pytest
 
-from liefi import compiled, scenes
+from liefi import engine, scenes
 from liefi.scenes.rigid_body import splitting
 
 SC = scenes.get("rigid-body")
@@ -59,7 +59,7 @@ def test_scene_runs_splitting_and_projected_rk4():
     r = SC.run(scheme="splitting", dt=1e-2, t_final=5.0)
     assert r.max_drift["casimir"] < 1e-12 and r.max_drift["orthogonality"] < 1e-12
     assert max(r.max_error.values()) < 1e-3
-    if not compiled.available():
+    if not engine.available():
         pytest.skip("projected-rk4 needs numba")
     r = SC.run(scheme="projected-rk4", dt=1e-2, t_final=5.0)
     assert max(r.max_drift.values()) < 1e-12

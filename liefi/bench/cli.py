@@ -13,7 +13,7 @@ import math
 import os
 import sys
 
-from .. import compiled as _compiled
+from .. import engine as _engine
 from .. import scenes as _scenes
 from ..sweep import ResultStore, SweepInterrupted, TaskError
 from .core import (FI_GAINS, FIXED_SCHEMES, IVP_METHODS, METHODS, STORE, applicable_methods, build_tasks,
@@ -152,8 +152,8 @@ def run_from_args(args, log=None):
     gains = _gains(getattr(args, "gains", None))
     os.makedirs(args.out, exist_ok=True)  # outputs checked before any work
     ResultStore(os.path.join(args.out, STORE)).close()
-    if not _compiled.available():
-        log(f"liefi bench: numba is not available ({_compiled.NUMBA_ERROR}); the generated code runs as plain "
+    if not _engine.available():
+        log(f"liefi bench: numba is not available ({_engine.NUMBA_ERROR}); the generated code runs as plain "
             "Python, orders of magnitude slower. Install it with `pip install liefi[fast]`.")
     expected, errors = {}, 0
     try:

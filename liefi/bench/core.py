@@ -39,7 +39,7 @@ each peer at matched cost.
 
 How the runs are made comparable
 --------------------------------
-* Every field is the same generated, compiled code (:mod:`liefi.compiled`):
+* Every field is the same generated, compiled code (:mod:`liefi.engine`):
   fixed-step schemes, the projection and the DLA scheme run entirely compiled; ``solve_ivp``
   calls the compiled right-hand side from its Python loop, which is what a
   scipy user with generated code (PyDy's Cython output) gets.  Compilation and
@@ -77,7 +77,7 @@ import time
 
 import numpy as np
 
-from .. import compiled as _compiled
+from .. import engine as _engine
 from .. import scenes as _scenes
 from ..sweep import ResultStore, SweepInterrupted, TaskError, run_sweep
 
@@ -108,7 +108,7 @@ def default_grid(scene, t_final, quick=False):
 def applicable_methods(scene):
     """The method families that apply to ``scene`` (DLA only on ``T*R^n`` with a constant metric)."""
     out = list(METHODS)
-    if not _compiled.dla_applies(scene.system):
+    if not _engine.dla_applies(scene.system):
         out.remove("DLA")
     return out
 
@@ -184,15 +184,15 @@ def run_task(task):
         if method in ("FI", "FI-tuned", "FI-accurate", "no-feedback", "projection"):
             n, se = _steps(T, task["dt"], task["n_save"])
             if method == "projection":
-                cf = _compiled.compile_constrained(fi, projection=True)
-                p, proj = np.zeros(0), _compiled.projection_targets(fi)
+                cf = _engine.compile_constrained(fi, projection=True)
+                p, proj = np.zeros(0), _engine.projection_targets(fi)
             elif method == "FI-tuned":
                 from ..stability import auto_gains
 
                 fi = fi.with_gains(auto_gains(fi, task["dt"], scheme, y=fi.y0, t_final=T))
                 out["message"] = "gains " + ", ".join(f"{k}={v:.3g}" for k, v in fi.gains.items())
-                cf = _compiled.compile_feedback(fi)
-                p, proj = _compiled.parameters(fi), None
+                cf = _engine.compile_feedback(fi)
+                p, proj = _engine.parameters(fi), None
             elif method == "FI-accurate":
                 from ..gains import accurate_gains, exactly_kept
 
@@ -205,13 +205,13 @@ def run_task(task):
                                message=f"accurate gains are zero on {zero or list(g)}: that is the no-feedback method")
                     return out
                 fi = fi.with_gains(g)
-                cf = _compiled.compile_feedback(fi)
-                p, proj = _compiled.parameters(fi), None
+                cf = _engine.compile_feedback(fi)
+                p, proj = _engine.parameters(fi), None
             else:
                 if method == "FI" and task.get("gain") is not None:
                     fi = fi.with_gains(task["gain"])
-                cf = _compiled.compile_feedback(fi, feedback=method == "FI")
-                p, proj = _compiled.parameters(fi), None
+                cf = _engine.compile_feedback(fi, feedback=method == "FI")
+                p, proj = _engine.parameters(fi), None
             cf.warmup(scheme, project=proj is not None)
             out["compile_seconds"] = time.perf_counter() - w
             sol = cf.run(fi.y0, p, task["dt"], n, scheme, save_every=se, names=fi.names, project=proj)
@@ -219,10 +219,10 @@ def run_task(task):
                        projection_evaluations=getattr(sol, "projection_evaluations", 0))
         elif method in ("FI/solve_ivp", "constrained"):
             if method == "FI/solve_ivp":
-                cf = _compiled.compile_feedback(fi)
-                fun = cf.fun(_compiled.parameters(fi))
+                cf = _engine.compile_feedback(fi)
+                fun = cf.fun(_engine.parameters(fi))
             else:
-                cf = _compiled.compile_constrained(fi)
+                cf = _engine.compile_constrained(fi)
                 fun = cf.fun(np.zeros(0))
             out["compile_seconds"] = time.perf_counter() - w
             t_eval = np.linspace(0.0, T, task["n_save"] + 1)
@@ -243,7 +243,7 @@ def run_task(task):
 
             sys_ = sc.system
             n, se = _steps(T, task["dt"], task["n_save"])
-            cd = _compiled.compile_dla(sys_)
+            cd = _engine.compile_dla(sys_)
             M = sys_.metric.value
             dla = DLAIntegrator(
                 M, None if sys_.potential.constant else sys_.potential.fun,
@@ -260,7 +260,7 @@ def run_task(task):
             raise ValueError(f"method: unknown {method!r}")
     except (IntegrationError, FloatingPointError) as exc:
         out.update(status="diverged", message=" ".join(str(exc).split())[:300])
-    except _compiled.NotCompilable as exc:
+    except _engine.NotCompilable as exc:
         out.update(status="not-applicable", message=str(exc)[:300])
     except (ArithmeticError, ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
         out.update(status="failed", message=f"{type(exc).__name__}: " + " ".join(str(exc).split())[:300])
@@ -285,7 +285,7 @@ def reference(scene, variant, fi, t_final):
         return lambda t: sc.exact(np.asarray(t, float), v)
     from scipy.integrate import solve_ivp
 
-    cf = _compiled.compile_constrained(fi)
+    cf = _engine.compile_constrained(fi)
     sol = solve_ivp(cf.fun(np.zeros(0)), (0.0, float(t_final)), fi.y0, method="DOP853", rtol=1e-12, atol=1e-12,
                     dense_output=True)
     if not sol.success:

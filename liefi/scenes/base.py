@@ -257,7 +257,7 @@ class Scene:
         on the scene by the start (variants that share a start, e.g. ones that only
         change ``V``, share it) and reused for every horizon up to the longest
         computed; ask for the longest horizon first to integrate once.  The field is
-        the compiled one (:mod:`liefi.compiled`) unless ``backend="numpy"`` or numba
+        the compiled one (:mod:`liefi.engine`) unless ``backend="numpy"`` or numba
         is missing; the seconds spent are added to ``reference_seconds``.
         """
         v = self.variant(variant) if not isinstance(variant, Variant) else variant
@@ -304,10 +304,10 @@ class Scene:
         if importlib.util.find_spec("numba") is None:
             return numpy_field
         try:
-            from .. import compiled
+            from .. import engine
 
             fi = self.integrator(v, configuration=True)
-            return compiled.compile_constrained(fi).fun(np.zeros(0))
+            return engine.compile_constrained(fi).fun(np.zeros(0))
         except Exception as exc:  # noqa: BLE001 - the numpy field is the reference; say why it is used
             import warnings
 
@@ -378,7 +378,7 @@ class Scene:
         ``dt`` and the Hessian of ``V`` and adapted along the run.
         ``check_stability`` and ``adaptive`` are passed to
         :meth:`liefi.FeedbackIntegrator.run` (:mod:`liefi.stability`).
-        ``backend``: ``"numpy"``, ``"numba"`` or ``"auto"`` (:mod:`liefi.compiled`);
+        ``backend``: ``"numpy"``, ``"numba"`` or ``"auto"`` (:mod:`liefi.engine`);
         default ``"auto"`` when numba is installed (``liefi[fast]``), else ``"numpy"``.
         """
         import importlib.util

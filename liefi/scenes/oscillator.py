@@ -148,9 +148,9 @@ class Oscillator(Scene):
 
         if importlib.util.find_spec("numba") is not None:
             # the same DLA step generated from the data and compiled (bitwise equal to liefi.dla)
-            from .. import compiled
+            from .. import engine
 
-            t, q, p, cpu, updates = compiled.compile_dla(self.system).run(q0, q1, dt, n_steps, save_every=save_every)
+            t, q, p, cpu, updates = engine.compile_dla(self.system).run(q0, q1, dt, n_steps, save_every=save_every)
             return t, np.concatenate([q, p], 0), self.system.state_names, cpu, updates, updates
         start = time.process_time()
         res = dla.run(q0, q1, dt, n_steps, save_every)

@@ -33,7 +33,7 @@ Extra schemes:
   the peer's "Strang splitting".
 * ``"projected-rk4"``: classical RK4 on the free field, each step followed by
   liefi's projection onto ``{R^T R = I, h = h0, C = C0}``
-  (:func:`liefi.compiled.compile_constrained`, Newton along the invariants'
+  (:func:`liefi.engine.compile_constrained`, Newton along the invariants'
   gradients): needs numba.
 """
 
@@ -57,7 +57,7 @@ def _casimir(z):
 
 
 def _casimir_grad(z):
-    """``grad C = Pi`` (traceable by :mod:`liefi.compiled`)."""
+    """``grad C = Pi`` (traceable by :mod:`liefi.engine`)."""
     return np.stack([z[..., 0], z[..., 1], z[..., 2]], -1)
 
 
@@ -175,9 +175,9 @@ class RigidBody(Scene):
         The same reference as :meth:`Scene.numerical_reference` (``K = 0``: the
         constrained field is the free one), 10-20 times cheaper over ``[0, 1000]``.
         """
-        from .. import compiled
+        from .. import engine
 
-        if not compiled.available():
+        if not engine.available():
             return self.numerical_reference(t, variant)
         from scipy.integrate import solve_ivp
 
@@ -185,8 +185,8 @@ class RigidBody(Scene):
         cache = self.__dict__.setdefault("_refcache", {})
         if key not in cache:
             fi = self.integrator(variant, configuration=True)
-            cf = compiled.compile_feedback(fi)
-            fun = cf.fun(compiled.parameters(fi, {k: 0.0 for k in fi.gains}))
+            cf = engine.compile_feedback(fi)
+            fun = cf.fun(engine.parameters(fi, {k: 0.0 for k in fi.gains}))
             sol = solve_ivp(fun, (0.0, float(t[-1])), fi.y0, method="DOP853", rtol=1e-12, atol=1e-12, t_eval=t)
             if not sol.success:
                 raise RuntimeError(f"reference solution of {self.name!r} failed: {sol.message}")
@@ -208,12 +208,12 @@ class RigidBody(Scene):
             # five rotations per step (no field evaluations); report steps as the work
             return t, Y, fi.names, cpu, n_steps, n_steps
         if scheme == "projected-rk4":
-            from .. import compiled
+            from .. import engine
 
-            if not compiled.available():
+            if not engine.available():
                 raise ValueError("scheme: 'projected-rk4' needs numba (pip install liefi[fast])")
-            cf = compiled.compile_constrained(fi, projection=True)
-            proj = compiled.projection_targets(fi)
+            cf = engine.compile_constrained(fi, projection=True)
+            proj = engine.projection_targets(fi)
             cf.warmup("rk4", project=True)
             sol = cf.run(fi.y0, np.zeros(0), dt, n_steps, "rk4", save_every=save_every, names=fi.names, project=proj)
             return sol.t, sol.y, sol.names, sol.cpu_seconds, sol.steps, sol.rhs_evaluations
