@@ -329,17 +329,6 @@ def _positive_int(what):
     return conv
 
 
-def _out_everywhere(parser):
-    """Every command writes to ``--out``: give ``--plot`` that name too, and refuse ``--jobs`` < 1."""
-    for action in parser._actions:
-        if "--plot" in action.option_strings and "--out" not in action.option_strings:
-            action.option_strings.append("--out")
-            parser._option_string_actions["--out"] = action
-            action.help = (action.help or "") + " (--out and --plot are the same)"
-        if "--jobs" in action.option_strings and action.type is int:
-            action.type = _positive_int("jobs")
-
-
 def build_parser():
     p = _Parser(
         prog="liefi",
@@ -423,7 +412,6 @@ def build_parser():
         ),
     )
     _stability.add_arguments(ps)
-    _out_everywhere(ps)
     pb = sub.add_parser(
         "bench",
         help="work-precision: error and drift against CPU time for every method on a scene",
@@ -486,8 +474,8 @@ def _main(parser, argv, seen=()):
         if args.command is None:
             parser.print_help(sys.stderr)
             return 2
-        if args.command == "stability" and args.plot:  # the map's file, checked before any work
-            args.plot = plot_path(args.plot, _scenes.get(args.scene), suffix="-stability")
+        if args.command == "stability" and args.out:  # the map's file, checked before any work
+            args.out = plot_path(args.out, _scenes.get(args.scene), suffix="-stability")
         if args.command == "stability":
             from .experiments.stability_cli import command
 

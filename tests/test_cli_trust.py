@@ -229,7 +229,8 @@ def test_version(capsys):
 
 def test_out_everywhere_and_jobs_refused(capsys):
     p = cli.build_parser()
-    assert p.parse_args(["stability", "suslov", "--out", "m.png"]).plot == "m.png"
+    assert p.parse_args(["stability", "suslov", "--out", "m.png"]).out == "m.png"
+    assert p.parse_args(["stability", "suslov", "--plot", "m.png"]).out == "m.png"  # the old spelling still works
     assert p.parse_args(["run", "suslov", "--out", "r.png"]).out == "r.png"
     assert p.parse_args(["reproduce", "--out", "d"]).out == "d"
     for argv in (["stability", "suslov", "--jobs", "0"], ["stability", "suslov", "--jobs", "-3"],
@@ -341,6 +342,6 @@ def test_stability_out_is_checked_before_any_work(capsys, tmp_path, monkeypatch)
     assert code == 2
     _one_error_line(err, "out")
     seen = {}
-    monkeypatch.setattr(stability_cli, "command", lambda args: seen.setdefault("plot", args.plot) and 0)
+    monkeypatch.setattr(stability_cli, "command", lambda args: seen.setdefault("plot", args.out) and 0)
     assert cli.main(["stability", "suslov", "--out", str(tmp_path)]) == 0
     assert seen["plot"] == str(tmp_path / "suslov-stability.png")

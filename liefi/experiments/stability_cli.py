@@ -2,11 +2,22 @@
 
 from __future__ import annotations
 
+import argparse
 import math
 
+from ..schemes import positive_int
 from ..stability import estimate
 from .battery import battery_table, plot_work_precision, run_battery, stiff_work_precision
 from .stability_maps import plot_stability_map, stability_map
+
+
+def _jobs(text):
+    """``--jobs``: a whole number >= 1 (argparse names the flag in its error)."""
+    try:
+        return positive_int(int(text), "jobs")
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a whole number >= 1, got {text!r}") from None
+
 
 def add_arguments(parser):
     """Add the arguments of ``liefi stability`` to an ``argparse`` (sub)parser."""
@@ -18,9 +29,11 @@ def add_arguments(parser):
     parser.add_argument("--t-final", type=float, default=None, help="horizon of each run (default min(scene's, 10))")
     parser.add_argument("--tol", type=float, default=0.02, help="relative tolerance of the boundaries in dt")
     parser.add_argument("--accurate", type=float, default=1e-2, help="drift (relative to scale) called accurate")
-    parser.add_argument("--jobs", type=int, default=1, help="worker processes (default 1: serial)")
+    parser.add_argument("--jobs", type=_jobs, default=1, help="worker processes (default 1: serial)")
     parser.add_argument("--backend", default="auto", choices=("auto", "numpy", "numba"))
-    parser.add_argument("--plot", default=None, metavar="PNG", help="write the map to this file")
+    parser.add_argument("--out", default=None, metavar="FILE.png|DIR",
+                        help="write the map to this file (a folder: SCENE-stability.png in it)")
+    parser.add_argument("--plot", dest="out", help=argparse.SUPPRESS)  # deprecated spelling of --out
     parser.add_argument("--estimate", action="store_true",
                         help="only the pre-run estimate at the scene's settings (no sweep)")
     parser.add_argument("--json", action="store_true", help="print JSON instead of a table")
@@ -31,7 +44,7 @@ def command(args, file=None):
     """Body of ``liefi stability SCENE`` (``args`` from :func:`add_arguments`); returns the exit code.
 
     Prints the estimate at the scene's settings and, unless ``--estimate``, the
-    measured map (a table, or JSON with ``--json``); ``--plot`` writes the figure.
+    measured map (a table, or JSON with ``--json``); ``--out`` writes the figure.
     Errors in the arguments raise ``ValueError`` naming the argument.
     """
     import json
@@ -68,9 +81,9 @@ def command(args, file=None):
             if ex is not None:
                 ex.shutdown()
         result["map"] = smap.to_dict()
-        if args.plot:
-            plot_stability_map(smap, args.plot)
-            result["plot"] = args.plot
+        if args.out:
+            plot_stability_map(smap, args.out)
+            result["plot"] = args.out
     if args.json:
         out.write(json.dumps(result, indent=2, default=lambda o: None if o is None else float(o)) + "\n")
         return 0
@@ -79,8 +92,8 @@ def command(args, file=None):
     if not args.estimate:
         out.write(f"\nmeasured map ({smap.scheme}, runs of t in [0, {smap.t_final:g}], boundaries to "
                   f"{100 * smap.tol:g} % in dt):\n" + smap.table() + "\n")
-        if args.plot:
-            out.write(f"map written to {args.plot}\n")
+        if args.out:
+            out.write(f"map written to {args.out}\n")
     return 0
 
 
