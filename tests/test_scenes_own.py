@@ -1,13 +1,14 @@
 """Scenes own what is particular to them; plotting, reproduce and the CLI are generic.
 
-* no scene name in the generic modules (``plotting``, ``reproduce``, ``cli``);
+* no scene name in any module outside ``liefi/scenes/`` (``plotting``, ``reproduce``,
+  ``cli``, the experiments, bench, ...);
 * every scene's figures come from ``Scene.figures`` and draw;
 * whether the figures need the configuration is the scene's attribute, and the
   CLI asks it;
 * the numerical reference is computed once per start (``liefi reproduce``
   integrates the oscillator's once, not once per run) and agrees with a direct
   ``solve_ivp`` on the same times;
-* the stability battery's scene cases are scene data.
+* the stability battery's scene cases and the stiff study's scene are scene data.
 """
 
 from __future__ import annotations
@@ -23,12 +24,26 @@ from liefi import cli, scenes
 from liefi.scenes import PaperRun, Scene
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-GENERIC = ("liefi/plotting.py", "liefi/reproduce.py", "liefi/cli.py")
+#: every module of liefi outside liefi/scenes/ (the CLI included: its help texts may cite a
+#: scene inside a longer string, never as a value of its own)
+GENERIC = sorted(
+    os.path.relpath(os.path.join(d, f), ROOT)
+    for d, _, files in os.walk(os.path.join(ROOT, "liefi"))
+    if os.path.relpath(d, ROOT).split(os.sep)[:2] != ["liefi", "scenes"]
+    for f in files
+    if f.endswith(".py")
+)
+
+
+def test_the_scan_covers_the_generic_modules():
+    assert {"liefi/plotting.py", "liefi/reproduce.py", "liefi/cli.py", "liefi/experiments/battery.py",
+            "liefi/bench/core.py"} <= set(GENERIC)
+    assert not any(p.startswith("liefi/scenes/") for p in GENERIC)
 
 
 @pytest.mark.parametrize("path", GENERIC)
 def test_no_scene_name_in_generic_modules(path):
-    """No string in the code of the generic modules is a scene name (help texts may cite one)."""
+    """No string constant in liefi outside ``scenes/`` is a scene name (help texts may cite one)."""
     names = set(scenes.names())
     tree = ast.parse(open(os.path.join(ROOT, path)).read())
     hits = [
@@ -153,3 +168,5 @@ def test_stability_cases_are_scene_data():
     assert scenes.get("heisenberg").stability_cases == ("far from origin",)
     assert scenes.get("heisenberg").stability_variant == "generic"
     assert scenes.get("suslov").stability_cases == ()
+    # the stiff work-precision study of the stability report runs on the scene that says so
+    assert [n for n in scenes.names() if scenes.get(n).stiff_study] == ["knife-edge"]

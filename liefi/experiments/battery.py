@@ -312,7 +312,7 @@ WP_METHODS = (
 )
 
 
-def stiff_work_precision(scene="knife-edge", *, t_final=5.0, dts=(2e-2, 1e-2, 5e-3, 2e-3, 1e-3),
+def stiff_work_precision(scene, *, t_final=5.0, dts=(2e-2, 1e-2, 5e-3, 2e-3, 1e-3),
                          rtols=(1e-4, 1e-6, 1e-8), methods=WP_METHODS, ivp=("Radau", "BDF"), ivp_gains=1000.0):
     """Error, drift and CPU time of explicit, split and implicit (``solve_ivp``) runs of a scene.
 

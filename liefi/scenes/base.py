@@ -148,7 +148,7 @@ class Scene:
     What is particular to a scene and used by the generic tools: :meth:`figures`
     (default: one generic figure per run), :attr:`figures_need_configuration`,
     :meth:`paper_runs` (default: one run at the paper's settings),
-    :meth:`reference_solution` and :attr:`stability_cases`.
+    :meth:`reference_solution`, :attr:`stability_cases` and :attr:`stiff_study`.
     """
 
     name = ""
@@ -175,6 +175,9 @@ class Scene:
     #: this scene's own extreme cases for the stability battery (see :meth:`stability_case`);
     #: each also runs with automatic gains as ``"<case> auto"``
     stability_cases: tuple = ()
+    #: the stiff work-precision study of the stability report runs on this scene
+    #: (:func:`liefi.experiments.battery.stiff_work_precision`: explicit, split and implicit schemes)
+    stiff_study: bool = False
 
     def stability_case(self, case):
         """``(scene, variant, has_reference)`` of one of :attr:`stability_cases` (a modified copy of the scene)."""

@@ -61,6 +61,7 @@ class KnifeEdge(Scene):
         ),
     }
     error_variables = ("x", "y", "phi")
+    stiff_study = True  # the stability report's work-precision study (exact solution, gains of 1000)
 
     # --- parameters and start (the paper's) ---------------------------------------
     m = 1.0

@@ -49,6 +49,7 @@ def _vector_potential(q):
 class NonreversibleKnifeEdge(KnifeEdge):
     name = "nonreversible-knife-edge"
     in_paper = False  # a study beyond the paper: liefi reproduce runs it with --all or --only
+    stiff_study = False  # the stability report's stiff study is the paper's knife edge
     title = "Knife edge on an inclined plane with gauge-shifted momenta (not reversible)"
     paper = "Modin & Verdier 2020 recipe on the paper's Sec. 3 knife edge, p -> p - grad cos(x + y)"
     reference = "exact"
