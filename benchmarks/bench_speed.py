@@ -11,7 +11,7 @@ explicit Euler at the scene's step and gains:
 
 * the numpy reference path (``FeedbackIntegrator.run``, Python loop) per step;
 * liefi's compiled loop (``run(backend="numba")``) per step, over a 1e6-step run,
-  as a user calls it (the stability guard of :mod:`liefi.stability` on) and the
+  as a user calls it (the run module's default path, :mod:`liefi.run` with its guard on) and the
   engine alone (``check_stability=False``), with the compile / cache-load time
   reported separately;
 * the hand-written numba kernel (``hand_kernels.py``) per step, same run;
@@ -160,11 +160,13 @@ def ensemble(B, n_steps, repeat, rng):
     c = time.process_time()
     integrate(fi.vector_field, fi.y0, dt, n_np, "euler", save_every=n_np)
     out["numpy_traj_steps_per_cpu_s"] = B * n_np / (time.process_time() - c)
-    # the stability guard's fixed cost on this ensemble (default run(): pilot estimate before the run)
+    # the same ensemble through the run module's default path (liefi.run.run_feedback, the guard on:
+    # plan, pre-run estimate, kernel loading, segments checked by the guard, audit of the saved states)
     c = time.process_time()
     s = fi.run(dt, n_steps * dt, "euler", save_every=n_steps, backend="numba")
-    out["guarded_run_cpu_seconds"] = time.process_time() - c
-    out["guarded_run_loop_wall_seconds"] = getattr(s, "wall_seconds", float("nan"))
+    out["default_run_cpu_seconds"] = time.process_time() - c
+    out["default_run_loop_wall_seconds"] = getattr(s, "wall_seconds", float("nan"))
+    out["default_run_overhead_seconds"] = getattr(s, "overhead_seconds", float("nan"))
     return out
 
 
@@ -196,7 +198,7 @@ def main(argv=None):
         a.steps, a.batch, a.batch_steps, a.repeat = 1e5, 1000, 500, 1
     rng = np.random.default_rng(0)
     n = int(a.steps)
-    # the knife edge runs at the paper's settings, exactly at Euler's stability bound (NOTES item 3)
+    # the knife edge runs at the paper's settings, exactly at Euler's stability bound (docs/paper_notes.md item 3)
     warnings.filterwarnings("ignore", message=".*stability bound.*")
     print(f"numba {numba.__version__}, {numba.config.NUMBA_NUM_THREADS} threads, os.cpu_count() = {os.cpu_count()}, "
           f"load average {os.getloadavg()[0]:.2f}")
@@ -212,10 +214,10 @@ def main(argv=None):
               f"{r['liefi_unguarded_ns_per_step']:9.1f} {r['engine_ns_per_step']:9.1f} {r['hand_ns_per_step']:9.1f}   "
               f"{r['ratio_liefi_over_hand']:8.2f} {r['ratio_unguarded_over_hand']:9.2f} {r['ratio_engine_over_hand']:8.2f} "
               f"{r['liefi_setup_seconds']:6.2f}s {r['hand_vs_liefi_field_max_rel']:10.1e}")
-    print("\nrun(): FeedbackIntegrator.run(backend='numba') as a user calls it, the stability guard of liefi.stability"
-          " on (default);\nno guard: run(..., check_stability=False); engine: liefi.engine's loop alone"
-          " (CompiledField.run, what run() calls).\nThe differences are fixed per-run costs of the guard (a pilot"
-          " estimate of Hess V, the scheme's optimal rate), not per-step costs.\n"
+    print("\nrun(): FeedbackIntegrator.run(backend='numba') as a user calls it, the run module's default path"
+          " (liefi.run, its guard liefi.guard on);\nno guard: run(..., check_stability=False); engine: liefi.engine's"
+          " loop alone (CompiledField.run, what run() calls).\nThe differences are fixed per-run costs of the default"
+          " path (the guard's pre-run estimate of Hess V and its checks between segments), not per-step costs.\n"
           "setup: first call in this process (trace + generate + numba compile, or load numba's on-disk cache);"
           " field diff: hand kernel vs liefi's numpy field;\nnumba vs numpy over 2000 steps: "
           + ", ".join(f"{r['scene']} {r['numba_vs_numpy_2000_steps_max_abs']:.1e}" for r in rows))
@@ -231,8 +233,10 @@ def main(argv=None):
           " CPU/wall near the thread count means every core worked; on a loaded machine it is lower)")
     print(f"  CPU/wall with {numba.config.NUMBA_NUM_THREADS} threads: "
           f"{e[f'threads_{numba.config.NUMBA_NUM_THREADS}']['cpu_seconds'] / e[f'threads_{numba.config.NUMBA_NUM_THREADS}']['wall_seconds']:.2f}")
-    print(f"  the same run with the stability guard on (default): {e['guarded_run_cpu_seconds']:.2f} s CPU in all, "
-          f"of which the loop {e['guarded_run_loop_wall_seconds']:.2f} s wall: the rest is the guard's pilot on the batch")
+    print(f"  the same ensemble through run()'s default path (liefi.run, guard on): "
+          f"{e['default_run_cpu_seconds']:.2f} s CPU for the call (all threads), the loop "
+          f"{e['default_run_loop_wall_seconds']:.2f} s wall; the run's overhead_seconds (estimate, guard, kernel "
+          f"loading) {e['default_run_overhead_seconds']:.2f} s")
     t1000 = suslov_t1000()
     print(f"\nSuslov to t = 1000 (1e6 Euler steps), compiled, the run's cpu_seconds: Pi only {t1000['Pi_only']:.3f} s "
           f"({t1000['Pi_only_no_guard']:.3f} s without the guard), with R {t1000['with_R']:.3f} s "

@@ -8,7 +8,7 @@ these kernels are only the reference its generated code is timed against
 (``bench_speed.py`` also checks they compute the same field as liefi).
 
 All three use analytic derivatives.  Parameters are the scenes' (see
-``liefi/scenes/*.py``); the formulas are the paper's with NOTES.md's
+``liefi/scenes/*.py``); the formulas are the paper's with docs/paper_notes.md's
 corrections (the knife edge's ``d H~ / d phi`` keeps the term the paper drops).
 """
 

@@ -4,7 +4,7 @@ The rotation is stored as a 2x2 matrix (``SE2(SO2())``), as in the paper's
 ``(FI:extended:SE2:SO2)``: the feedback integrator then also penalizes
 ``R^T R - I`` with the gain ``k0`` (``gains["penalty"]``).  liefi takes the
 penalty's gradient from the group, ``k0 R (R^T R - I)``, so ``R`` is pulled
-back to SO(2); the paper's printed ``grad_R V`` has the wrong sign (NOTES
+back to SO(2); the paper's printed ``grad_R V`` has the wrong sign (docs/paper_notes.md
 item 4).  The data are the locked inertia and the constraint vector; the
 extended field ``(extended:SE2:SO2)`` is derived.
 

@@ -4,7 +4,7 @@ The system is given by its data only -- metric, potential, constraint vector --
 and liefi derives the extended field ``(ext:sys:kinfe)``, ``H~``, ``lambda~``
 and the gradient of the Lyapunov function of ``(FI:knife)``.  The run is
 compared with the exact cycloid ``x = (1 - cos t)/2``, ``y = (t - sin t)/2``,
-``phi = t/2`` (the paper prints ``x = 1 - cos t``, ``phi = t``: NOTES item 1).
+``phi = t/2`` (the paper prints ``x = 1 - cos t``, ``phi = t``: docs/paper_notes.md item 1).
 
 Run ``python examples/knife_edge.py`` for the paper's run (Euler,
 ``dt = 1e-3``, ``t`` in ``[0, 200]``, gains 1000; about 20 s).  The same run

@@ -3,7 +3,7 @@
 Each system is built from its data only (metric, constraint vectors, potential);
 the closed forms are transcribed *here* from the paper and compared at random
 states (off the constraint set) and random parameter values, to 1e-12 relative.
-Where the printed formula is wrong (NOTES.md) the test asserts liefi matches the
+Where the printed formula is wrong (docs/paper_notes.md) the test asserts liefi matches the
 correct derivative *and* that the printed one differs where it should.
 """
 
@@ -157,7 +157,7 @@ def test_chaplygin_closed_forms(m, I, a, seed):
     g = np.concatenate([R.reshape(6, 4), rng.normal(size=(6, 2))], -1)
     _close(sys_m.reconstruction(g, Pi), np.concatenate([Rdot.reshape(6, 4), xydot], -1), scale=vs * np.abs(R).max())
 
-    # (nabla:Pi:V:Chap), and the SO(2) penalty gradient (NOTES slip 4: the printed
+    # (nabla:Pi:V:Chap), and the SO(2) penalty gradient (docs/paper_notes.md item 4: the printed
     # -k0 R (R^T R - I) has the wrong sign; for V = k0/4 ||R^T R - I||^2 it is +k0 R (R^T R - I))
     k0, k1, k2 = rng.uniform(0.5, 3, size=3)
     y0 = np.concatenate([np.array([1.0, 0, 0, 1, 0, 0]), sys_m.project(rng.normal(size=3))])
@@ -231,7 +231,7 @@ def knife(m, Jk, g, alpha):
 @example(m=1.0, Jk=1.0, g=1.0, alpha=np.pi / 6, seed=0)
 def test_knife_edge_closed_forms(m, Jk, g, alpha, seed):
     """Knife edge: ``H~``, ``lambda~``, ``grad_p H~``, ``grad J_1`` as printed; ``grad_q H~``
-    as *derived* (NOTES slip 2: the printed ``(-m g sin alpha, 0, 0)`` drops the phi-component
+    as *derived* (docs/paper_notes.md item 2: the printed ``(-m g sin alpha, 0, 0)`` drops the phi-component
     ``-(p_x cos phi + p_y sin phi) J_1 / sqrt(m)``, which vanishes on ``C`` only)."""
     sys_ = knife(m, Jk, g, alpha)
     rng = np.random.default_rng(seed)
@@ -291,7 +291,7 @@ def oscillator():
 def test_nonholonomic_oscillator_closed_forms(seed, scale):
     """Nonholonomic oscillator, ``e = (1, 0, y)/sqrt(1 + y^2)``: ``H~``, ``lambda~``,
     ``grad_q H~``, ``grad_p H~``, ``grad J``; and ``H_y`` is a first integral on ``C`` only
-    (NOTES item 5): ``dH_y . X~ = -p_y (y p_x - p_z)(p_x + y p_z)/(1 + y^2)^2``."""
+    (docs/paper_notes.md item 5): ``dH_y . X~ = -p_y (y p_x - p_z)(p_x + y p_z)/(1 + y^2)^2``."""
     sys_ = oscillator()
     rng = np.random.default_rng(seed)
     zz = scale * rng.normal(size=(6, 6))

@@ -141,7 +141,7 @@ def test_knife_edge(case):
 
 
 def test_knife_edge_notes_item_1():
-    """NOTES item 1: with the paper's data x = (1 - cos t)/2, phi = t/2."""
+    """docs/paper_notes.md item 1: with the paper's data x = (1 - cos t)/2, phi = t/2."""
     t = np.linspace(0.0, 200.0, 2001)
     sol = exact.knife_edge(t)
     _close(sol["x"], (1.0 - np.cos(t)) / 2.0, 1e-13)

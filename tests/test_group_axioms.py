@@ -209,7 +209,7 @@ def test_penalty_vanishes_on_the_group(G, seed, shape):
 @given(seed=SEEDS, shape=BATCH_SHAPES, off=st.sampled_from([1e-3, 0.1, 0.5]))
 def test_penalty_gradient_is_gradient_of_penalty(G, seed, shape, off):
     """``penalty_grad = d penalty / d g`` (complex step) at off-group points, with
-    ``penalty = 1/4 ||R^T R - I||_F^2`` per rotation block (NOTES: gradient ``R (R^T R - I)``)."""
+    ``penalty = 1/4 ||R^T R - I||_F^2`` per rotation block (docs/paper_notes.md item 4: gradient ``R (R^T R - I)``)."""
     rng = np.random.default_rng(seed)
     g = G.random_config(rng, shape) + off * rng.normal(size=tuple(shape) + (G.config_dim,))
     grad = G.penalty_grad(g)

@@ -492,7 +492,7 @@ def _roller_racer():
         th, phi = q[..., 0], q[..., 3]
         pth, px, py, pph = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
         H = (px**2 + py**2) / (2 * m) + (pth - pph) ** 2 / (2 * I1) + pph**2 / (2 * I2)
-        # NOTES.md slip 6: the printed constraint misses -d1 cos(phi) / I1 p_phi
+        # docs/paper_notes.md item 6: the printed constraint misses -d1 cos(phi) / I1 p_phi
         C1 = (d1 * np.cos(phi) / I1 * pth - np.sin(phi) / m * (px * np.cos(th) + py * np.sin(th))
               + (d2 / I2 - d1 * np.cos(phi) / I1) * pph) / nrm(phi)
         C2 = (-px * np.sin(th) + py * np.cos(th)) / np.sqrt(m)

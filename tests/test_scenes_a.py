@@ -5,7 +5,7 @@ Three kinds of check:
 * the scenes' *data* reproduce the paper's printed formulas, used here as
   oracles only (``h~``, ``lambda~``, ``e^flat`` and the extended fields are
   derived by liefi from metric + constraints + potential, never typed in a
-  scene); where the paper slipped (NOTES items 2 and 4) the test says so;
+  scene); where the paper slipped (docs/paper_notes.md items 2 and 4) the test says so;
 * convergence on a short horizon, with bounds stated from the scheme's order:
   explicit Euler ``max error <= C_EULER dt`` and halving ``dt`` halves the
   error; RK4 ``max error <= C_RK4 dt^4`` and its log-ratio over a halving is 4;
@@ -98,7 +98,7 @@ def test_scipy_dop853(name):
 
 @pytest.mark.filterwarnings("ignore::UserWarning")  # liefi rightly warns that this run is marginal
 def test_knife_edge_paper_run_is_bounded_at_the_stability_limit():
-    """k = 1000, dt = 1e-3: Euler's stiff mode sits at |1 - lambda dt| = 1 (NOTES item 3)."""
+    """k = 1000, dt = 1e-3: Euler's stiff mode sits at |1 - lambda dt| = 1 (docs/paper_notes.md item 3)."""
     r = get("knife-edge").run(t_final=5.0)
     assert _max(r.max_error) < 1e-3 and r.max_drift["J_1"] < 1e-6, (r.max_error, r.max_drift)
 
@@ -124,7 +124,7 @@ def test_knife_edge_derived_extension_matches_paper():
     # lambda~ as printed
     lam = (-m * g * np.sin(al) * sn - pphi * u / J) / np.sqrt(m)
     np.testing.assert_allclose(sys.extended_multipliers(z)[:, 0], lam, atol=1e-12)
-    # extended field (ext:sys:kinfe) with grad_q H~ *corrected* (NOTES item 2):
+    # extended field (ext:sys:kinfe) with grad_q H~ *corrected* (docs/paper_notes.md item 2):
     # the printed (-m g sin(alpha), 0, 0) lacks the phi-component -u J_1 / sqrt(m)
     grad_q = np.stack([np.full_like(x, -m * g * np.sin(al)), 0 * x, -u * J1 / np.sqrt(m)], -1)
     grad_p = np.stack([u * c / m, u * sn / m, pphi / J], -1)
@@ -168,7 +168,7 @@ def test_chaplygin_data_and_derived_extension_match_paper():
 
 def test_chaplygin_so2_penalty_gradient_contracts_and_printed_sign_diverges():
     """liefi's -grad_R V = -k0 R (R^T R - I) pulls R back to SO(2); the printed
-    grad_R V = -k0 R (R^T R - I) (NOTES item 4) pushes it away."""
+    grad_R V = -k0 R (R^T R - I) (docs/paper_notes.md item 4) pushes it away."""
     s = get("chaplygin-so2")
     y0 = np.array(s.initial_state(s.variant()), float)
     y0[:4] *= 1.001  # R = 1.001 I: ||R^T R - I|| = 2.83e-3
@@ -240,7 +240,7 @@ def test_vertical_disk_names_and_initial_condition():
     s = get("vertical-disk")
     assert s.system.space.state_names == ("Pi_theta", "Pi_x", "Pi_y", "Pi_psi")
     Pi0 = s.Pi0()
-    assert Pi0[2] == 0 and np.isclose(s.I * Pi0[1] - s.m * s.R * Pi0[3], 0)  # with the factor m (NOTES 7)
+    assert Pi0[2] == 0 and np.isclose(s.I * Pi0[1] - s.m * s.R * Pi0[3], 0)  # with the factor m (docs/paper_notes.md item 7)
     assert np.all(np.abs(s.system.constraint_momenta(Pi0)) < 1e-15)
 
 

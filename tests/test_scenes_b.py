@@ -135,7 +135,7 @@ def test_heisenberg_special_start_stays_exact_past_the_stability_bound(heis):
 
 
 def test_heisenberg_gain_100_generic_never_returns_a_wrong_line(heis):
-    """NOTES: with k = 100 the generic start leaves the straight line after t ~ 5 (the
+    """With k = 100 the generic start leaves the straight line after t ~ 5 (the
     stiffness of V grows like k (x^2 + y^2)).  Without a guard Euler does not overflow
     there: each burst throws the state back inside the stable region and the run returns a
     finite, wrong trajectory.  liefi must not return it: over [0, 20] the run is refused

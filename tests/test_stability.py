@@ -4,7 +4,7 @@
   its largest eigenvalue from the small Gram matrix equals the one of the full
   (finite-difference) Hessian, on random systems of every kind.
 * The knife edge at the paper's settings sits exactly on Euler's limit
-  (``dt lambda_max = 2`` at ``t = pi``, NOTES item 3); ten percent more gain warns,
+  (``dt lambda_max = 2`` at ``t = pi``, docs/paper_notes.md item 3); ten percent more gain warns,
   ten times past the limit is refused, and a run past the limit stops with a
   named error instead of returning O(1) drift.
 * The Suslov map: runs stay finite up to ``dt k ~ 1`` (the constraint mode,
@@ -112,7 +112,7 @@ def test_penalty_hessian_has_eigenvalues_two_and_zero_on_the_group():
 
 
 def test_knife_edge_paper_settings_sit_exactly_on_eulers_limit_at_t_pi():
-    """NOTES item 3: lambda_max(Hess V) = k (1 + v^2) = 2k where the speed v = 1, i.e. t = pi."""
+    """docs/paper_notes.md item 3: lambda_max(Hess V) = k (1 + v^2) = 2k where the speed v = 1, i.e. t = pi."""
     fi = scenes.get("knife-edge").integrator()
     st_ = S.stiffness(fi, knife_state([0.0, np.pi]))
     assert st_.lam[0] == pytest.approx(1000 * (3 + np.sqrt(5)) / 4)  # (1.5 + sqrt(1.25))/2 at t = 0
@@ -177,7 +177,7 @@ def test_in_run_warning_when_the_stiffness_grows_past_the_pilot():
 
 
 @pytest.mark.parametrize("save_every", [1, 7, 150, 333, 1000])
-def test_guarded_run_is_bit_identical_to_the_plain_run(save_every):
+def test_segmented_run_with_the_guard_is_bit_identical_to_the_plain_run(save_every):
     fi = scenes.get("suslov").integrator()
     a = fi.run(1e-3, 1.2, save_every=save_every, monitor_every=97)
     b = fi.run(1e-3, 1.2, save_every=save_every, check_stability=False)

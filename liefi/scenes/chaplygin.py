@@ -25,7 +25,7 @@ Data (reduced to ``se(2)* = R^3``, ``Pi = (Pi_theta, Pi_x, Pi_y)``):
 :class:`liefi.FeedbackIntegrator`.  ``V`` penalizes ``J`` and the energy;
 variants ``extended`` (``h~``, as in the paper) and ``original`` (``h``).
 
-Embedding penalty (``chaplygin-so2``; NOTES item 4).  The paper writes
+Embedding penalty (``chaplygin-so2``; docs/paper_notes.md item 4).  The paper writes
 ``V = k0/2 ||R^T R - I||^2 + ...`` and prints ``grad_R V = -k0 R (R^T R - I)``:
 the sign is wrong (and, for that ``V``, the factor: the gradient is
 ``+2 k0 R (R^T R - I)``); with the printed sign ``-grad_R V`` pushes ``R``

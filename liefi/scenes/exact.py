@@ -17,10 +17,10 @@ functions instead of ``(sin(w t + a) - sin a) / w``), so the limits
 ``omega -> 0`` (knife edge, vertical disk) and ``a -> 0`` (Chaplygin sleigh)
 are exact and need no special-casing by the caller.
 
-Conventions follow the paper (``/work/shared/paper``) and ``NOTES.md``:
+Conventions follow the paper (Chang & Perlmutter, arXiv:1811.03757) and ``docs/paper_notes.md``:
 se(2)* coordinates ``(Pi_theta, Pi_x, Pi_y) = (p_theta, p_x cos th + p_y sin th,
 -p_x sin th + p_y cos th)``.  The knife-edge formula corrects slip 1 of
-``NOTES.md`` (the paper prints ``x = 1 - cos t``, ``phi = t``).
+``docs/paper_notes.md`` (the paper prints ``x = 1 - cos t``, ``phi = t``).
 """
 
 from __future__ import annotations
@@ -210,7 +210,7 @@ def knife_edge(t, m=1.0, J=1.0, g=1.0, alpha=np.pi / 6, p_phi0=0.5,
     .. math:: x = \tfrac12 (1 - \cos t), \quad y = \tfrac12 (t - \sin t),
               \quad \varphi = t / 2,
 
-    which corrects the printed ``x = 1 - cos t``, ``phi = t`` (NOTES item 1).
+    which corrects the printed ``x = 1 - cos t``, ``phi = t`` (docs/paper_notes.md item 1).
 
     Parameters
     ----------
@@ -457,7 +457,7 @@ def heisenberg(t, q0, p0):
     r"""Heisenberg system: straight lines.
 
     ``H = |p|^2 / 2``, ``q = (x, y, z)``, ``p = (p_x, p_y, p_z)`` (the paper's
-    ``q = (x, z, y)`` is a typo, NOTES item 7), constraint
+    ``q = (x, z, y)`` is a typo, docs/paper_notes.md item 7), constraint
     ``p_z - y p_x + x p_y = 0``.
 
     Parameters

@@ -1,7 +1,7 @@
 r"""The Heisenberg system (paper Sec. 3, subsection "The Heisenberg System"): data only.
 
 ``T*R^3`` with ``q = (x, y, z)``, ``p = (p_x, p_y, p_z)`` (the paper writes
-``q = (x, z, y)``, a typo: NOTES item 7), metric ``I``, no potential, and the
+``q = (x, z, y)``, a typo: docs/paper_notes.md item 7), metric ``I``, no potential, and the
 constraint ``p . e = p_z - y p_x + x p_y = 0`` with the **non-normalized**
 ``e = (-y, x, 1)``.  The paper computes the multiplier with the general formula
 ``(lambda:general)``; liefi does the same natively (Gram matrix
@@ -59,7 +59,7 @@ Variants (``Variant.options`` holds the start):
   gains 10 and ``t_final = 10`` the run is bounded and exact to ~1e-12
   (``dt k (1 + 2(x^2 + y^2)) < 1`` all along).  With gains 100 Euler crosses
   its stability bound at ``t ~ 4.3`` (``x^2 + y^2 ~ 10``) and leaves the
-  straight line (NOTES: "diverges after t ~ 5").  It does not overflow: each
+  straight line (visibly so after ``t ~ 5``).  It does not overflow: each
   burst of the unstable mode throws the state back inside the stable region,
   so an unguarded run (``check_stability=False``) returns a *finite, wrong*
   trajectory.  liefi's stability guard (:mod:`liefi.stability`) therefore

@@ -11,7 +11,7 @@ Everything else -- ``H~``, ``lambda~``, the extended field ``(ext:sys:kinfe)``
 and the gradient of ``V`` in ``(FI:knife)`` -- is derived by
 :mod:`liefi.reduction` and :class:`liefi.FeedbackIntegrator` from these data.
 In particular the paper's printed ``grad_q H~`` drops the phi-component
-``-(p_x cos phi + p_y sin phi) J_1 / sqrt(m)`` (NOTES item 2); it vanishes on
+``-(p_x cos phi + p_y sin phi) J_1 / sqrt(m)`` (docs/paper_notes.md item 2); it vanishes on
 the constraint set only, and liefi's derived gradient contains it.
 
 ``V`` penalizes ``J_1`` (target 0), the energy, and the momentum ``p_phi``
@@ -24,13 +24,13 @@ Paper's settings: ``m = J = g = 1``, ``alpha = pi/6``, start
 ``x = y = phi = p_x = p_y = 0``, ``p_phi = 0.5``; explicit Euler,
 ``dt = 1e-3``, ``t`` in ``[0, 200]``, ``k1 = k2 = k3 = 1000``.  (The paper's
 simulation paragraph cites ``(theorem:crit:knife)`` for the system integrated;
-it means ``(FI:knife)``, NOTES item 7.)
+it means ``(FI:knife)``, docs/paper_notes.md item 7.)
 
 Reference: the *corrected* exact solution ``x = (1 - cos t)/2``,
 ``y = (t - sin t)/2``, ``phi = t/2`` (:func:`liefi.scenes.exact.knife_edge`);
-the paper prints ``x = 1 - cos t``, ``phi = t`` (NOTES item 1).
+the paper prints ``x = 1 - cos t``, ``phi = t`` (docs/paper_notes.md item 1).
 
-Stability (NOTES item 3): at ``k = 1000``, ``dt = 1e-3`` the largest
+Stability (docs/paper_notes.md item 3): at ``k = 1000``, ``dt = 1e-3`` the largest
 eigenvalue of the Hessian of ``V`` on its zero set times ``dt`` is 2, exactly
 Euler's real stability bound: the paper's run stays bounded (the stiff mode
 neither grows nor decays), and ten percent more gain or step diverges.

@@ -12,7 +12,7 @@ test oracles only.
           + \frac{k_2}{2} (H_y - H_{y0})^2 + \frac{k_3}{2} J^2,
 
 with ``H_y = p_y^2/2 + y^2/2`` (the :class:`~liefi.Invariant` ``"H_y"``; the
-paper's ``H_{y0}(q, p)`` means ``H_y(q, p)``, NOTES item 5) and gains
+paper's ``H_{y0}(q, p)`` means ``H_y(q, p)``, docs/paper_notes.md item 5) and gains
 ``k_1 = 500`` (``"energy"``), ``k_2 = 300`` (``"H_y"``), ``k_3 = 300``
 (``"J_1"``), ``(no:gains)``.  ``H_y`` is a first integral of the extended field
 only on the constraint set (its rate off it is ``O(J)``), so this ``V`` meets

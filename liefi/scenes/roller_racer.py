@@ -19,7 +19,7 @@ and ``grad V`` are derived by :mod:`liefi.reduction` and :mod:`liefi.feedback`):
   with ``N^2 = sin^2 phi/m + d_1^2 cos^2 phi/I_1 + d_2^2/I_2`` and
   ``e_2 = (0, 0, 1, 0)/sqrt(m)`` (orthonormal for ``m``).  The constraint set
   printed in the original coordinates misses ``-d_1 cos phi/I_1 p_phi``
-  (NOTES item 6); the reduced form is the one used.  ``N^2 >= d_2^2/I_2 > 0``
+  (docs/paper_notes.md item 6); the reduced form is the one used.  ``N^2 >= d_2^2/I_2 > 0``
   and ``e_2`` has no component where ``e_1`` lives but ``Pi_x``/``Pi_theta``,
   so the two stay independent for every ``phi``.
 

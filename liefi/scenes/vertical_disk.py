@@ -43,7 +43,7 @@ Variants
     The extended field ``(extended:eqn:vertical:disk)`` with ``V`` over the
     constraints ``J_1, J_2`` and the extended energy ``h~``.
 
-Initial condition (NOTES item 7): the paper states it as
+Initial condition (docs/paper_notes.md item 7): the paper states it as
 ``I Pi_x0 - R Pi_psi0 = 0``; the factor ``m`` is missing, the constraint is
 ``I Pi_x0 - m R Pi_psi0 = 0``.
 

@@ -33,7 +33,8 @@ Cost per step: the tableau's stages of ``X`` plus one evaluation of the
 invariants' gradients and one ``n x n`` solve (``n`` is the state size).
 
 Use them by name: ``FeedbackIntegrator.run(dt, T, scheme="imex-euler")``,
-``Scene.run(scheme="imex-rk4")``; :data:`SPLIT_SCHEMES` lists them.  For an
+``Scene.run(scheme="imex-rk4")``; the registry lists them
+(``liefi.schemes.names("split")``, from :data:`SPLIT_SCHEMES`).  For an
 adaptive implicit solver use ``Scene.run(scheme="scipy:Radau")`` (or ``BDF``),
 which integrates ``fun(t, y)`` with a finite-difference Jacobian.
 """
@@ -195,14 +196,3 @@ def is_split_scheme(scheme) -> bool:
         return True
     return isinstance(scheme, str) and scheme.lower() in SPLIT_SCHEMES
 
-
-def get_split_scheme(scheme) -> LinearlyImplicitSplit:
-    """A split scheme from its name (``"imex-euler"``, ``"imex-heun"``, ``"imex-rk4"``)."""
-    if isinstance(scheme, LinearlyImplicitSplit):
-        return scheme
-    if isinstance(scheme, BoundSplitStep):
-        return scheme.scheme
-    try:
-        return SPLIT_SCHEMES[str(scheme).lower()]
-    except KeyError:
-        raise ValueError(f"scheme: unknown split scheme {scheme!r}; choose one of {sorted(SPLIT_SCHEMES)}") from None
