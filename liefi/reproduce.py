@@ -45,6 +45,7 @@ import traceback
 import warnings
 
 from . import __version__
+from ._progress import Progress
 from . import scenes as _scenes
 
 #: the file that marks a folder as liefi's and lists what liefi wrote there
@@ -361,9 +362,12 @@ def reproduce(out="./liefi-out", *, only=None, t_final_scale=1.0, jobs=None, all
     scale = float(t_final_scale)
     state = {"results": {}, "start": time.perf_counter(), "cpu0": _cpu_all(), "interrupted": False}
 
+    bar = Progress(len(names), "reproduce", unit="scene")
+
     def finished(done):
         state["results"][done["scene"]] = done
         _write_summary(output, names, state, scale)
+        bar.update(failed=bool(done["failures"]))
 
     # the longest scenes first, so that the workers finish together
     order = sorted(names, key=lambda n: -_weight(n))
@@ -375,10 +379,12 @@ def reproduce(out="./liefi-out", *, only=None, t_final_scale=1.0, jobs=None, all
         else:
             _parallel(tasks, jobs, finished)
     except KeyboardInterrupt:
+        bar.close()
         state["interrupted"] = True
         summary = _write_summary(output, names, state, scale)
         _log(f"reproduce: interrupted; the summary of the {len(summary['runs'])} finished runs is in {output.path}")
         raise
+    bar.close()
     summary = _write_summary(output, names, state, scale)
     _log(
         f"reproduce: {len(summary['runs'])} runs, {len(summary['figures'])} figures, {len(summary['failures'])} "

@@ -29,12 +29,12 @@ from __future__ import annotations
 
 import math
 import os
-import sys
 import time
 from dataclasses import dataclass
 
 import numpy as np
 
+from ._progress import Progress, stderr_is_terminal
 from .schemes import IntegrationError, Solution, integrate, positive_int, steps_for
 from .schemes import registry as _registry
 from .schemes import split as _split
@@ -120,45 +120,10 @@ def plan(y0, n_steps, save_every=None, *, max_bytes=None):
     return RunPlan(n_steps, save_every, n_saved, n_saved * per_state)
 
 
-class Progress:
-    """Progress on stderr: ``tqdm`` when installed (``liefi[progress]``), a plain line otherwise; quiet off a TTY."""
-
-    def __init__(self, total, desc, enabled):
-        self.total, self.done, self.bar, self.enabled = total, 0, None, enabled
-        self._last = 0.0
-        if not enabled:
-            return
-        try:
-            from tqdm import tqdm
-
-            self.bar = tqdm(total=total, desc=desc, unit="step", unit_scale=True, leave=False, file=sys.stderr)
-        except ImportError:
-            self.desc = desc
-
-    def update(self, n):
-        self.done += n
-        if not self.enabled:
-            return
-        if self.bar is not None:
-            self.bar.update(n)
-        elif time.monotonic() - self._last > 1.0 or self.done >= self.total:
-            self._last = time.monotonic()
-            sys.stderr.write(f"\r{self.desc}: {self.done}/{self.total} steps ({100 * self.done / self.total:.0f} %)")
-            sys.stderr.flush()
-
-    def close(self):
-        if not self.enabled:
-            return
-        if self.bar is not None:
-            self.bar.close()
-        else:
-            sys.stderr.write("\n")
-
-
 def _want_progress(progress, expected):
     if progress is not None:
         return bool(progress)
-    return expected > PROGRESS_SECONDS and sys.stderr is not None and sys.stderr.isatty()
+    return expected > PROGRESS_SECONDS and stderr_is_terminal()
 
 
 def _fixed_step_scheme(scheme):

@@ -72,10 +72,11 @@ import json
 import os
 import signal
 import sqlite3
-import sys
 import time
 import traceback as _traceback
 from concurrent.futures import FIRST_COMPLETED, Executor, wait
+
+from ._progress import Progress
 
 __all__ = ["run_sweep", "open_executor", "TaskError", "SweepInterrupted", "ResultStore", "task_key"]
 
@@ -221,41 +222,6 @@ class ResultStore:
         return out
 
 
-class _Progress:
-    """Progress on stderr: tqdm when installed (``liefi[progress]``), else one updating line; quiet when
-    stderr is not a terminal (unless forced)."""
-
-    def __init__(self, total, label, enabled):
-        if enabled is None:
-            enabled = total > 1 and hasattr(sys.stderr, "isatty") and sys.stderr.isatty()
-        self.enabled, self.total, self.label, self.n, self.failed = bool(enabled), total, label, 0, 0
-        self._bar = None
-        if self.enabled:
-            try:
-                from tqdm import tqdm
-
-                self._bar = tqdm(total=total, desc=label or "sweep", file=sys.stderr, leave=False)
-            except ImportError:
-                pass
-
-    def update(self, value, n=1):
-        self.n += n
-        self.failed += isinstance(value, TaskError)
-        if not self.enabled:
-            return
-        if self._bar is not None:
-            self._bar.update(n)
-            return
-        fail = f", {self.failed} failed" if self.failed else ""
-        print(f"\r{self.label or 'sweep'}: {self.n}/{self.total} tasks{fail}", end="", file=sys.stderr, flush=True)
-
-    def close(self):
-        if self._bar is not None:
-            self._bar.close()
-        elif self.enabled and self.n:
-            print(file=sys.stderr, flush=True)
-
-
 def _workers(executor):
     n = getattr(executor, "_max_workers", None)
     if isinstance(n, int) and n > 0:
@@ -343,8 +309,9 @@ def run_sweep(fn, tasks, executor: Executor | None = None, *, store=None, conver
             todo.append(i)
         else:
             results[i] = v
-    bar = _Progress(len(tasks), label, progress)
-    bar.update(None, len(tasks) - len(todo)) if len(todo) < len(tasks) else None
+    bar = Progress(len(tasks), label or "sweep", progress, unit="task")
+    if len(todo) < len(tasks):
+        bar.update(len(tasks) - len(todo))
 
     def record(i, value, seconds=None):
         if convert is not None and not isinstance(value, TaskError):
@@ -355,7 +322,7 @@ def run_sweep(fn, tasks, executor: Executor | None = None, *, store=None, conver
         if store is not None:
             value = store.put(tasks[i], value, index=i, seconds=seconds)
         results[i] = value
-        bar.update(value)
+        bar.update(failed=isinstance(value, TaskError))
 
     owned = []  # pools started here after a break
     try:

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._progress import Progress
 from ..schemes import IntegrationError
 from ..schemes import split as _stiff
 from ..stability import (
@@ -292,7 +293,12 @@ def run_battery(scenes=None, cases=None, *, quick=False, backend="auto", executo
             cs += [c + suffix for c in sc.stability_cases for suffix in ("", " auto")]
         tasks += [(nm, c, bool(quick), backend) for c in cs]
     mapper = map if executor is None else executor.map
-    return list(mapper(_battery_case, tasks))
+    out = []
+    with Progress(len(tasks), "battery", unit="case") as bar:
+        for r in mapper(_battery_case, tasks):
+            out.append(r)
+            bar.update()
+    return out
 
 
 # --------------------------------------------------------------------------------

@@ -16,6 +16,7 @@ import numpy as np
 
 from ..schemes import IntegrationError, positive_number
 from ..stability import PILOT_MAX_EVALS, drift, drift_scales, estimate, resolve_scheme
+from .._progress import Progress
 
 # --------------------------------------------------------------------------------
 # the stability map in the (dt, gain) plane
@@ -253,7 +254,11 @@ def stability_map(target, *, gains=None, scheme="euler", t_final=None, variant=N
         guess = dt_est if math.isfinite(dt_est) else 1.0 / (k * lam1)
         tasks.append((spec, float(k), getattr(sch, "name", scheme), T, tol, accurate, backend, guess, dt_est, dt_est0))
     mapper = map if executor is None else executor.map
-    bounds = list(mapper(_boundary_task, tasks))
+    with Progress(len(tasks), f"stability map {label}", unit="gain") as bar:
+        bounds = []
+        for b in mapper(_boundary_task, tasks):
+            bounds.append(b)
+            bar.update()
     return StabilityMap(label, getattr(sch, "name", str(scheme)), beta, T, tol, accurate, bounds)
 
 
