@@ -280,6 +280,11 @@ class FeedbackIntegrator:
                     f"component name {sp.state_names} or a liefi.Invariant"
                 )
         self.use_penalty = self.configuration and sp.group.penalty_hessian_bound() > 0
+        #: the constraint momenta ``J_i`` (0-based ``i``) that ``V`` penalizes (all, unless dropped)
+        self._J_kept = tuple(range(system.K)) if self.use_constraints else ()
+        #: ``({"name", "reason"}, ...)``: invariants left out of ``V`` (:meth:`without`)
+        self.dropped = ()
+        self._dropped_user = []  # user invariants left out of V, still monitored
         reserved = {f"J_{i + 1}" for i in range(system.K)} | {"energy", "penalty", "h", "h~"}
         seen = set()
         for u in self.user:
@@ -363,8 +368,8 @@ class FeedbackIntegrator:
         J = slice(0, 0)
         energy = energy_target = penalty = None
         if self.use_constraints:
-            J = slice(0, self.system.K)
-            i = self.system.K
+            J = slice(0, len(self._J_kept))
+            i = len(self._J_kept)
         if self.use_energy:
             energy, energy_target = i, i + 1
             i += 2
@@ -387,7 +392,7 @@ class FeedbackIntegrator:
         g = self.gains if gains is None else gains
         cols = []
         if self.use_constraints:
-            cols += [g[f"J_{i + 1}"] for i in range(self.system.K)]
+            cols += [g[f"J_{i + 1}"] for i in self._J_kept]
         if self.use_energy:
             cols += [g["energy"], self.energy_target]
         for u, tgt in zip(self.user, self.user_targets):
@@ -426,11 +431,45 @@ class FeedbackIntegrator:
         if self.use_penalty:
             names.append("penalty")
         if self.use_constraints:
-            names += [f"J_{i + 1}" for i in range(self.system.K)]
+            names += [f"J_{i + 1}" for i in self._J_kept]
         if self.use_energy:
             names.append("energy")
         names += [u.name for u in self.user]
         return tuple(names)
+
+    def without(self, drops):
+        """A copy whose ``V`` leaves out the invariants ``drops`` (``{name: reason}``); they stay monitored.
+
+        Used by :func:`liefi.run.run_feedback` for the invariants the scheme keeps
+        exactly (:func:`liefi.gains.exactly_kept`): their feedback term vanishes
+        identically and only costs work.  The copy's :attr:`dropped` lists
+        ``{"name", "reason"}``; its field (numpy and compiled) has no such term.
+        The embedding penalty cannot be dropped.
+        """
+        import copy
+
+        new = copy.copy(self)
+        new.__dict__.pop("parameter_layout", None)
+        new.user = list(self.user)
+        new._dropped_user = list(self._dropped_user)
+        kept_J = list(self._J_kept)
+        for name in drops:
+            if name.startswith("J_") and name[2:].isdigit() and int(name[2:]) - 1 in kept_J:
+                kept_J.remove(int(name[2:]) - 1)
+            elif name == "energy" and self.use_energy:
+                new.use_energy = False
+            elif name in [u.name for u in new.user]:
+                i = [u.name for u in new.user].index(name)
+                new._dropped_user.append(new.user.pop(i))
+            else:
+                raise ValueError(f"drops: {name!r} is not a penalized invariant that can be dropped; "
+                                 f"choose among {[n for n in self.invariant_names if n != 'penalty']}")
+        new._J_kept = tuple(kept_J)
+        new.use_constraints = bool(kept_J)
+        new.user_targets = [self.targets[u.name] for u in new.user]
+        new.dropped = tuple(self.dropped) + tuple({"name": k, "reason": str(v)} for k, v in drops.items())
+        new._set_gains({k: v for k, v in self.gains.items() if k in new.invariant_names})
+        return new
 
     def split(self, y):
         """``y -> (g, z)`` (``g`` has zero length without configuration)."""
@@ -450,7 +489,7 @@ class FeedbackIntegrator:
         out["h"] = t.h
         out["h~"] = t.ht
         out["energy"] = t.ht if self.energy == "extended" else t.h
-        for u in self.user:
+        for u in self.user + self._dropped_user:
             out[u.name] = u.value_and_grad(z)[0]
         return out
 
@@ -472,7 +511,7 @@ class FeedbackIntegrator:
         batch = y.shape[:-1]
         names, res, grads = [], [], []
         if self.use_constraints:
-            for i in range(self.system.K):
+            for i in self._J_kept:
                 names.append(f"J_{i + 1}")
                 res.append(t.J[..., i])
                 grads.append(t.dJ[..., i, :])
@@ -517,9 +556,13 @@ class FeedbackIntegrator:
         V = 0.0
         gz = 0.0
         if self.use_constraints:
-            kJ = p[..., lay.J] * t.J
-            V = V + 0.5 * np.einsum("...k,...k->...", kJ, t.J)
-            gz = gz + np.einsum("...k,...kj->...j", kJ, t.dJ)
+            Jv, dJ = t.J, t.dJ
+            if len(self._J_kept) < sys.K:  # some J_i dropped (kept exactly by the scheme)
+                Jv = np.stack([t.J[..., i] for i in self._J_kept], -1)
+                dJ = np.stack([t.dJ[..., i, :] for i in self._J_kept], -2)
+            kJ = p[..., lay.J] * Jv
+            V = V + 0.5 * np.einsum("...k,...k->...", kJ, Jv)
+            gz = gz + np.einsum("...k,...kj->...j", kJ, dJ)
         if self.use_energy:
             E, dE = (t.ht, t.dht) if self.energy == "extended" else (t.h, t.dh)
             dEv = E - p[..., lay.energy_target]
@@ -583,7 +626,7 @@ class FeedbackIntegrator:
 
     # --- running ------------------------------------------------------------------
     def run(self, dt, t_final, scheme="euler", *, y0=None, save_every=None, check_every=1, backend="numpy",
-            check_stability=True, adaptive=None, monitor_every=None, progress=None):
+            check_stability=True, adaptive=None, monitor_every=None, progress=None, drop_exact=True):
         """Integrate from ``y0`` (default: the one given at construction) to ``t_final``.
 
         The loop is :func:`liefi.run.run_feedback`.  Returns a
@@ -627,5 +670,5 @@ class FeedbackIntegrator:
         return run_feedback(
             self, dt, t_final, scheme, y0=y0, save_every=save_every, check_every=check_every,
             backend=backend, check_stability=check_stability, adaptive=adaptive, monitor_every=monitor_every,
-            progress=progress,
+            progress=progress, drop_exact=drop_exact,
         )

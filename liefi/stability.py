@@ -594,7 +594,7 @@ def estimate(fi, dt, scheme="euler", *, t_final=None, y0=None, max_evals=None, r
     lam0 = float(max(per_t[0], 0.0))
     dom = np.asarray(st.dominant, dtype=object).reshape(len(ts), -1)[i]
     dom = str(dom[int(np.argmax(lam_t[i]))])
-    ev = np.asarray(st.eigenvalues).reshape((len(ts), -1) + st.eigenvalues.shape[-1:])[i]
+    ev = np.asarray(st.eigenvalues).reshape((len(ts), lam_t.shape[1]) + st.eigenvalues.shape[-1:])[i]
     ev = ev[int(np.argmax(lam_t[i]))]
     rate = growth = float("nan")
     if resolution:

@@ -74,6 +74,8 @@ class RunResult:
     max_drift: dict
     #: seconds spent besides the integration (estimate, guard, kernel loading)
     overhead_seconds: float = 0.0
+    #: invariants left out of ``V`` (kept exactly by the scheme): ``[{"name", "reason"}]``
+    dropped: list = _field(default_factory=list)
 
     def __getitem__(self, name):
         return self.y[self.names.index(name)]
@@ -94,6 +96,7 @@ class RunResult:
             "gains": self.gains,
             "max_error": {k: float(v) for k, v in self.max_error.items()},
             "max_drift": {k: float(v) for k, v in self.max_drift.items()},
+            "dropped": [dict(d) for d in self.dropped],
         }
 
 
@@ -292,12 +295,16 @@ class Scene:
                 dt, T, scheme, save_every=save_every, check_stability=check_stability, adaptive=adaptive,
                 backend=backend,
             )
-            if getattr(sol, "stability", None) is not None and sol.stability.gains:
-                fi = fi.with_gains(sol.stability.gains)  # report the gains the run started with
+            dropped = list(getattr(sol, "dropped", []))
+            if getattr(sol, "stability", None) is not None and (sol.stability.gains or dropped):
+                # report the gains the run started with (0 for the invariants left out of V)
+                fi = fi.with_gains({**{d["name"]: 0.0 for d in dropped}, **sol.stability.gains})
             t, Y, names, cpu, steps, nfev = sol.t, sol.y, sol.names, sol.cpu_seconds, sol.steps, sol.rhs_evaluations
             overhead = getattr(sol, "overhead_seconds", 0.0)
         res = self._result(v, str(scheme), dt, T, fi, t, Y, names, cpu, steps, nfev)
         res.overhead_seconds = float(overhead)
+        if scheme not in self.extra_schemes and not str(scheme).lower().startswith("scipy:"):
+            res.dropped = dropped
         return res
 
     def _check_start(self, fi, v, rtol=1e-9):
