@@ -204,8 +204,28 @@ class FeedbackIntegrator:
     gains : float, dict or "auto"
         One number for every gain, or ``{name: k}`` with names ``"J_1"``...,
         ``"energy"``, ``"penalty"``, the invariants' names; ``"constraints"`` sets every ``J_i``.
-        ``"auto"``: chosen by :meth:`run` from ``dt`` and the Hessian of ``V``, and
-        adapted along the run (:func:`liefi.stability.auto_gains`).
+        ``"auto"``: chosen by :meth:`run` for accuracy, from the scheme, ``dt`` and
+        the horizon ``T`` (:mod:`liefi.gains`, which holds the derivation).  The
+        residual ``r_j = I_j - I_j0`` relaxes at the rate ``kappa_j = k_j |grad I_j|^2``;
+        with ``z = dt kappa`` one step of an explicit Runge--Kutta tableau
+        ``(A, b, c)`` of order ``p`` maps ``r -> R(-z) r + delta(z)``, where
+        ``delta(z) <= sum_{l=2}^{p+1} (dt omega)^l |eps_l - z b^T (I + zA)^{-1} d_l|``
+        (``eps_l`` the scheme's own error coefficients, ``d_l`` its stage defects,
+        ``omega`` the spectral radius of ``dX/dy``), so after ``N = T/dt`` steps
+        ``|r| <= D(z) = delta(z) (1 - |R|^N)/(1 - |R|)`` plus a random walk of
+        rounding.  ``gains="auto"`` takes ``z* = argmin D`` (0, no feedback,
+        unless it buys a factor 2) and ``k_j = w_j z*/dt`` with ``w_j`` the
+        unit-rate weights of :func:`liefi.stability.unit_rate_gains`
+        (``1/|grad I_j|^2``, scaled so that ``lambda_max(Hess V) = 1``): Euler
+        gets ``z* = 1`` (Bae & Chang's ``k = 1/(dt L)``), RK4 ``kappa* ~ 0.26 omega``,
+        far below its stability limit, and short horizons ``z* = 0``.  Both
+        ``z*`` (a number built from ``dt omega`` and ``N``) and the weights are
+        unit-invariant: the same physics in other units gives the same relative
+        trajectory.  The gains are fixed along the run unless ``z*`` reaches a
+        quarter of the scheme's stability bound (Euler), where they are adapted
+        at the rate ``z*`` (``adaptive=``).  On the stiff-safe split schemes
+        (``imex-*``) ``"auto"`` keeps the contraction rate of
+        :func:`liefi.stability.auto_gains`, adapted along the run.
     energy : {"extended", "original"}
         Penalize ``h~`` (default, the paper's main choice) or ``h`` (its Remarks).
     configuration : bool
@@ -664,6 +684,17 @@ class FeedbackIntegrator:
         for ``gains="auto"``, off otherwise; with fixed gains it only lowers them).
         ``monitor_every``: steps between two checks (default: adaptive).  The
         solution carries the report as ``solution.stability``.
+
+        Invariants the scheme keeps exactly.  With ``drop_exact`` (default True)
+        an invariant that every Runge--Kutta step keeps to rounding
+        (:func:`liefi.gains.exactly_kept`: a first integral with a constant
+        gradient ``a`` that no other feedback term moves, so ``a . y_{n+1} = a . y_n``;
+        e.g. the vertical disk's momenta, the roller racer's ``J_2``) and that
+        starts on its target is left out of ``V`` for an explicit tableau
+        (:meth:`without`): its feedback term vanishes identically and only
+        costs work.  ``solution.dropped`` lists ``{"name", "reason"}`` (also in a
+        scene's ``RunResult`` and ``liefi run --json``); the invariant is still
+        monitored.  ``drop_exact=False`` keeps every term.
         """
         from .run import run_feedback
 

@@ -236,8 +236,10 @@ class Scene:
         ``scheme`` is a liefi scheme name (``euler``, ``heun``, ``rk4``...), a
         stiff-safe split scheme (``imex-euler``, ``imex-rk4``: :mod:`liefi.schemes.split`),
         ``"scipy:METHOD"`` (``solve_ivp`` with ``rtol``/``atol``), or one of the
-        scene's ``extra_schemes`` (e.g. ``"dla"``).  ``gains="auto"``: chosen from
-        ``dt`` and the Hessian of ``V`` and adapted along the run.
+        scene's ``extra_schemes`` (e.g. ``"dla"``).  ``gains="auto"``: chosen for accuracy
+        from the scheme, ``dt`` and the horizon (:mod:`liefi.gains`; see
+        :class:`~liefi.FeedbackIntegrator`).  ``RunResult.dropped``: the
+        invariants left out of ``V`` because the scheme keeps them exactly.
         ``check_stability`` and ``adaptive`` are passed to
         :meth:`liefi.FeedbackIntegrator.run` (:mod:`liefi.stability`).
         ``backend``: ``"numpy"``, ``"numba"`` or ``"auto"`` (:mod:`liefi.compiled`);
