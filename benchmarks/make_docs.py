@@ -1,190 +1,168 @@
-"""Generate the work-precision CSVs, diagrams and summary used by ``docs/work_precision.md``.
+"""Generate the work-precision CSVs, diagrams, summary and crossover tables of ``docs/work_precision.md``.
 
-Run::
+Run (both stages resume: every run is appended to a SQLite store as it
+finishes, and a rerun skips what is there)::
 
-    python benchmarks/make_docs.py                        # every scene, t = 1e3, long horizon 1e4
-    python benchmarks/make_docs.py --only suslov --t-final 100 --long-horizon 0
+    python benchmarks/make_docs.py grid                    # every scene, t in [0, 1e3]
+    python benchmarks/make_docs.py long --t-final 1e5      # long runs, crossover horizons
+    python benchmarks/make_docs.py long --t-final 1e6 --only roller-racer --dts 8 --gains 1 --methods FI,projection
+    python benchmarks/make_docs.py tables                  # print the markdown tables
 
-Writes into ``docs/work_precision/`` (``--out``): per scene
-``<scene>-work-precision.csv``, ``<scene>-error.png``, ``<scene>-drift.png``,
-``<scene>-long-horizon.csv`` and ``<scene>-long-horizon.png`` (the curves behind
-it go to ``--curves``, outside the docs); and
-``summary.json`` / ``summary.md``: per scene, the cheapest run whose every
-invariant drifts by at most 1e-8 over ``[0, t_final]``, the cheapest feedback
-integrator run that does, and the feedback integrator at the paper's settings.
-The grid runs on a process pool (``--scheduler``, see :mod:`liefi.sweep`).
+``grid`` writes into ``docs/work_precision/`` (``--out``): per scene
+``<scene>-work-precision.csv``, ``<scene>-error.png``, ``<scene>-drift.png``;
+``results.sqlite`` (every run) and ``summary.json`` (per scene
+``cheapest_overall``, ``cheapest_fi``, ``fi_over_best`` for "every invariant
+<= 1e-8", as ``liefi bench`` writes it).  The grid is the scene's
+``dt * (8, 4, 2, 1, 1/2, 1/4)`` for the fixed-step methods, the FI with the
+scene's gains and k = 0.1, 1, 10 on every invariant, ``rtol = 1e-3 ... 1e-11``
+for ``solve_ivp``; ``FI/solve_ivp`` with LSODA only (RK45 and DOP853 on the
+stiff FI field cost minutes per run and never win).
+
+``long`` runs every compiled fixed-step family (FI with k = 0.1 and 1,
+``FI-accurate``, no-feedback, projection) with RK4 at ``dt * (8, 4)`` to ``--t-final`` and
+writes ``long-<T>.sqlite``, ``crossover.json`` and ``<scene>-cost-horizon.png``.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 import time
-import traceback
 import warnings
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 
 from liefi import bench, scenes  # noqa: E402
-from liefi.sweep import open_executor  # noqa: E402
+from liefi.sweep import ResultStore, TaskError, run_sweep, open_executor  # noqa: E402
+
+OUT = os.path.join(os.path.dirname(HERE), "docs", "work_precision")
 
 
 def log(msg):
     print(f"[{time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr, flush=True)
 
 
-def _brief(r):
-    if r is None:
-        return None
-    keys = ("method", "scheme", "dt", "rtol", "cpu_seconds", "rhs_evaluations", "max_error", "max_drift")
-    return {k: r.get(k) for k in keys}
+def _grid_select(task):
+    return not (task["method"] == "FI/solve_ivp" and task["scheme"] != "LSODA")
 
 
-def summarize(name, rows, long_rows, drift=1e-8):
-    sc = scenes.get(name)
-    paper = [r for r in rows if r["method"] == "FI" and r["scheme"] == sc.scheme and r["dt"]
-             and abs(r["dt"] - sc.dt) < 1e-12 * sc.dt]
-    out = {
-        "scene": name,
-        "t_final": rows[0]["t_final"],
-        "runs": len(rows),
-        "failed": sum(r["status"] != "ok" for r in rows),
-        "cheapest": _brief(bench.cheapest(rows, drift=drift)),
-        "cheapest_fi": _brief(bench.cheapest(rows, drift=drift, methods=("FI",))),
-        "cheapest_fi_any": _brief(bench.cheapest(rows, drift=drift, methods=("FI", "FI-tuned", "FI/solve_ivp"))),
-        "cheapest_fi_tuned": _brief(bench.cheapest(rows, drift=drift, methods=("FI-tuned",))),
-        "cheapest_accurate": _brief(bench.cheapest(rows, drift=drift, error=1e-6)),
-        "cheapest_fi_accurate": _brief(bench.cheapest(rows, drift=drift, error=1e-6,
-                                                      methods=("FI", "FI-tuned", "FI/solve_ivp"))),
-        "fi_paper": _brief(paper[0]) if paper else None,
-        "cheapest_by_method": {m: _brief(bench.cheapest(rows, drift=drift, methods=(m,))) for m in bench.METHODS},
-        "long_horizon": [_brief(r) | {"status": r["status"], "t_final": r["t_final"]} for r in long_rows],
-    }
-    return out
+def grid(a, names):
+    with open_executor(a.scheduler) as ex:
+        expected = {}
+        for name in names:
+            sc = scenes.get(name)
+            dts = [sc.dt * f for f in (8.0, 4.0, 2.0, 1.0, 0.5, 0.25)]
+            expected[name] = sum(map(_grid_select, bench.build_tasks(sc, a.t_final, dts=dts)))
+            try:
+                rows = bench.work_precision(sc, a.t_final, a.out, ex, log=log, dts=dts, select=_grid_select)
+            except KeyboardInterrupt:
+                bench.write_summary(a.out, expected)
+                log(f"{name}: interrupted; what finished is in results.sqlite and summary.json")
+                raise SystemExit(130) from None
+            bench.write_summary(a.out, expected)
+            log(f"{name}: " + bench.summary(rows).replace("\n", "; "))
 
 
 def _cell(r):
     if r is None:
-        return "none in the grid", "-"
-    p = f"dt={r['dt']:.3g}" if r.get("dt") else f"rtol={r['rtol']:.0e}"
-    err = "" if r.get("max_error") is None else f", err {r['max_error']:.0e}"
-    return f"{r['method']} {r['scheme']} {p} (drift {r['max_drift']:.0e}{err})", f"{r['cpu_seconds']:.2g}"
-
-
-def tables(summary, names):
-    """Markdown tables of the summaries (the ones quoted in docs/work_precision.md)."""
-    T = next((s["t_final"] for s in summary.values()), 0)
-    out = [f"Every invariant's drift <= 1e-8 over [0, {T:g}]: the cheapest run (CPU seconds), over all methods and "
-           "over the feedback integrator's rows.", "",
-           "| scene | cheapest of all | CPU s | cheapest FI (paper's gains) | CPU s | cheapest FI-tuned | CPU s "
-           "| FI at the paper's settings | CPU s |",
-           "|---|---|---|---|---|---|---|---|---|"]
-    for name in names:
-        s = summary.get(name)
-        if s:
-            c = [_cell(s.get(k)) for k in ("cheapest", "cheapest_fi", "cheapest_fi_tuned", "fi_paper")]
-            out.append(f"| {name} | " + " | ".join(f"{a} | {b}" for a, b in c) + " |")
-    out += ["", "The same with the error against the reference also <= 1e-6:", "",
-            "| scene | cheapest of all | CPU s | cheapest feedback integrator (any) | CPU s |", "|---|---|---|---|---|"]
-    for name in names:
-        s = summary.get(name)
-        if s:
-            c = [_cell(s.get(k)) for k in ("cheapest_accurate", "cheapest_fi_accurate")]
-            out.append(f"| {name} | " + " | ".join(f"{a} | {b}" for a, b in c) + " |")
-    return out
-
-
-def _fmt(r):
-    if r is None:
         return "none in the grid"
-    p = f"dt = {r['dt']:.3g}" if r.get("dt") else f"rtol = {r['rtol']:.0e}"
-    return f"{r['method']} {r['scheme']} ({p}): {r['cpu_seconds']:.3g} s, drift {r['max_drift']:.1e}, error {r['max_error']:.1e}"
+    p = f"dt={r['dt']:.3g}" if r.get("dt") else f"rtol={r['rtol']:.0e}"
+    k = "" if r.get("gain") is None else f", k={r['gain']:g}"
+    if r["method"] == "FI" and r.get("gain") is None:
+        k = ", scene's gains"
+    return f"{r['method']} {r['scheme']} ({p}{k}): {r['cpu_seconds']:.2g} s, drift {r['max_drift']:.0e}"
+
+
+def long(a, names):
+    path = os.path.join(a.out, f"long-{a.t_final:g}.sqlite")
+    res_path = os.path.join(a.out, "crossover.json")
+    allres = json.load(open(res_path)) if os.path.exists(res_path) else {}
+    factors = [float(f) for f in a.dts.split(",")]
+    with open_executor(a.scheduler) as ex, ResultStore(path) as store:
+        for name in names:
+            sc = scenes.get(name)
+            gains = tuple(None if g == "scene" else float(g) for g in a.gains.split(","))
+            tasks = bench.horizon_tasks(sc, a.t_final, dts=[sc.dt * f for f in factors], n_save=a.n_save,
+                                        gains=gains)
+            if a.methods:
+                tasks = [t for t in tasks if t["method"] in a.methods.split(",")]
+            log(f"{name}: {len(tasks)} runs to t = {a.t_final:g}")
+            store.sweep = name
+            vals = run_sweep(bench.run_task, tasks, ex, store=store, convert=bench.horizon_row, label=name)
+            # every long run of this scene in every store of this folder (other steps and horizons too)
+            rows = []
+            for other in sorted(os.listdir(a.out)):
+                if other.startswith("long-") and other.endswith(".sqlite"):
+                    with ResultStore(os.path.join(a.out, other)) as o:
+                        rows += [v for t, v in o.rows(name) if not isinstance(v, TaskError)]
+            res = {}
+            for crit, err in (("drift", None), ("drift+error", 1e-6)):
+                c = bench.crossover(rows, drift=1e-10, error=err if err else math.inf)
+                res[crit] = {"crossover": c["crossover"],
+                             "fi_best": {f"{h:g}": v for h, v in c["fi_best"].items()},
+                             "other_best": {f"{h:g}": v for h, v in c["other_best"].items()}}
+                if crit == "drift+error" or sc.reference != "exact":
+                    curves = c["curves"]
+            res["error_measured"] = sc.reference == "exact"
+            res["errors"] = [str(v) for v in vals if isinstance(v, TaskError)]
+            allres[name] = res
+            with open(res_path, "w") as fh:
+                json.dump(allres, fh, indent=1)
+            bench.plot_cost_vs_horizon(curves, os.path.join(a.out, f"{name}-cost-horizon.png"), name)
+            log(f"{name}: crossover {res['drift+error']['crossover']} (drift only: {res['drift']['crossover']})")
+
+
+def tables(a, names):
+    s = json.load(open(os.path.join(a.out, "summary.json")))["scenes"]
+    print("| scene | cheapest overall | cheapest FI | fi_over_best |\n|---|---|---|---|")
+    for n in names:
+        if n in s:
+            x = s[n]
+            r = x["fi_over_best"]
+            print(f"| {n} | {_cell(x['cheapest_overall'])} | {_cell(x['cheapest_fi'])} | "
+                  f"{'-' if r is None else f'{r:.2f}'} |")
+    p = os.path.join(a.out, "crossover.json")
+    if os.path.exists(p):
+        c = json.load(open(p))
+        print("\n| scene | crossover H (drift <= 1e-10, rel. error <= 1e-6) | crossover H (drift only) "
+              "| at the longest H where a method qualifies: cheapest FI | cheapest other |\n|---|---|---|---|---|")
+        for n in names:
+            if n not in c:
+                continue
+            x = c[n]["drift+error"]
+            hs = sorted(set(x["fi_best"]) | set(x["other_best"]), key=float)
+            last = hs[-1] if hs else None
+            fi = x["fi_best"].get(last) if last else None
+            ot = x["other_best"].get(last) if last else None
+            f = lambda v: "none" if v is None else f"{v[0]}: {v[1]:.2g} s"  # noqa: E731
+            cr = lambda v: "never" if v is None else f"{v:g}"  # noqa: E731
+            err = "" if c[n]["error_measured"] else " (error not measured)"
+            print(f"| {n} | {cr(x['crossover'])}{err} | {cr(c[n]['drift']['crossover'])} | H={last}: {f(fi)} "
+                  f"| {f(ot)} |")
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--out", default=os.path.join(os.path.dirname(HERE), "docs", "work_precision"))
+    ap.add_argument("stage", choices=("grid", "long", "tables"))
+    ap.add_argument("--out", default=OUT)
     ap.add_argument("--only", default=None, help="comma-separated scene names")
-    ap.add_argument("--t-final", type=float, default=1e3, dest="t_final")
-    ap.add_argument("--long-horizon", type=float, default=1e4, dest="long_horizon")
-    ap.add_argument("--long-n-save", type=int, default=20000, dest="long_n_save",
-                    help="saved points of each long-horizon run (drifts are measured there)")
-    ap.add_argument("--curves", default=os.path.join(os.path.expanduser("~"), ".cache", "liefi", "docs-curves"),
-                    help="where the long-horizon curves (.npz, for --replot) go; kept out of the docs")
+    ap.add_argument("--t-final", type=float, default=None, dest="t_final")
+    ap.add_argument("--dts", default="8,4", help="long: steps as multiples of the scene's dt")
+    ap.add_argument("--gains", default="0.1,1", help="long: fixed FI gains ('scene': the scene's)")
+    ap.add_argument("--methods", default=None, help="long: only these families (FI,no-feedback,projection)")
+    ap.add_argument("--n-save", type=int, default=10000, dest="n_save")
     ap.add_argument("--scheduler", default="processes:2")
-    ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--resume", action="store_true",
-                    help="reuse a scene's work-precision CSV when it exists (and its long-horizon files)")
-    ap.add_argument("--replot", action="store_true", help="only redraw every PNG from the CSV/NPZ files")
-    ap.add_argument("--tables", action="store_true", help="only print the tables of summary.json")
-    ap.add_argument("--redo-long", action="store_true", dest="redo_long",
-                    help="with --resume: recompute the long horizon even when its files exist")
-    ap.add_argument("--add-methods", default=None, dest="add_methods", metavar="M[,M]",
-                    help="run only these method families and merge them into the existing CSVs "
-                         "(then redo the long horizon unless --long-horizon 0)")
     a = ap.parse_args(argv)
     warnings.filterwarnings("ignore")
     names = a.only.split(",") if a.only else scenes.names()
     os.makedirs(a.out, exist_ok=True)
-    path = os.path.join(a.out, "summary.json")
-    summary = json.load(open(path)) if os.path.exists(path) else {}
-    if a.tables:
-        print("\n".join(tables(summary, [n for n in names if n in summary])))
-        return 0
-    if a.replot:
-        for name in names:
-            csv_path = os.path.join(a.out, f"{name}-work-precision.csv")
-            if os.path.exists(csv_path):
-                bench.plot(bench.read_csv(csv_path), a.out, name)
-            npz = os.path.join(a.curves, f"{name}-long-horizon.npz")
-            if os.path.exists(npz):
-                curves = bench.load_curves(npz)
-                T = max(float(t[-1]) for t, *_ in curves.values())
-                bench.plot_long_horizon(curves, os.path.join(a.out, f"{name}-long-horizon.png"), name, T)
-            log(f"{name}: replotted")
-        return 0
-    with open_executor(a.scheduler) as ex:
-        for name in names:
-            try:
-                csv_path = os.path.join(a.out, f"{name}-work-precision.csv")
-                lh_path = os.path.join(a.out, f"{name}-long-horizon.csv")
-                if a.add_methods and os.path.exists(csv_path):
-                    old = bench.read_csv(csv_path)
-                    have = {r["method"] for r in old}
-                    add = [m for m in a.add_methods.split(",")
-                           if m in bench.applicable_methods(scenes.get(name)) and m not in have]
-                    new = bench.work_precision(name, old[0]["t_final"], None, ex, methods=add, log=log) if add else []
-                    order = {m: i for i, m in enumerate(bench.METHODS)}
-                    rows = sorted(old + new, key=lambda r: order.get(r["method"], 99))
-                    if new:
-                        bench.write_csv(rows, csv_path)
-                    bench.plot(rows, a.out, name)
-                elif a.resume and os.path.exists(csv_path):
-                    rows = bench.read_csv(csv_path)
-                    log(f"{name}: reusing {csv_path}")
-                else:
-                    rows = bench.work_precision(name, a.t_final, a.out, ex, quick=a.quick, log=log)
-                long_rows = []
-                if (a.long_horizon and a.resume and not a.redo_long and os.path.exists(lh_path)
-                        and os.path.exists(os.path.join(a.curves, f"{name}-long-horizon.npz"))):
-                    long_rows = bench.read_csv(lh_path)
-                elif a.long_horizon:
-                    long_rows, _ = bench.long_horizon(rows, a.out, ex, t_final=a.long_horizon,
-                                                      n_save=a.long_n_save, curves_dir=a.curves, log=log)
-                summary[name] = summarize(name, rows, long_rows)
-                with open(path, "w") as fh:
-                    json.dump(summary, fh, indent=1, default=float)
-                log(f"{name}: cheapest drift <= 1e-8: {_fmt(summary[name]['cheapest'])}")
-                log(f"{name}: FI: {_fmt(summary[name]['cheapest_fi'])}")
-            except Exception:  # noqa: BLE001 -- keep going with the other scenes
-                log(f"{name}: FAILED\n{traceback.format_exc()}")
-    lines = tables(summary, names)
-    with open(os.path.join(a.out, "summary.md"), "w") as fh:
-        fh.write("\n".join(lines) + "\n")
-    print("\n".join(lines))
+    if a.t_final is None:
+        a.t_final = 1e3 if a.stage == "grid" else 1e5
+    {"grid": grid, "long": long, "tables": tables}[a.stage](a, names)
     return 0
 
 

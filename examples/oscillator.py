@@ -11,7 +11,7 @@ Poincaré snapshots of Figure ``figure:Poincare:FI`` (``y`` crossing 0 upward).
 Run ``python examples/oscillator.py`` for the paper's horizon ``[0, 200]``
 (Euler, ``dt = 1e-3``, gains ``k_1 = 500``, ``k_2 = k_3 = 300``; about half a
 minute); ``python examples/oscillator.py --plot`` also draws the two figures
-(needs matplotlib and :mod:`liefi.plotting`).
+(needs matplotlib; the scene draws them, ``scene.figures``).
 """
 
 import sys
@@ -46,11 +46,11 @@ def main(t_final=200.0, dt=1e-3, plot=False):
             print("       " + "  ".join(f"{v:9.5f}" for v in row))
     if plot:
         from liefi import plotting
-        import matplotlib.pyplot as plt
 
-        plotting.oscillator_integrals(runs["fi"], runs["dla"])
-        plotting.oscillator_poincare([(runs["fi"], sections["fi"]), (runs["dla"], sections["dla"])])
-        plt.show()
+        for spec in scene.figures(runs):  # figure:oscillator and figure:Poincare:FI, FI and DLA side by side
+            path = spec.key.replace(":", "_") + ".png"
+            plotting.save(spec.draw(None), path)
+            print(f"wrote {path}")
     return {**runs, "sections": sections}
 
 

@@ -2,12 +2,14 @@
 
 ::
 
+    liefi --version
     liefi list [-v]
     liefi run SCENE [--dt DT] [--t-final T] [--scheme euler|heun|rk4|dla|scipy:METHOD]
                     [--gains K | --gains K1,K2,... | --gains name=K,...] [--variant NAME]
-                    [--configuration] [--json] [--plot FILE.png]
-    liefi reproduce [--out DIR] [--only SCENE[,SCENE]] [--t-final-scale S]
-    liefi stability SCENE [--scheme S] [--gains K1,K2,...] [--plot FILE.png] [--estimate] [--json]
+                    [--configuration] [--save-every N] [--no-check-stability] [--adaptive]
+                    [--json] [--out FILE.png|DIR]
+    liefi reproduce [--out DIR] [--only SCENE[,SCENE] | --all] [--t-final-scale S] [--jobs N]
+    liefi stability SCENE [--scheme S] [--gains K1,K2,...] [--out FILE.png] [--estimate] [--json]
     liefi bench SCENE|all [--t-final T] [--out DIR] [--scheduler ADDR] [--quick] [--long-horizon T]
 
 ``liefi run`` runs one scene at the paper's settings unless told otherwise and
@@ -15,8 +17,13 @@ reports its error against the exact (or numerical reference) solution, the
 drift of every invariant and its CPU time; ``--json`` prints one JSON object.
 ``liefi reproduce`` is :mod:`liefi.reproduce`.
 
-Errors (unknown scene, variant or scheme, malformed gains, a diverging run)
-print one line ``liefi: error: ...`` on stderr and exit with code 2.
+Errors (unknown scene, variant or scheme, malformed gains, a diverging run, an
+output that cannot be written -- checked before any work) print one line
+``liefi: error: ...`` on stderr and exit with code 2; an interrupt (Ctrl-C,
+SIGINT) prints one line and exits with code 130, after ``reproduce`` has
+written the summary of what finished.  Nothing here names a scene: what is
+particular to one (its figures, whether they need the configuration, its
+reproduction runs) is asked of the scene (:class:`liefi.scenes.Scene`).
 :func:`main` takes ``argv`` and returns the exit code, so tests call it directly.
 matplotlib is imported only when a figure is written.
 """
@@ -26,8 +33,10 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import re
 import sys
 
+from . import __version__
 from . import scenes as _scenes
 from .schemes import IntegrationError
 from .schemes import registry as _schemes
@@ -170,17 +179,68 @@ def cmd_list(args):
     return 0
 
 
+def plot_path(path, scene, variant=None, *, suffix=""):
+    """The file ``liefi run --out`` writes, checked before the run.
+
+    A folder gets ``SCENE.png`` (``SCENE-VARIANT.png`` for another variant than the
+    first) inside it; a name without a suffix gets ``.png``.  Raises
+    :class:`UsageError` (naming ``out``) when the file cannot be written, and an
+    ``ImportError`` with the install hint when matplotlib is missing.
+    """
+    import os
+
+    from . import plotting
+
+    plotting.require_matplotlib()
+    if os.path.isdir(path):
+        first = next(iter(scene.variants), None)
+        name = scene.name + ("" if variant in (None, first) else f"-{variant}") + suffix
+        path = os.path.join(path, name + ".png")
+    elif not os.path.splitext(path)[1]:
+        path += ".png"
+    folder = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(folder):
+        raise UsageError(f"out: the folder {folder!r} of {path!r} does not exist; create it or choose another --out")
+    if os.path.isdir(path) or (os.path.exists(path) and not os.access(path, os.W_OK)) or not os.access(folder, os.W_OK):
+        raise UsageError(f"out: cannot write {path!r} (not writable); choose another --out")
+    return path
+
+
+#: ``liefi run`` refuses more steps than this unless ``--max-steps`` says otherwise
+MAX_STEPS = 10**8
+
+
+def check_steps(scene, args):
+    """Refuse, before any work, a run of more than ``--max-steps`` steps (default :data:`MAX_STEPS`).
+
+    The count ``t_final / dt`` is the whole estimate: at liefi's fastest (about a
+    microsecond a step, compiled) 1e8 steps take minutes, with numpy hours.  The
+    saved output is capped by the run itself (``--save-every`` overrides).
+    """
+    dt = scene.dt if args.dt is None else args.dt
+    T = scene.t_final if args.t_final is None else args.t_final
+    n = T / dt
+    limit = args.max_steps if args.max_steps is not None else MAX_STEPS
+    if n > limit:
+        raise UsageError(
+            f"dt: --dt {dt:g} over --t-final {T:g} is {n:.3g} steps, more than the {limit:.3g} allowed "
+            f"(about {n * 1e-6 / 3600:.2g} h at a microsecond a step, compiled; far longer with numpy); "
+            "take a larger --dt or a shorter --t-final, or raise --max-steps"
+        )
+
+
 def cmd_run(args):
     scene = _scenes.get(args.scene)
     variant = scene.variant(args.variant)
     check_scheme(args.scheme, scene)
     configuration = True if args.configuration else None
-    if args.plot:
-        from . import plotting
-
-        if plotting.needs_configuration(scene.name):
+    path = None
+    if args.out:
+        path = plot_path(args.out, scene, variant.name)  # before any work
+        if scene.figures_need_configuration:
             configuration = True
     gains = parse_gains(args.gains, scene, variant, configuration)
+    check_steps(scene, args)
     result = scene.run(
         dt=args.dt,
         t_final=args.t_final,
@@ -189,36 +249,32 @@ def cmd_run(args):
         variant=variant,
         configuration=configuration,
         backend=args.backend,
+        save_every=args.save_every,
+        check_stability=args.check_stability,
+        adaptive=True if args.adaptive else None,
     )
     if not all(math.isfinite(v) for v in list(result.max_error.values()) + list(result.max_drift.values())):
         raise IntegrationError(
             f"run of {scene.name} produced non-finite errors or drifts; reduce dt or the gains", 0.0, 0, None, []
         )
-    out = result.to_dict()
+    out = {"liefi_version": __version__}
+    out.update(result.to_dict())
+    out["backend"] = result.backend
+    out["reference_method"] = scene.reference_method()
     out["configuration"] = bool(configuration) if configuration is not None else scene.needs_configuration()
-    if args.plot:
+    out["warnings"] = list(getattr(args, "warnings_seen", []))
+    if path:
         from . import plotting
 
-        sections = None
-        if scene.name == "oscillator":
-            sections = _poincare(result)
-        plotting.plot_run(result, args.plot, title=scene.title, sections=sections)
-        out["plot"] = args.plot
+        plotting.stack(scene.figures(result), path)
+        out["plot"] = path
     if args.json:
         print(json.dumps(out))
     else:
         report(result)
-        if args.plot:
-            print(f"  figure written to {args.plot}")
+        if path:
+            print(f"  figure written to {path}")
     return 0
-
-
-def _poincare(result):
-    """The Poincaré sections of an oscillator run and of its reference (or ``None``)."""
-    from .reproduce import oscillator_sections
-
-    sec, ref = oscillator_sections(result)
-    return None if sec is None else (sec, ref)
 
 
 def cmd_reproduce(args):
@@ -232,7 +288,14 @@ def cmd_reproduce(args):
             raise UsageError(f"only: unknown scene(s) {unknown}; choose from {_scenes.names()}")
     if not (math.isfinite(args.t_final_scale) and args.t_final_scale > 0):
         raise UsageError(f"t-final-scale: must be a positive number, got {args.t_final_scale!r}")
-    summary = reproduce.reproduce(args.out, only=only, t_final_scale=args.t_final_scale)
+    from . import plotting
+
+    plotting.require_matplotlib()  # the figures are the point: fail before any work
+    try:
+        summary = reproduce.reproduce(args.out, only=only, t_final_scale=args.t_final_scale, jobs=args.jobs,
+                                      all_scenes=args.all)
+    except reproduce.OutputError as exc:
+        raise UsageError(str(exc)) from None
     print(reproduce.markdown_table(summary))
     return 1 if summary["failures"] else 0
 
@@ -253,11 +316,36 @@ def _positive_float(what):
     return conv
 
 
+def _positive_int(what):
+    def conv(s):
+        try:
+            v = int(s)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{s!r} is not a whole number") from None
+        if v < 1:
+            raise argparse.ArgumentTypeError(f"{what} must be a whole number >= 1, got {s!r}")
+        return v
+
+    return conv
+
+
+def _out_everywhere(parser):
+    """Every command writes to ``--out``: give ``--plot`` that name too, and refuse ``--jobs`` < 1."""
+    for action in parser._actions:
+        if "--plot" in action.option_strings and "--out" not in action.option_strings:
+            action.option_strings.append("--out")
+            parser._option_string_actions["--out"] = action
+            action.help = (action.help or "") + " (--out and --plot are the same)"
+        if "--jobs" in action.option_strings and action.type is int:
+            action.type = _positive_int("jobs")
+
+
 def build_parser():
     p = _Parser(
         prog="liefi",
         description="Feedback integrators for nonholonomic systems: the paper's experiments (Section 3).",
     )
+    p.add_argument("--version", action="version", version=f"liefi {__version__}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
 
     pl = sub.add_parser("list", help="the scenes, one line each (name, title, paper section, variants)")
@@ -292,9 +380,18 @@ def build_parser():
     pr.add_argument("--configuration", action="store_true", help="integrate the group element too")
     pr.add_argument("--backend", default=None, choices=("auto", "numba", "numpy"),
                     help="numpy (reference) or the compiled engine (numba); default auto when numba is installed")
+    pr.add_argument("--save-every", type=_positive_int("save-every"), default=None, dest="save_every", metavar="N",
+                    help="keep every N-th step (default: at most 20000 saved points)")
+    pr.add_argument("--no-check-stability", action="store_false", dest="check_stability",
+                    help="skip the stability estimate and monitoring before and during the run")
+    pr.add_argument("--max-steps", type=_positive_float("max-steps"), default=None, dest="max_steps", metavar="N",
+                    help=f"refuse runs of more than N steps (t_final / dt) before they start (default {MAX_STEPS:.0e})")
+    pr.add_argument("--adaptive", action="store_true",
+                    help="adapt the gains along the run to the stability limit (liefi.stability)")
     pr.add_argument("--json", action="store_true", help="print one JSON object")
-    pr.add_argument("--plot", default=None, metavar="FILE.png",
-                    help="write the scene's figure(s) to FILE.png (integrates the configuration if needed)")
+    pr.add_argument("--out", "--plot", default=None, metavar="FILE.png|DIR", dest="out",
+                    help="write the scene's figure(s) to FILE.png (into DIR: DIR/SCENE.png); checked before the "
+                         "run; integrates the configuration if the figures need it (--plot: the same)")
 
     pp = sub.add_parser(
         "reproduce",
@@ -307,8 +404,12 @@ def build_parser():
     )
     pp.add_argument("--out", default="./liefi-out", metavar="DIR", help="output directory (default ./liefi-out)")
     pp.add_argument("--only", default=None, metavar="SCENE[,SCENE]", help="run only these scenes")
+    pp.add_argument("--all", action="store_true",
+                    help="also the scenes beyond the paper (default: the paper's experiments only)")
     pp.add_argument("--t-final-scale", type=float, default=1.0, dest="t_final_scale", metavar="S",
                     help="(for tests) multiply every horizon by S, e.g. 0.01 for a quick smoke run")
+    pp.add_argument("--jobs", type=_positive_int("jobs"), default=None, metavar="N",
+                    help="worker processes for independent scenes (default: the number of CPUs)")
 
     from . import bench as _bench
     from .experiments import stability_cli as _stability
@@ -322,6 +423,7 @@ def build_parser():
         ),
     )
     _stability.add_arguments(ps)
+    _out_everywhere(ps)
     pb = sub.add_parser(
         "bench",
         help="work-precision: error and drift against CPU time for every method on a scene",
@@ -334,6 +436,24 @@ def build_parser():
     return p
 
 
+#: the library's advice in Python spelling -> the flag that does it
+_ADVICE = (
+    (re.compile(r"\bgains\s*=\s*['\"]auto['\"]"), "--gains auto"),
+    (re.compile(r"\badaptive\s*=\s*True\b"), "--adaptive"),
+    (re.compile(r"\bcheck_stability\s*=\s*False\b"), "--no-check-stability"),
+    (re.compile(r"\bscheme\s*=\s*['\"]([\w:-]+)['\"]"), r"--scheme \1"),
+    (re.compile(r"\bsave_every\s*=\s*"), "--save-every "),
+    (re.compile(r"\bbackend\s*=\s*['\"](\w+)['\"]"), r"--backend \1"),
+)
+
+
+def as_flags(message):
+    """A library message with its advice spelled as ``liefi`` flags (``adaptive=True`` -> ``--adaptive``)."""
+    for pattern, flag in _ADVICE:
+        message = pattern.sub(flag, message)
+    return message
+
+
 def main(argv=None):
     """Entry point of ``liefi`` / ``python -m liefi``; returns the exit code.
 
@@ -343,27 +463,31 @@ def main(argv=None):
     import warnings
 
     parser = build_parser()
-    seen = set()
+    seen = []
 
     def show(message, category, *args, **kwargs):
         msg = " ".join(str(message).split())
         msg = msg[len("liefi: "):] if msg.startswith("liefi: ") else msg
-        if msg not in seen:
-            seen.add(msg)
-            print(f"liefi: warning: {category.__name__}: {msg}", file=sys.stderr, flush=True)
+        line = f"{category.__name__}: {as_flags(msg)}"
+        if line not in seen:
+            seen.append(line)
+            print(f"liefi: warning: {line}", file=sys.stderr, flush=True)
 
     with warnings.catch_warnings():
         warnings.simplefilter("always")
         warnings.showwarning = show
-        return _main(parser, argv)
+        return _main(parser, argv, seen)
 
 
-def _main(parser, argv):
+def _main(parser, argv, seen=()):
     try:
         args = parser.parse_args(argv)
+        args.warnings_seen = seen
         if args.command is None:
             parser.print_help(sys.stderr)
             return 2
+        if args.command == "stability" and args.plot:  # the map's file, checked before any work
+            args.plot = plot_path(args.plot, _scenes.get(args.scene), suffix="-stability")
         if args.command == "stability":
             from .experiments.stability_cli import command
 
@@ -376,6 +500,9 @@ def _main(parser, argv):
     except UsageError as exc:
         print(f"liefi: error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # Ctrl-C / SIGINT: one line, the shell's code for SIGINT
+        print("liefi: interrupted (what finished is kept; see the command's output folder)", file=sys.stderr)
+        return 130
     except BrokenPipeError:  # e.g. `liefi list | head`: stop quietly
         import os
 
@@ -385,9 +512,10 @@ def _main(parser, argv):
         return exc.code if isinstance(exc.code, int) else 0
     except (ValueError, ArithmeticError, RuntimeError, OSError, ImportError) as exc:
         # ValueError: bad scene / variant / dt ...; IntegrationError (an ArithmeticError): a
-        # diverging run; RuntimeError: solve_ivp or the reference failed; OSError: --plot path.
+        # diverging run; RuntimeError: solve_ivp or the reference failed; OSError: an output path;
+        # ImportError: an optional extra (matplotlib: liefi[plot]) is missing.
         msg = " ".join(str(exc).split()) or type(exc).__name__
-        print(f"liefi: error: {msg}", file=sys.stderr)
+        print(f"liefi: error: {as_flags(msg)}", file=sys.stderr)
         return 2
 
 

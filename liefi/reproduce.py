@@ -1,32 +1,38 @@
 """``liefi reproduce``: every experiment of the paper's Section 3, its figures and a summary.
 
-What runs (each at the scene's own ``dt``, ``t_final``, scheme and gains, i.e. the paper's):
-
-* every scene and every variant of :data:`liefi.scenes.REGISTRY`;
-* the nonholonomic oscillator also with the DLA scheme on the same horizon
-  ``[0, 200]`` (``figure:oscillator``: left column FI, right column DLA), and
-  both the feedback integrator (Euler) and DLA on ``[0, 400]`` (every step
-  saved) for the Poincaré sections (``figure:Poincare:FI``); the DLA runs do
-  not depend on the variant (it only changes ``V``), so they run once and each
-  variant's figures reuse them;
-* the Suslov runs integrate the rotation matrix (``figure:Suslov_integrals``
-  plots ``||R^T R - I||``).
+What runs: every scene of the paper (``Scene.in_paper``; ``all_scenes``: every
+scene of :data:`liefi.scenes.REGISTRY`) and every variant, each
+with the runs the scene asks for (:meth:`liefi.scenes.Scene.paper_runs`: by
+default one run at the paper's ``dt``, ``t_final``, scheme and gains, the
+configuration included when the scene's figures need it).  A run that does not
+depend on the variant (``PaperRun.variant_independent``) runs once and is
+reused.  A scene with a numerical reference computes it once, for the longest
+horizon it needs, before its runs (:meth:`~liefi.scenes.Scene.reference_solution`).
+Independent scenes run in parallel (``jobs`` worker processes).
 
 What is written to ``out``:
 
-* the paper's figures as PNG, named after their labels
-  (``figure_Suslov_Pi_exact.png``, ``figure_Suslov_integrals.png``,
-  ``figure_knife_cycloid.png``, ``figure_knife_exact.png``,
-  ``figure_knife_integrals.png``, ``figure_oscillator.png``,
-  ``figure_Poincare_FI.png``); a variant other than a scene's first gets a
-  ``-VARIANT`` suffix; scenes without a paper figure get ``SCENE-VARIANT.png``
-  (errors and drifts vs ``t``, semilogy);
+* the figures of each scene and variant (:meth:`~liefi.scenes.Scene.figures`)
+  as PNG, named after the paper's figure labels (``figure_Suslov_Pi_exact.png``);
+  a variant other than a scene's first gets a ``-VARIANT`` suffix; a scene's
+  generic figure is ``SCENE-VARIANT.png``;
 * ``summary.json`` (every run: settings, steps, CPU time, max errors, max drifts,
-  figures, status) and ``summary.md`` (the same as a markdown table).
+  figures, status) and ``summary.md`` (the same as a markdown table), rewritten
+  after every scene, so an interrupted or killed reproduction leaves a
+  consistent summary of what finished;
+* ``liefi-manifest.json``: the files liefi wrote there.
+
+The output folder is checked before any work (:func:`prepare_output`): liefi
+writes only into a new or empty folder or into one it owns (one holding its
+manifest); the files of an earlier reproduction listed in the manifest are
+removed first, so nothing stale is mixed in, and a file liefi did not write is
+never overwritten.
 
 ``t_final_scale`` (``--t-final-scale``, for tests) multiplies every horizon,
 rounded to a whole number of steps.  A failing experiment is recorded (status
-``failed`` and its error) and the others still run.
+``failed`` and its error) and the others still run.  ``KeyboardInterrupt``
+(SIGINT) stops the work, writes the summary of everything finished (with
+``"interrupted": true``) and is raised again.
 """
 
 from __future__ import annotations
@@ -38,10 +44,15 @@ import time
 import traceback
 import warnings
 
+from . import __version__
 from . import scenes as _scenes
 
-#: the Poincaré sections of the oscillator run over [0, 400] (paper, "Comparisons")
-POINCARE_T_FINAL = 400.0
+#: the file that marks a folder as liefi's and lists what liefi wrote there
+MANIFEST = "liefi-manifest.json"
+
+
+class OutputError(OSError):
+    """The output folder cannot be used (not writable, or it holds files liefi did not write)."""
 
 
 def _log(msg):
@@ -61,241 +72,394 @@ def _figure_file(key, scene, variant, default_variant):
     return base + ("" if variant == default_variant else f"-{variant}") + ".png"
 
 
-def _row(result, experiment, wall):
-    d = result.to_dict()
-    d.update(experiment=experiment, status="ok", wall_seconds=wall, figures=[])
-    return d
+def _tag(variant, default_variant):
+    return "" if variant == default_variant else f" [variant {variant}]"
 
 
-def _failed_row(scene, variant, scheme, t_final, experiment, exc):
+def _one_line(exc):
+    return f"{type(exc).__name__}: {' '.join(str(exc).split())}"
+
+
+# --------------------------------------------------------------------------------------
+# the output folder
+# --------------------------------------------------------------------------------------
+class Output:
+    """A folder liefi owns: every file is listed in its manifest before it is written.
+
+    The manifest is read and rewritten under an exclusive lock (``fcntl`` where
+    available), so worker processes writing into the same folder keep it whole.
+    """
+
+    def __init__(self, path):
+        self.path = os.path.abspath(path)
+
+    def _atomic(self, name, write):
+        final = os.path.join(self.path, name)
+        tmp = os.path.join(self.path, f".{name}.tmp{os.getpid()}")
+        with open(tmp, "w") as f:
+            write(f)
+        os.replace(tmp, final)
+        return final
+
+    def files(self):
+        """The names the manifest lists."""
+        try:
+            with open(os.path.join(self.path, MANIFEST)) as f:
+                return [str(n) for n in json.load(f).get("files", [])]
+        except FileNotFoundError:
+            return []
+
+    def _update(self, add=(), reset=False, refuse_foreign=False):
+        lock = os.open(self.path, os.O_RDONLY)  # the folder itself is the lock
+        try:
+            try:
+                import fcntl
+
+                fcntl.flock(lock, fcntl.LOCK_EX)
+            except (ImportError, OSError):  # pragma: no cover - no flock here: a single writer
+                pass
+            files = [] if reset else self.files()
+            new = [n for n in add if n not in files]
+            if refuse_foreign:
+                for n in new:
+                    if os.path.lexists(os.path.join(self.path, n)):
+                        raise OutputError(
+                            f"out: {os.path.join(self.path, n)} exists and was not written by liefi; not overwriting it"
+                        )
+            if new or reset:
+                data = {"written_by": f"liefi {__version__}", "command": "reproduce", "files": files + new}
+                self._atomic(MANIFEST, lambda f: json.dump(data, f, indent=1))
+            return files
+        finally:
+            os.close(lock)
+
+    def claim(self, name):
+        """The path of ``name`` in the folder, recorded in the manifest before it is written.
+
+        Raises :class:`OutputError` if a file of that name exists that liefi did not write.
+        """
+        self._update(add=[name], refuse_foreign=True)
+        return os.path.join(self.path, name)
+
+    def write_text(self, name, text):
+        self.claim(name)
+        return self._atomic(name, lambda f: f.write(text))
+
+
+def prepare_output(out):
+    """Check the output folder ``out`` before any work and take it over; returns an :class:`Output`.
+
+    * missing: created (with its parents);
+    * empty, or holding liefi's manifest: used; the files the manifest lists (an
+      earlier reproduction's figures and summaries) are removed first;
+    * holding other files and no manifest, not a folder, or not writable:
+      :class:`OutputError` naming ``out`` and what to do.
+    """
+    path = os.path.abspath(out)
+    if os.path.lexists(path) and not os.path.isdir(path):
+        raise OutputError(f"out: {out!r} exists and is not a folder; give a folder (it is created if missing)")
+    try:
+        os.makedirs(path, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"out: cannot create the folder {out!r} ({exc.strerror or exc}); choose another --out") from None
+    entries = set(os.listdir(path))
+    old = []
+    if MANIFEST in entries:
+        try:
+            with open(os.path.join(path, MANIFEST)) as f:
+                old = [str(n) for n in json.load(f).get("files", [])]
+        except (OSError, ValueError, AttributeError) as exc:
+            raise OutputError(
+                f"out: {os.path.join(path, MANIFEST)} is unreadable ({_one_line(exc)}); remove it or choose another --out"
+            ) from None
+    elif entries:
+        shown = ", ".join(sorted(entries)[:3]) + (", ..." if len(entries) > 3 else "")
+        raise OutputError(
+            f"out: the folder {out!r} is not empty ({shown}) and was not created by liefi (no {MANIFEST}); "
+            "liefi writes only into a new or empty folder or one it owns: choose another --out, or empty it"
+        )
+    if not os.access(path, os.W_OK | os.X_OK):
+        raise OutputError(f"out: the folder {out!r} is not writable; choose another --out")
+    output = Output(path)
+    try:
+        output._update(reset=True)  # proves the folder writable before any work
+    except OSError as exc:
+        raise OutputError(f"out: cannot write into {out!r} ({exc.strerror or exc}); choose another --out") from None
+    for name in old:  # an earlier reproduction: nothing stale stays beside the new figures
+        p = os.path.join(path, os.path.basename(name))
+        if os.path.isfile(p) or os.path.islink(p):
+            os.remove(p)
+    return output
+
+
+# --------------------------------------------------------------------------------------
+# one scene
+# --------------------------------------------------------------------------------------
+def _failed_row(scene, variant, scheme, t_final, experiment, exc, status="failed"):
     return {
         "scene": scene,
         "variant": variant,
         "scheme": scheme,
         "t_final": t_final,
         "experiment": experiment,
-        "status": "failed",
-        "error": f"{type(exc).__name__}: {' '.join(str(exc).split())}",
+        "status": status,
+        "error": _one_line(exc) if isinstance(exc, BaseException) else str(exc),
         "figures": [],
     }
 
 
-class _Runner:
-    def __init__(self, out, t_final_scale):
-        self.out = out
-        self.scale = float(t_final_scale)
-        self.rows = []
-        self.failures = []
-        self.figures = []
-        self.count = 0
-
-    def run(self, scene, variant, *, scheme=None, t_final=None, configuration=None, experiment="paper",
-            save_every=None):
-        """Run one experiment; returns the result or None (failure recorded)."""
-        scheme = scheme or scene.scheme
-        T = _horizon(scene.t_final if t_final is None else t_final, scene.dt, self.scale)
-        self.count += 1
-        tag = f"[{self.count}] {scene.name} / {variant} / {scheme} / t in [0, {T:g}]"
-        _log(f"{tag} ...")
-        start = time.perf_counter()
-        try:
-            with warnings.catch_warnings(record=True) as caught:
-                warnings.simplefilter("always")
-                result = scene.run(
-                    scheme=scheme, t_final=T, variant=variant, configuration=configuration, save_every=save_every
-                )
-        except Exception as exc:  # noqa: BLE001 - record and go on with the other experiments
-            row = _failed_row(scene.name, variant, scheme, T, experiment, exc)
-            self.rows.append(row)
-            self.failures.append(row)
-            _log(f"{tag} FAILED: {row['error']}")
-            return None
-        wall = time.perf_counter() - start
-        row = _row(result, experiment, wall)
-        msgs = list(dict.fromkeys(f"{w.category.__name__}: {' '.join(str(w.message).split())}" for w in caught))
-        if msgs:
-            row["warnings"] = msgs
-            for m in msgs:
-                _log(f"  warning: {m}")
-        self.rows.append(row)
-        worst = max(result.max_error.values(), default=float("nan"))
-        _log(f"{tag} done: CPU {result.cpu_seconds:.2f} s, wall {wall:.2f} s, max |error| {worst:.3e}")
-        result._row = row
-        return result
-
-    def figure(self, key, draw, filename, rows):
-        """Draw one figure into ``out/filename``; record it on ``rows``."""
-        from . import plotting
-
-        path = os.path.join(self.out, filename)
-        try:
-            fig = draw(None)
-            plotting.save(fig, path)
-        except Exception as exc:  # noqa: BLE001
-            msg = f"figure {filename} ({key}): {type(exc).__name__}: {' '.join(str(exc).split())}"
-            _log("  " + msg)
-            self.failures.append({"figure": filename, "status": "failed", "error": msg})
-            if os.environ.get("LIEFI_DEBUG"):
-                traceback.print_exc()
-            return None
-        for r in rows:
-            r["figures"].append(filename)
-        self.figures.append(filename)
-        _log(f"  wrote {path}")
-        return path
+def _run_one(scene, variant, spec, scale, count):
+    """One :class:`~liefi.scenes.PaperRun`; returns ``(result or None, row)``."""
+    scheme = spec.scheme or scene.scheme
+    T = _horizon(scene.t_final if spec.t_final is None else spec.t_final, scene.dt, scale)
+    tag = f"[{count}] {scene.name} / {variant} / {scheme} / t in [0, {T:g}]"
+    _log(f"{tag} ...")
+    start = time.perf_counter()
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            result = scene.run(scheme=scheme, t_final=T, variant=variant, configuration=spec.configuration,
+                               save_every=spec.save_every)
+    except Exception as exc:  # noqa: BLE001 - record and go on with the other experiments
+        row = _failed_row(scene.name, variant, scheme, T, spec.experiment, exc)
+        _log(f"{tag} FAILED: {row['error']}")
+        return None, row
+    wall = time.perf_counter() - start
+    row = result.to_dict()
+    row.update(experiment=spec.experiment, status="ok", wall_seconds=wall, figures=[])
+    msgs = list(dict.fromkeys(f"{w.category.__name__}: {' '.join(str(w.message).split())}" for w in caught))
+    if msgs:
+        row["warnings"] = msgs
+        for m in msgs:
+            _log(f"  warning: {m}")
+    worst = max(result.max_error.values(), default=float("nan"))
+    _log(f"{tag} done: CPU {result.cpu_seconds:.2f} s, wall {wall:.2f} s, max |error| {worst:.3e}")
+    return result, row
 
 
-def _oscillator(runner, scene, variant, default_variant, dla_cache):
-    """``figure:oscillator`` (FI and DLA on the paper's horizon) and ``figure:Poincare:FI``
-    (both on [0, 400], every step saved).  The DLA does not depend on the variant (which
-    only changes ``V``): it runs once per start and horizon and is reused."""
-    import importlib
-
-    import numpy as np
-
-    from . import plotting
-
-    has_dla = "dla" in scene.extra_schemes
-    start_key = tuple(np.asarray(scene.initial_state(scene.variant(variant)), float).round(15))
-
-    def dla_run(t_final, experiment, save_every=None):
-        key = (start_key, t_final)
-        if key not in dla_cache:
-            dla_cache[key] = runner.run(scene, variant, scheme="dla", t_final=t_final, experiment=experiment,
-                                        save_every=save_every)
-        return dla_cache[key]
-
-    fi = runner.run(scene, variant, scheme="euler", experiment="figure:oscillator")
-    dla = dla_run(None, "figure:oscillator") if has_dla else None
-    runs = [r for r in (fi, dla) if r is not None]
-    if runs:
-        runner.figure(
-            "figure:oscillator",
-            lambda f: plotting.oscillator_integrals(fi, dla, f, tag=_tag(variant, default_variant)),
-            _figure_file("figure:oscillator", scene.name, variant, default_variant),
-            [r._row for r in runs],
-        )
-
-    long = []
-    # every step saved: the crossings y = 0 are interpolated between saved points
-    fi_long = runner.run(scene, variant, scheme="euler", t_final=POINCARE_T_FINAL,
-                         experiment="figure:Poincare:FI", save_every=1)
-    dla_long = dla_run(POINCARE_T_FINAL, "figure:Poincare:FI", save_every=1) if has_dla else None
-    for r in (fi_long, dla_long):
-        if r is None:
+def _scene_job(task):
+    """Every run and figure of one scene: ``(name, out, scale, first_count)`` -> a dict of rows,
+    figure names and failures.  Never raises (but ``KeyboardInterrupt``); module level, so a
+    process pool can run it."""
+    name, out_path, scale, count = task
+    rows, failures, figures, references = [], [], [], []
+    done = {"rows": rows, "failures": failures, "figures": figures, "scene": name, "references": references}
+    try:
+        scene = _scenes.get(name)
+    except Exception as exc:  # noqa: BLE001 - e.g. the scene module is missing
+        row = _failed_row(name, None, None, None, "paper", exc)
+        rows.append(row)
+        failures.append(row)
+        _log(f"{name}: FAILED to load: {row['error']}")
+        return done
+    output = Output(out_path)
+    variants = list(scene.variants) or [None]
+    default_variant = variants[0]
+    plans = {v: scene.paper_runs(scene.variant(v)) for v in variants}
+    shared = {}  # label -> (result, row) of the variant-independent runs
+    for variant in variants:
+        plan = plans[variant]
+        if scene.reference == "numerical":  # once, for the longest horizon of the plan
+            T = max(_horizon(scene.t_final if s.t_final is None else s.t_final, scene.dt, scale) for s in plan)
+            before = getattr(scene, "reference_seconds", 0.0)
+            try:
+                scene.reference_solution(scene.variant(variant), T)
+            except Exception as exc:  # noqa: BLE001 - the runs will report it
+                _log(f"{name} / {variant}: reference failed: {_one_line(exc)}")
+            else:
+                spent = getattr(scene, "reference_seconds", 0.0) - before
+                references.append({"scene": name, "variant": variant, "t_final": T, "seconds": spent,
+                                   "method": scene.reference_method(), "reused": spent == 0.0})
+                _log(f"{name} / {variant}: reference on [0, {T:g}] "
+                     + (f"computed in {spent:.2f} s" if spent else "reused (same start)"))
+        results, used_rows = {}, []
+        for spec in plan:
+            if spec.variant_independent and spec.label in shared:
+                result, row = shared[spec.label]
+            else:
+                count += 1
+                result, row = _run_one(scene, variant, spec, scale, count)
+                rows.append(row)
+                if result is None:
+                    failures.append(row)
+                if spec.variant_independent:
+                    shared[spec.label] = (result, row)
+            if result is not None:
+                results[spec.label] = result
+                used_rows.append(row)
+        if not results:
             continue
         try:
-            sec, ref = oscillator_sections(r)
+            specs = scene.figures(results, tag=_tag(variant, default_variant))
         except Exception as exc:  # noqa: BLE001
-            sec = ref = None
-            msg = f"poincare_section({r.scheme}): {type(exc).__name__}: {exc}"
+            specs = []
+            msg = f"figures of {name} / {variant}: {_one_line(exc)}"
             _log("  " + msg)
-            runner.failures.append({"figure": "figure:Poincare:FI", "status": "failed", "error": msg})
-        long.append((r, sec, ref))
-    if long:
-        runner.figure(
-            "figure:Poincare:FI",
-            lambda f: plotting.oscillator_poincare(long, f, tag=_tag(variant, default_variant)),
-            _figure_file("figure:Poincare:FI", scene.name, variant, default_variant),
-            [r._row for r, _, _ in long],
-        )
+            failures.append({"figure": name, "status": "failed", "error": msg})
+        for spec in specs:
+            filename = _figure_file(spec.key, name, variant, default_variant)
+            if _draw(output, spec, filename, failures):
+                figures.append(filename)
+                for r in used_rows:
+                    if filename not in r["figures"]:
+                        r["figures"].append(filename)
+    return done
 
 
-def oscillator_sections(result):
-    """``(sections, reference_sections)`` of an oscillator run (``figure:Poincare:FI``).
+def _draw(output, spec, filename, failures):
+    from . import plotting
 
-    ``sections`` is ``liefi.scenes.oscillator.poincare_section(result)``; the reference
-    sections apply the same function to the reference solution at the saved times
-    (``data - error``: no extra integration), or are ``None`` when the run lacks errors.
-    """
-    import importlib
-    from types import SimpleNamespace
-
-    import numpy as np
-
-    section = getattr(importlib.import_module("liefi.scenes.oscillator"), "poincare_section", None)
-    if section is None:
-        return None, None
-    sec = section(result)
-    if not all(n in result.errors for n in result.names):
-        return sec, None
-    Y = np.stack([np.asarray(result[n]) - np.asarray(result.errors[n]) for n in result.names])
-    ref = section(SimpleNamespace(t=result.t, y=Y, names=result.names))
-    return sec, ref
+    try:
+        path = output.claim(filename)
+        fig = spec.draw(None)
+        plotting.save(fig, path)
+    except Exception as exc:  # noqa: BLE001
+        msg = f"figure {filename} ({spec.key}): {_one_line(exc)}"
+        _log("  " + msg)
+        failures.append({"figure": filename, "status": "failed", "error": msg})
+        if os.environ.get("LIEFI_DEBUG"):
+            traceback.print_exc()
+        return False
+    _log(f"  wrote {path}")
+    return True
 
 
-def _tag(variant, default_variant):
-    return "" if variant == default_variant else f" [variant {variant}]"
+def _ignore_sigint():
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
-def reproduce(out="./liefi-out", *, only=None, t_final_scale=1.0):
+# --------------------------------------------------------------------------------------
+# everything
+# --------------------------------------------------------------------------------------
+def paper_scenes():
+    """The names of the scenes that are the paper's experiments (``Scene.in_paper``), in order."""
+    out = []
+    for n in _scenes.names():
+        try:
+            if not getattr(_scenes.get(n), "in_paper", True):
+                continue
+        except Exception:  # noqa: BLE001 - a scene that does not load is reported by its job
+            pass
+        out.append(n)
+    return out
+
+
+def reproduce(out="./liefi-out", *, only=None, t_final_scale=1.0, jobs=None, all_scenes=False):
     """Run the paper's experiments, write figures and ``summary.{md,json}`` to ``out``.
 
-    Returns the summary dict (``runs``, ``failures``, ``figures``, ``wall_seconds``, ...).
+    The scenes are ``only``, else the paper's (:func:`paper_scenes`; every registered
+    scene with ``all_scenes``).  ``out`` is checked first (:func:`prepare_output`).  ``jobs``: worker processes
+    for independent scenes (default: the number of CPUs, at most the number of
+    scenes; 1 runs everything in this process).  Returns the summary dict
+    (``runs``, ``failures``, ``figures``, ``wall_seconds``, ``interrupted``, ...).
     """
-    from . import plotting
+    names = list(only or (_scenes.names() if all_scenes else paper_scenes()))
+    jobs = _jobs(jobs, len(names))
+    output = prepare_output(out)
+    scale = float(t_final_scale)
+    state = {"results": {}, "start": time.perf_counter(), "cpu0": _cpu_all(), "interrupted": False}
 
-    os.makedirs(out, exist_ok=True)
-    runner = _Runner(out, t_final_scale)
-    start = time.perf_counter()
-    cpu0 = time.process_time()
-    for name in only or _scenes.names():
-        try:
-            scene = _scenes.get(name)
-        except Exception as exc:  # noqa: BLE001 - e.g. the scene module is missing
-            row = _failed_row(name, None, None, None, "paper", exc)
-            runner.rows.append(row)
-            runner.failures.append(row)
-            _log(f"{name}: FAILED to load: {row['error']}")
-            continue
-        variants = list(scene.variants) or [None]
-        default_variant = variants[0]
-        dla_cache = {}
-        for variant in variants:
-            if name == "oscillator":
-                _oscillator(runner, scene, variant, default_variant, dla_cache)
-                continue
-            cfg = True if plotting.needs_configuration(name) else None
-            r = runner.run(scene, variant, configuration=cfg)
-            if r is None:
-                continue
-            tag = _tag(variant, default_variant)
-            for key, _ in plotting.scene_figures(r, title=scene.title):
-                draw = _drawer(key, r, scene.title, tag)
-                runner.figure(key, draw, _figure_file(key, name, variant, default_variant), [r._row])
-    summary = {
-        "out": os.path.abspath(out),
-        "t_final_scale": runner.scale,
-        "wall_seconds": time.perf_counter() - start,
-        "cpu_seconds": time.process_time() - cpu0,
-        "runs": runner.rows,
-        "figures": runner.figures,
-        "failures": runner.failures,
-    }
-    with open(os.path.join(out, "summary.json"), "w") as f:
-        json.dump(summary, f, indent=1, default=_json_default)
-    with open(os.path.join(out, "summary.md"), "w") as f:
-        f.write(markdown_table(summary) + "\n")
+    def finished(done):
+        state["results"][done["scene"]] = done
+        _write_summary(output, names, state, scale)
+
+    # the longest scenes first, so that the workers finish together
+    order = sorted(names, key=lambda n: -_weight(n))
+    tasks = [(n, output.path, scale, 0) for n in order]
+    try:
+        if jobs == 1:
+            for task in tasks:
+                finished(_scene_job(task))
+        else:
+            _parallel(tasks, jobs, finished)
+    except KeyboardInterrupt:
+        state["interrupted"] = True
+        summary = _write_summary(output, names, state, scale)
+        _log(f"reproduce: interrupted; the summary of the {len(summary['runs'])} finished runs is in {output.path}")
+        raise
+    summary = _write_summary(output, names, state, scale)
     _log(
-        f"reproduce: {len(runner.rows)} runs, {len(runner.figures)} figures, {len(runner.failures)} failures, "
-        f"{summary['wall_seconds']:.1f} s wall; written to {summary['out']}"
+        f"reproduce: {len(summary['runs'])} runs, {len(summary['figures'])} figures, {len(summary['failures'])} "
+        f"failures, {summary['wall_seconds']:.1f} s wall; written to {summary['out']}"
     )
     return summary
 
 
-def _drawer(key, result, title, tag):
-    from . import plotting
+def _jobs(jobs, n_tasks):
+    if jobs is None:
+        jobs = os.cpu_count() or 1
+    if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
+        raise ValueError(f"jobs: must be a whole number >= 1, got {jobs!r}")
+    return max(1, min(jobs, n_tasks))
 
-    table = {
-        "figure:Suslov_Pi_exact": plotting.suslov_momentum_error,
-        "figure:Suslov_integrals": plotting.suslov_integrals,
-        "figure:knife_cycloid": plotting.knife_cycloid,
-        "figure:knife_exact": plotting.knife_errors,
-        "figure:knife_integrals": plotting.knife_integrals,
+
+def _weight(name):
+    """A rough cost of a scene's experiments (its longest horizon in steps times its runs)."""
+    try:
+        sc = _scenes.get(name)
+        plan = sc.paper_runs(sc.variant())
+        return len(plan) * max((s.t_final or sc.t_final) / sc.dt for s in plan) * (2 if sc.reference == "numerical" else 1)
+    except Exception:  # noqa: BLE001 - the job will report it
+        return 0.0
+
+
+def _cpu_all():
+    """CPU seconds of this process and its finished children."""
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
+
+
+def _parallel(tasks, jobs, finished):
+    """Run ``_scene_job`` over ``tasks`` in ``jobs`` processes; ``finished(done)`` as each ends.
+
+    The workers ignore SIGINT: the parent receives it, terminates them and reports
+    what finished."""
+    import multiprocessing as mp
+
+    methods = mp.get_all_start_methods()
+    ctx = mp.get_context("fork" if "fork" in methods else None)
+    pool = ctx.Pool(jobs, initializer=_ignore_sigint)
+    try:
+        for done in pool.imap_unordered(_scene_job, tasks):
+            finished(done)
+        pool.close()
+    except BaseException:
+        pool.terminate()
+        raise
+    finally:
+        pool.join()
+
+
+def _write_summary(output, names, state, scale):
+    rows, failures, figures, references = [], [], [], []
+    for n in names:
+        done = state["results"].get(n)
+        if done is None:
+            continue
+        rows += done["rows"]
+        failures += done["failures"]
+        figures += done["figures"]
+        references += done.get("references", [])
+    pending = [n for n in names if n not in state["results"]]
+    summary = {
+        "liefi_version": __version__,
+        "out": output.path,
+        "t_final_scale": scale,
+        "wall_seconds": time.perf_counter() - state["start"],
+        "cpu_seconds": _cpu_all() - state["cpu0"],
+        "interrupted": state["interrupted"],
+        "scenes": names,
+        "not_run": pending if (state["interrupted"] or pending) else [],
+        "runs": rows,
+        "references": references,
+        "figures": figures,
+        "failures": failures,
     }
-    if key in table:
-        return lambda f: table[key](result, f, tag=tag)
-    return lambda f: plotting.generic(result, f, title=title, tag=tag)
+    output.write_text("summary.json", json.dumps(summary, indent=1, default=_json_default))
+    output.write_text("summary.md", markdown_table(summary) + "\n")
+    return summary
 
 
 def _json_default(o):
@@ -335,6 +499,19 @@ def markdown_table(summary):
         + (f", t_final scaled by {summary['t_final_scale']:g}" if summary["t_final_scale"] != 1 else "")
         + "."
     )
+    if summary.get("interrupted") or summary.get("not_run"):
+        lines.append("")
+        lines.append(
+            ("**Interrupted**: " if summary.get("interrupted") else "")
+            + "not run (or not finished): " + (", ".join(summary.get("not_run", ())) or "-") + "."
+        )
+    refs = summary.get("references") or []
+    if refs:
+        lines.append("")
+        lines.append("Numerical references (computed once per start, before the runs):")
+        for r in refs:
+            how = "reused (same start)" if r["reused"] else f"{r['seconds']:.2f} s"
+            lines.append(f"- {r['scene']} / {r['variant']}: {r['method']}, t in [0, {r['t_final']:g}]: {how}")
     warned = [r for r in summary["runs"] if r.get("warnings")]
     if warned:
         lines.append("")

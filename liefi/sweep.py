@@ -1,4 +1,4 @@
-"""Embarrassingly parallel sweeps over any :class:`concurrent.futures.Executor`.
+"""Embarrassingly parallel sweeps that keep every result, over any :class:`concurrent.futures.Executor`.
 
 Work-precision grids (:mod:`liefi.bench`), stability maps and ensembles are
 lists of independent tasks.  :func:`run_sweep` maps a function over them:
@@ -10,15 +10,52 @@ lists of independent tasks.  :func:`run_sweep` maps a function over them:
   machine, or Dask's distributed scheduler (``Client.get_executor()``, the
   optional extra ``liefi[dask]``) to use a cluster.
 
-The function and the tasks must be picklable (a module-level function and
-plain data: scene names, numbers, dicts), because executors other than the
-default send them to other processes or machines.  Results come back in the
-order of the tasks.
+Nothing is lost
+---------------
+* **Every task's outcome is a value.**  An exception raised by the function is
+  caught where it was raised (in the worker) and comes back as a
+  :class:`TaskError` -- its type name, message and traceback text, all plain
+  strings, so it pickles whatever the exception was.  So does a result that
+  cannot be sent back, a task whose worker died, or a Dask ``KilledWorker``.
+  One failing task never costs the others.
+* **A dead worker** (a :class:`~concurrent.futures.process.BrokenProcessPool`:
+  a worker killed by a signal, ``os._exit``, the out-of-memory killer) breaks a
+  process pool and every task in flight with it.  :func:`run_sweep` then starts
+  a fresh pool, re-runs the tasks that were in flight *one at a time* (so that
+  the one that kills its worker is found and marked ``TaskError("WorkerDied")``
+  while the innocent ones finish), and goes on in parallel with the rest.
+  Only ``max_in_flight`` tasks (the pool's worker count) are submitted at a
+  time, so a break costs at most that many re-runs.
+* **Results go to disk as they arrive** when a :class:`ResultStore` (SQLite,
+  from the standard library) is given: one row per finished task, committed at
+  once.  A rerun with the same store skips the tasks already done (a task is
+  identified by its JSON text) and re-runs those that ended in a
+  :class:`TaskError`.
+* **Ctrl-C** (``SIGINT``) stops the sweep: the tasks not started are cancelled,
+  the workers of a process pool are stopped, and :class:`SweepInterrupted`
+  (a ``KeyboardInterrupt``) is raised carrying every result finished so far
+  (also in the store).  Workers of the pools made by :func:`open_executor`
+  ignore ``SIGINT``: the interrupt is the main process's to handle.
+
+The function must be picklable (a module-level function) and the tasks plain
+data (scene names, numbers, dicts: JSON-serializable when a store is used),
+because executors other than the default send them to other processes or
+machines.  Results come back in the order of the tasks.
 
 :func:`open_executor` turns a command-line ``--scheduler`` string into an
 executor: ``serial``, ``processes[:N]``, ``threads[:N]``, ``dask[:N]`` (a Dask
 ``LocalCluster`` of N workers on this machine) or a Dask scheduler address
 ``tcp://host:8786``.
+
+Querying a store
+----------------
+The store is one SQLite table ``results`` (``key``, ``sweep``, ``idx``,
+``task``, ``status`` = ``done`` | ``error``, ``error_type``, ``message``,
+``traceback``, ``value``, ``seconds``, ``finished_at``); ``task`` and ``value``
+are JSON text, so for instance::
+
+    sqlite3 results.sqlite "select json_extract(value, '$.method'), json_extract(value, '$.max_drift')
+                            from results where status = 'done'"
 
 Example
 -------
@@ -30,38 +67,380 @@ Example
 from __future__ import annotations
 
 import contextlib
+import dataclasses
+import json
 import os
-from concurrent.futures import Executor
+import signal
+import sqlite3
+import sys
+import time
+import traceback as _traceback
+from concurrent.futures import FIRST_COMPLETED, Executor, wait
 
-__all__ = ["run_sweep", "open_executor"]
+__all__ = ["run_sweep", "open_executor", "TaskError", "SweepInterrupted", "ResultStore", "task_key"]
 
 
-def run_sweep(fn, tasks, executor: Executor | None = None):
-    """``[fn(task) for task in tasks]``, computed by ``executor`` (default: in this process).
+@dataclasses.dataclass(frozen=True)
+class TaskError:
+    """A task that raised (or whose worker died): a value, never an exception.
+
+    ``type`` is the exception's class name (``"WorkerDied"`` for a dead worker),
+    ``message`` its text, ``traceback`` the formatted traceback (where the task
+    raised; empty when the worker died).  Plain strings: it pickles, and it
+    round-trips through a :class:`ResultStore`.
+    """
+
+    type: str
+    message: str
+    traceback: str = ""
+
+    @classmethod
+    def from_exception(cls, exc):
+        tb = "".join(_traceback.format_exception(type(exc), exc, exc.__traceback__))
+        return cls(type(exc).__name__, " ".join(str(exc).split()) or type(exc).__name__, tb)
+
+    def __str__(self):
+        return f"{self.type}: {self.message}"
+
+
+class SweepInterrupted(KeyboardInterrupt):
+    """Ctrl-C during :func:`run_sweep`.  ``results`` holds, in task order, each finished
+    task's value and ``None`` for the others; ``done`` counts the finished ones."""
+
+    def __init__(self, results):
+        super().__init__("sweep interrupted")
+        self.results = results
+        self.done = sum(r is not None for r in results)
+
+
+def _call(fn, task):
+    """Run ``fn(task)`` in a worker; an exception becomes a :class:`TaskError` value here."""
+    try:
+        return fn(task)
+    except Exception as exc:  # noqa: BLE001 -- every failure is a value of the sweep
+        return TaskError.from_exception(exc)
+
+
+def _plain(x):
+    """``x`` with numpy arrays and scalars as Python lists and numbers and every non-finite float as
+    ``None``: strict JSON, which SQLite's ``json_extract`` can read."""
+    import numpy as np
+
+    if isinstance(x, dict):
+        return {k: _plain(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_plain(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _plain(x.tolist())
+    if isinstance(x, np.generic):
+        x = x.item()
+    if isinstance(x, float) and (x != x or x in (float("inf"), float("-inf"))):
+        return None
+    return x
+
+
+def task_key(task):
+    """The identity of a task in a store: its JSON text with sorted keys."""
+    try:
+        return json.dumps(_plain(task), sort_keys=True)
+    except TypeError as exc:
+        raise TypeError(f"tasks: a task stored in a ResultStore must be JSON-serializable ({exc})") from None
+
+
+class ResultStore:
+    """An append-only SQLite file of task results (see the module docstring).
+
+    ``ResultStore(path)`` opens (or creates) the file.  :meth:`get` returns the
+    finished value of a task (``None`` if not done); :meth:`put` records one
+    outcome and commits at once, so a crash or an interrupt loses nothing that
+    finished.  Values must be JSON-serializable (numpy arrays and scalars are
+    converted); a :class:`TaskError` is stored in its own columns.
+    ``sweep`` names a group of tasks within one file (for instance a scene).
+    """
+
+    SCHEMA = (
+        "CREATE TABLE IF NOT EXISTS results (key TEXT PRIMARY KEY, sweep TEXT, idx INTEGER, task TEXT, "
+        "status TEXT, error_type TEXT, message TEXT, traceback TEXT, value TEXT, seconds REAL, finished_at REAL)"
+    )
+
+    def __init__(self, path, sweep=""):
+        self.path = os.fspath(path)
+        self.sweep = sweep
+        try:
+            self._db = sqlite3.connect(self.path, timeout=30)
+            self._db.execute(self.SCHEMA)
+            self._db.commit()
+        except sqlite3.DatabaseError as exc:
+            raise OSError(f"store: cannot open {self.path!r} as a results store ({exc}); "
+                          "choose another output or remove the file") from None
+
+    def close(self):
+        self._db.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def get(self, task, *, errors=False):
+        """The stored value of ``task``; ``None`` if not there (or, unless ``errors``, if it failed)."""
+        row = self._db.execute("SELECT status, error_type, message, traceback, value FROM results WHERE key = ?",
+                               (task_key(task),)).fetchone()
+        if row is None:
+            return None
+        status, etype, msg, tb, value = row
+        if status == "error":
+            return TaskError(etype, msg, tb or "") if errors else None
+        return json.loads(value)
+
+    def put(self, task, value, *, index=None, seconds=None):
+        """Record ``value`` (or a :class:`TaskError`) for ``task`` and commit; returns the value as
+        stored (non-finite numbers become ``None``: strict JSON), which is what :meth:`get` gives back."""
+        key = task_key(task)
+        if isinstance(value, TaskError):
+            rec = ("error", value.type, value.message, value.traceback, None)
+        else:
+            value = _plain(value)
+            rec = ("done", None, None, None, json.dumps(value, allow_nan=False))
+        self._db.execute("INSERT OR REPLACE INTO results VALUES (?,?,?,?,?,?,?,?,?,?,?)",
+                         (key, self.sweep, index, key, *rec, seconds, time.time()))
+        self._db.commit()
+        return value
+
+    def rows(self, sweep=None):
+        """Every stored outcome as ``(task, value_or_TaskError)``, in the order they finished."""
+        q = "SELECT task, status, error_type, message, traceback, value FROM results"
+        args = ()
+        if sweep is not None:
+            q += " WHERE sweep = ?"
+            args = (sweep,)
+        out = []
+        for task, status, etype, msg, tb, value in self._db.execute(q + " ORDER BY finished_at", args):
+            out.append((json.loads(task), TaskError(etype, msg, tb or "") if status == "error" else json.loads(value)))
+        return out
+
+
+class _Progress:
+    """Progress on stderr: tqdm when installed (``liefi[progress]``), else one updating line; quiet when
+    stderr is not a terminal (unless forced)."""
+
+    def __init__(self, total, label, enabled):
+        if enabled is None:
+            enabled = total > 1 and hasattr(sys.stderr, "isatty") and sys.stderr.isatty()
+        self.enabled, self.total, self.label, self.n, self.failed = bool(enabled), total, label, 0, 0
+        self._bar = None
+        if self.enabled:
+            try:
+                from tqdm import tqdm
+
+                self._bar = tqdm(total=total, desc=label or "sweep", file=sys.stderr, leave=False)
+            except ImportError:
+                pass
+
+    def update(self, value, n=1):
+        self.n += n
+        self.failed += isinstance(value, TaskError)
+        if not self.enabled:
+            return
+        if self._bar is not None:
+            self._bar.update(n)
+            return
+        fail = f", {self.failed} failed" if self.failed else ""
+        print(f"\r{self.label or 'sweep'}: {self.n}/{self.total} tasks{fail}", end="", file=sys.stderr, flush=True)
+
+    def close(self):
+        if self._bar is not None:
+            self._bar.close()
+        elif self.enabled and self.n:
+            print(file=sys.stderr, flush=True)
+
+
+def _workers(executor):
+    n = getattr(executor, "_max_workers", None)
+    if isinstance(n, int) and n > 0:
+        return n
+    client = getattr(executor, "_client", None)  # Dask's ClientExecutor
+    if client is not None:
+        try:
+            return max(1, sum(client.nthreads().values()))
+        except Exception:  # noqa: BLE001 -- a guess is enough here
+            pass
+    return os.cpu_count() or 1
+
+
+def _ignore_sigint():
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _fresh_pool(executor):
+    """A new process pool like ``executor`` (which broke), or ``None`` if it is not a process pool."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    if not isinstance(executor, ProcessPoolExecutor):
+        return None
+    return ProcessPoolExecutor(max_workers=_workers(executor), mp_context=getattr(executor, "_mp_context", None),
+                               initializer=_ignore_sigint)
+
+
+def _stop(executor):
+    """Cancel what has not started and stop a process pool's workers (after Ctrl-C)."""
+    procs = list((getattr(executor, "_processes", None) or {}).values())  # no public way before Python 3.14;
+    with contextlib.suppress(Exception):  # taken first: shutdown() forgets them
+        executor.shutdown(wait=False, cancel_futures=True)
+    for p in procs:
+        with contextlib.suppress(Exception):
+            p.terminate()
+
+
+def run_sweep(fn, tasks, executor: Executor | None = None, *, store=None, convert=None, progress=None,
+              label="", max_in_flight=None):
+    """``[fn(task) for task in tasks]``, computed by ``executor``, every outcome a value.
 
     Parameters
     ----------
     fn : callable
         A picklable (module-level) function of one task.
     tasks : iterable
-        Picklable task descriptions.
+        Picklable task descriptions (JSON-serializable with a ``store``).
     executor : concurrent.futures.Executor, optional
-        Anything with ``submit(fn, arg) -> Future``.  ``None`` runs serially here.
+        Anything with ``submit(fn, *args) -> Future``.  ``None`` runs serially here.
+    store : ResultStore, optional
+        Where each outcome is written as it arrives; tasks already done there are
+        not run again (their stored values are returned).
+    convert : callable, optional
+        ``convert(task, result) -> value``, applied in this process to each
+        successful result as it arrives, before it is stored and returned (for
+        instance to reduce a trajectory to a row of numbers).  An exception in
+        it makes that task's value a :class:`TaskError`.
+    progress : bool, optional
+        Progress on stderr; default: when stderr is a terminal.
+    label : str
+        Names the sweep in the progress line.
+    max_in_flight : int, optional
+        Tasks submitted at a time (default: the executor's worker count).
 
     Returns
     -------
     list
-        The results, in the order of ``tasks``.  An exception raised by ``fn``
-        is re-raised here (the first one, in task order); a task that should
-        not stop the sweep must catch its own errors and return them.
+        In the order of ``tasks``: each task's (converted) result, or a
+        :class:`TaskError` for a task that raised, whose result could not be
+        returned, or whose worker died.
+
+    Raises
+    ------
+    SweepInterrupted
+        On Ctrl-C, with the results finished so far.
     """
     tasks = list(tasks)
-    if executor is None:
-        return [fn(t) for t in tasks]
-    if not hasattr(executor, "submit"):
+    if executor is not None and not hasattr(executor, "submit"):
         raise TypeError(f"executor: expected a concurrent.futures.Executor, got {executor!r}")
-    futures = [executor.submit(fn, t) for t in tasks]
-    return [f.result() for f in futures]
+    results = [None] * len(tasks)
+    todo = []
+    for i, t in enumerate(tasks):
+        v = store.get(t) if store is not None else None
+        if v is None:
+            todo.append(i)
+        else:
+            results[i] = v
+    bar = _Progress(len(tasks), label, progress)
+    bar.update(None, len(tasks) - len(todo)) if len(todo) < len(tasks) else None
+
+    def record(i, value, seconds=None):
+        if convert is not None and not isinstance(value, TaskError):
+            try:
+                value = convert(tasks[i], value)
+            except Exception as exc:  # noqa: BLE001
+                value = TaskError.from_exception(exc)
+        if store is not None:
+            value = store.put(tasks[i], value, index=i, seconds=seconds)
+        results[i] = value
+        bar.update(value)
+
+    owned = []  # pools started here after a break
+    try:
+        if executor is None:
+            for i in todo:
+                w = time.perf_counter()
+                record(i, _call(fn, tasks[i]), time.perf_counter() - w)
+            return results
+        _parallel(fn, tasks, todo, executor, record, owned, max_in_flight)
+        return results
+    except KeyboardInterrupt:
+        for ex in [executor, *owned]:
+            if ex is not None:
+                _stop(ex)
+        raise SweepInterrupted(results) from None
+    finally:
+        bar.close()
+        for ex in owned:
+            with contextlib.suppress(Exception):
+                ex.shutdown(wait=True, cancel_futures=True)
+
+
+def _parallel(fn, tasks, todo, executor, record, owned, max_in_flight):
+    from collections import deque
+    from concurrent.futures import BrokenExecutor
+
+    limit = max(1, int(max_in_flight or _workers(executor)))
+    queue = deque(todo)
+    isolate = deque()  # tasks in flight when a worker died: re-run one at a time
+    inflight = {}  # future -> (index, start time, isolated)
+
+    def broken(exc):
+        nonlocal executor
+        suspects = sorted(i for i, _, _ in inflight.values())
+        alone = [i for i, _, iso in inflight.values() if iso]
+        inflight.clear()
+        fresh = _fresh_pool(executor)
+        if fresh is None:  # not a process pool: nothing to restart; report, never lose silently
+            for i in suspects + list(isolate) + list(queue):
+                record(i, TaskError("ExecutorBroken", f"the executor broke ({exc}); the task was not run"))
+            isolate.clear()
+            queue.clear()
+            return
+        with contextlib.suppress(Exception):
+            executor.shutdown(wait=False, cancel_futures=True)
+        owned.append(fresh)
+        executor = fresh
+        for i in alone:  # it ran alone: it is the one that killed its worker
+            record(i, TaskError("WorkerDied", f"the worker process died while running this task ({exc})"))
+        isolate.extend(i for i in suspects if i not in alone)
+
+    while queue or isolate or inflight:
+        while isolate and not inflight:
+            i = isolate.popleft()
+            try:
+                inflight[executor.submit(_call, fn, tasks[i])] = (i, time.perf_counter(), True)
+            except BrokenExecutor as exc:
+                isolate.appendleft(i)
+                broken(exc)
+        while queue and not isolate and len(inflight) < limit:
+            i = queue.popleft()
+            try:
+                inflight[executor.submit(_call, fn, tasks[i])] = (i, time.perf_counter(), False)
+            except BrokenExecutor as exc:
+                queue.appendleft(i)
+                broken(exc)
+                break
+        if not inflight:
+            continue
+        done, _ = wait(list(inflight), return_when=FIRST_COMPLETED)
+        died = None
+        for f in done:
+            try:
+                value = f.result()
+            except BrokenExecutor as exc:
+                died = exc
+                continue
+            except Exception as exc:  # noqa: BLE001 -- unpicklable result, Dask's KilledWorker, ...
+                value = TaskError.from_exception(exc)
+                if type(exc).__name__ == "KilledWorker":
+                    value = TaskError("WorkerDied", value.message, value.traceback)
+            i, start, _ = inflight.pop(f)
+            record(i, value, time.perf_counter() - start)
+        if died is not None:  # the finished ones are recorded; the rest in flight are suspects
+            broken(died)
 
 
 def _count(spec, default):
@@ -81,7 +460,8 @@ def _count(spec, default):
 def open_executor(scheduler: str | None = None):
     """An executor for ``scheduler`` (see the module docstring); closed on exit.
 
-    Yields ``None`` for ``None``/``"serial"`` (run in this process).
+    Yields ``None`` for ``None``/``"serial"`` (run in this process).  The workers
+    of a process pool ignore ``SIGINT`` (the main process handles Ctrl-C).
 
     Raises
     ------
@@ -97,7 +477,7 @@ def open_executor(scheduler: str | None = None):
     if scheduler.startswith("processes"):
         from concurrent.futures import ProcessPoolExecutor
 
-        with ProcessPoolExecutor(max_workers=_count(scheduler, cores)) as ex:
+        with ProcessPoolExecutor(max_workers=_count(scheduler, cores), initializer=_ignore_sigint) as ex:
             yield ex
         return
     if scheduler.startswith("threads"):
@@ -128,3 +508,4 @@ def open_executor(scheduler: str | None = None):
         f"scheduler: unknown {scheduler!r}; use serial, processes[:N], threads[:N], dask[:N] "
         "or a Dask scheduler address such as tcp://host:8786"
     )
+

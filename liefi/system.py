@@ -486,6 +486,11 @@ def _gram_inverse(C):
     K = C.shape[-1]
     if K == 0:
         return C
+    if not np.all(np.isfinite(C)):
+        raise ValueError(
+            "constraints: the Gram matrix E m E^T of the constraint vectors is not finite "
+            "(overflow or NaN in the metric or the constraints); rescale the constraint rows"
+        )
     cond = np.linalg.cond(C)
     if not np.all(np.isfinite(cond)) or np.any(cond > 1e12):
         raise ValueError(

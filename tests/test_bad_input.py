@@ -361,3 +361,10 @@ def test_fuzz_integrator_options(data):
         assert names_parameter(exc, list(kw) + list(run) + ["y0", "dt", "t_final"]), f"{kw} {run}: {exc!r}"
     except liefi.IntegrationError as exc:
         assert "t=" in str(exc)
+
+
+def test_overflowing_gram_matrix_is_named():
+    """Constraint rows so large that E m E^T overflows: a named error, not LinAlgError from an SVD."""
+    space = CotangentBundle(3)
+    with pytest.raises(ValueError, match="constraints"):
+        NonholonomicSystem(space, np.eye(3), np.array([[1e200, 1e200, 0.0]]))

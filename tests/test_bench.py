@@ -8,15 +8,22 @@ numba's on-disk cache serves both files.  No test asserts a time.
 from __future__ import annotations
 
 import csv
+import json
 import math
 import os
-from concurrent.futures import ThreadPoolExecutor
+import pickle
+import signal
+import sqlite3
+import subprocess
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 
 import numpy as np
 import pytest
 
 from liefi import bench, compiled, scenes
-from liefi.sweep import open_executor, run_sweep
+from liefi.sweep import ResultStore, SweepInterrupted, TaskError, open_executor, run_sweep
 
 pytestmark = pytest.mark.skipif(not compiled.available(), reason="the work-precision harness runs compiled kernels")
 
@@ -105,6 +112,29 @@ def test_run_sweep_is_executor_independent():
     assert run_sweep(abs, [-1, 2, -3]) == [1, 2, 3]
     with pytest.raises(TypeError):
         run_sweep(abs, [1], executor=object())
+    # a failing task is a value, serially too: the others are kept
+    out = run_sweep(abs, [-1, "x", 3])
+    assert out[0] == 1 and out[2] == 3 and isinstance(out[1], TaskError) and out[1].type == "TypeError"
+
+
+def test_schemes_come_from_the_registry(capsys):
+    """--schemes takes any explicit tableau of the scheme registry and solve_ivp's methods, and names the choices."""
+    from liefi.bench.cli import _schemes
+
+    assert _schemes("midpoint,rk4,scipy:LSODA,RK45") == (("midpoint", "rk4"), ("LSODA", "RK45"))
+    with pytest.raises(ValueError, match="schemes: unknown scheme 'imex-euler'.*midpoint"):
+        _schemes("imex-euler")
+
+
+def test_accurate_gains_are_an_fi_over_a_long_enough_horizon():
+    """FI-accurate (liefi.gains) runs where its gains are nonzero on every invariant the scheme does not keep."""
+    r = bench.run_task(dict(scene="oscillator", variant=None, method="FI-accurate", scheme="rk4", dt=8e-3, rtol=None,
+                            t_final=40.0, configuration=True, n_save=10, gain=None))
+    assert r["status"] == "ok" and "H_y=" in r["message"], r["message"]
+    # over a short horizon RK4's accurate gains vanish (the contraction never acts): the no-feedback method
+    r = bench.run_task(dict(scene="oscillator", variant=None, method="FI-accurate", scheme="rk4", dt=8e-3, rtol=None,
+                            t_final=0.08, configuration=True, n_save=10, gain=None))
+    assert r["status"] == "not-applicable" and "no-feedback" in r["message"], r["message"]
 
 
 def test_open_executor_strings():
@@ -134,7 +164,7 @@ def test_dask_cluster_gives_the_local_results():
 def test_long_horizon_matches_cost(tmp_path):
     """The long-horizon view picks, per method, the run whose cost per unit time is closest to the FI's."""
     rows = bench.work_precision("suslov", t_final=0.5, dts=[5e-3, 2.5e-3], rtols=[1e-4, 1e-8], schemes=("euler",),
-                                ivp_methods=("RK45",), methods=("FI", "constrained"), n_save=10)
+                                ivp_methods=("RK45",), methods=("FI", "constrained"), n_save=10, gains=(None,))
     tasks = bench.matched_tasks(rows, t_final=1.0, n_save=20)
     assert {(t["method"], t["scheme"]) for t in tasks} == {("FI", "euler"), ("constrained", "RK45")}
     assert [t for t in tasks if t["method"] == "FI"][0]["dt"] == 2.5e-3  # closest to the scene's dt
@@ -151,3 +181,247 @@ def test_bench_command_line(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "cheapest with max drift" in out
     assert (tmp_path / "suslov-work-precision.csv").exists()
+
+
+# ======================================================================================
+# faults: every outcome is a value, nothing is lost
+# ======================================================================================
+
+
+def _faulty(x):
+    """The fault battery's task: 3 raises, 5 diverges (an IntegrationError, which does not pickle
+    by itself), 7 kills its own worker process; the others return x^2."""
+    if x == 3:
+        raise ValueError("bad three")
+    if x == 5:
+        from liefi.schemes import IntegrationError
+
+        raise IntegrationError("diverged at t = 1", 1.0, 10, np.zeros(2), ["p"])
+    if x == 7:
+        os.kill(os.getpid(), signal.SIGKILL)
+    return x * x
+
+
+def _check_battery(out, n):
+    assert len(out) == n
+    for x, v in enumerate(out):
+        if x == 3:
+            assert isinstance(v, TaskError) and v.type == "ValueError" and "bad three" in v.message
+            assert "_faulty" in v.traceback  # the worker's traceback, as text
+        elif x == 5:
+            assert isinstance(v, TaskError) and v.type == "IntegrationError" and "diverged" in v.message
+        elif x == 7:
+            assert isinstance(v, TaskError) and v.type == "WorkerDied", v
+        else:
+            assert v == x * x, (x, v)
+
+
+def test_task_error_pickles_and_prints():
+    e = TaskError.from_exception(ValueError("a\n  b"))
+    assert pickle.loads(pickle.dumps(e)) == e and str(e) == "ValueError: a b"
+
+
+def test_fault_battery_process_pool(tmp_path):
+    """A raising task, a diverging task and a killed worker on a process pool: every other result comes back,
+    the pool is restarted for the rest, and the store holds every outcome."""
+    n = 12
+    with ProcessPoolExecutor(2) as ex, ResultStore(tmp_path / "r.sqlite") as store:
+        out = run_sweep(_faulty, range(n), ex, store=store)
+    _check_battery(out, n)
+    with ResultStore(tmp_path / "r.sqlite") as store:
+        rows = dict(store.rows())
+    assert len(rows) == n and rows[4] == 16 and rows[7].type == "WorkerDied"
+    with sqlite3.connect(tmp_path / "r.sqlite") as db:  # a user's query
+        assert db.execute("select count(*) from results where status = 'error'").fetchone()[0] == 3
+
+
+def test_fault_battery_dask_cluster():
+    """The same battery on a Dask LocalCluster of worker processes (a killed worker is Dask's KilledWorker)."""
+    dask = pytest.importorskip("dask")
+    distributed = pytest.importorskip("distributed")
+    n = 10
+    with dask.config.set({"distributed.scheduler.allowed-failures": 0}):
+        with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+                                      silence_logs=50) as cl:
+            with distributed.Client(cl) as client:
+                out = run_sweep(_faulty, range(n), client.get_executor())
+    _check_battery(out, n)
+
+
+_CALLS = []
+
+
+def _count_calls(x):
+    _CALLS.append(x)
+    if x == 2 and len(_CALLS) < 4:
+        raise RuntimeError("flaky")
+    return {"x": x, "nan": math.nan, "a": np.arange(2.0)}
+
+
+def test_store_resumes_and_retries_errors(tmp_path):
+    """A rerun with the same store runs only what is not done (errors are retried); values are strict JSON."""
+    path = tmp_path / "s.sqlite"
+    with ResultStore(path) as st:
+        out = run_sweep(_count_calls, [0, 1, 2], store=st)
+    assert isinstance(out[2], TaskError) and out[0] == {"x": 0, "nan": None, "a": [0.0, 1.0]}
+    assert _CALLS == [0, 1, 2]
+    with ResultStore(path) as st:
+        out2 = run_sweep(_count_calls, [0, 1, 2, 3], store=st)
+    assert _CALLS == [0, 1, 2, 2, 3] and out2[:2] == out[:2] and out2[2]["x"] == 2
+    with sqlite3.connect(path) as db:
+        assert db.execute("select json_extract(value, '$.x') from results where idx = 3").fetchone()[0] == 3
+    bad = tmp_path / "bad.sqlite"
+    bad.write_text("not a database" * 100)
+    with pytest.raises(OSError, match="results store"):
+        ResultStore(bad)
+
+
+def _slow_or_interrupt(x):
+    if x == 2:
+        raise KeyboardInterrupt
+    return x
+
+
+def test_interrupt_keeps_what_finished(tmp_path):
+    with ResultStore(tmp_path / "i.sqlite") as st:
+        with pytest.raises(SweepInterrupted) as info:
+            run_sweep(_slow_or_interrupt, range(5), store=st)
+        assert info.value.results == [0, 1, None, None, None] and info.value.done == 2
+        assert len(st.rows()) == 2
+
+
+# ======================================================================================
+# liefi bench: named errors, summary.json, resume, Ctrl-C
+# ======================================================================================
+
+
+@pytest.mark.parametrize("args, name", [
+    (["--t-final", "nan"], "--t-final"), (["--t-final", "inf"], "--t-final"), (["--t-final", "-1"], "--t-final"),
+    (["--t-final", "0"], "--t-final"), (["--long-horizon", "-5"], "--long-horizon"), (["--gains", "0"], "gains"),
+    (["--gains", "x"], "gains")])
+def test_bench_refuses_bad_numbers(tmp_path, capsys, args, name):
+    """No hang on nan/inf, no verdict from failed runs: a named error and exit code 2, before any run."""
+    t = time.perf_counter()
+    code = bench.main(["suslov", "--quick", "--out", str(tmp_path / "o"), *args])
+    assert code == 2 and time.perf_counter() - t < 30
+    err = capsys.readouterr().err
+    assert name in err and "Traceback" not in err
+
+
+def test_bench_summary_json_and_resume(tmp_path, capsys):
+    """summary.json: cheapest_overall, cheapest_fi (an FI, every gain nonzero) and their CPU ratio; a rerun resumes."""
+    out = tmp_path / "o"
+    argv = ["suslov", "--t-final", "0.5", "--quick", "--out", str(out), "--methods", "FI,no-feedback,projection",
+            "--schemes", "rk4", "--gains", "scene,0.1,1"]
+    assert bench.main(argv) == 0
+    doc = json.loads((out / "summary.json").read_text())
+    s = doc["scenes"]["suslov"]
+    assert s["complete"] and s["runs"] == s["tasks"] == 3 * 3 + 3 + 3
+    best, fi = s["cheapest_overall"], s["cheapest_fi"]
+    for r in (best, fi):
+        assert {"method", "scheme", "dt", "rtol", "cpu_seconds"} <= set(r) and r["max_drift"] <= 1e-8
+    assert fi["method"] == "FI" and fi["gain"] != 0
+    assert s["fi_over_best"] == pytest.approx(fi["cpu_seconds"] / best["cpu_seconds"])
+    assert s["fi_over_best"] >= 1.0 or best["method"] == "FI"
+    with sqlite3.connect(out / "results.sqlite") as db:
+        stamps = db.execute("select key, finished_at from results").fetchall()
+    assert "fi_over_best" in capsys.readouterr().out
+    assert bench.main(argv) == 0  # resumed: nothing is run again
+    with sqlite3.connect(out / "results.sqlite") as db:
+        assert db.execute("select key, finished_at from results").fetchall() == stamps
+    assert json.loads((out / "summary.json").read_text()) == doc
+
+
+def test_bench_interrupted_by_sigint_keeps_a_consistent_summary(tmp_path):
+    """Ctrl-C after the first results: one line, exit 130, the store and summary.json agree; a rerun finishes."""
+    out = tmp_path / "o"
+    cmd = [sys.executable, "-m", "liefi.bench", "suslov", "--t-final", "100", "--quick", "--out", str(out), "--methods",
+           "FI,no-feedback", "--schemes", "euler,heun,rk4", "--no-progress"]
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    p = subprocess.Popen(cmd, cwd=root, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    db_path = out / "results.sqlite"
+    deadline = time.time() + 120
+    done = 0
+    while time.time() < deadline and p.poll() is None:
+        if db_path.exists():
+            with contextlib_closing(sqlite3.connect(db_path)) as db:
+                try:
+                    done = db.execute("select count(*) from results").fetchone()[0]
+                except sqlite3.OperationalError:
+                    done = 0
+            if done >= 2:
+                break
+        time.sleep(0.05)
+    assert p.poll() is None, p.communicate()
+    p.send_signal(signal.SIGINT)
+    stdout, stderr = p.communicate(timeout=60)
+    assert p.returncode == 130, stderr
+    assert "Traceback" not in stderr and "interrupted" in stderr
+    assert len([ln for ln in stderr.splitlines() if "interrupted" in ln]) == 1
+    s = json.loads((out / "summary.json").read_text())["scenes"]["suslov"]
+    with sqlite3.connect(db_path) as db:
+        stored = db.execute("select count(*) from results").fetchone()[0]
+    assert s["runs"] == stored >= 2 and not s["complete"] and s["tasks"] == 5 * 3 * 3
+    assert bench.main(cmd[3:]) == 0
+    s = json.loads((out / "summary.json").read_text())["scenes"]["suslov"]
+    assert s["complete"] and s["runs"] == 45
+
+
+def contextlib_closing(x):
+    import contextlib
+
+    return contextlib.closing(x)
+
+
+def test_crossover_from_prefix_maxima():
+    """The crossover is the least horizon from which on the FI keeps the invariants for less than any other
+    method; costs scale with the horizon; a horizon where no FI qualifies ends it."""
+    def row(method, gain, cpu, drifts, errors=None):
+        hs = [1e2, 1e3, 1e4]
+        return dict(method=method, scheme="rk4", gain=gain, status="ok", t_final=1e4, cpu_seconds=cpu, horizons=hs,
+                    drift_at=drifts, error_at=errors or [None] * 3, error_measured=errors is not None)
+
+    rows = [row("FI", 0.1, 2.0, [1e-12, 1e-11, 5e-11]),          # bounded drift, 2 s to 1e4
+            row("no-feedback", None, 1.0, [1e-12, 1e-11, 1e-9]),  # cheaper, but drifts past 1e-10 by 1e4
+            row("projection", None, 3.0, [1e-14, 1e-14, 1e-14])]
+    c = bench.crossover(rows, drift=1e-10)
+    assert c["crossover"] == 1e4
+    assert c["other_best"][1e3] == ("no-feedback rk4", pytest.approx(0.1))
+    assert c["fi_best"][1e4] == ("FI rk4 k=0.1", 2.0) and c["other_best"][1e4] == ("projection rk4", 3.0)
+    rows[0]["drift_at"][-1] = None  # the FI diverged before 1e4: no crossover
+    assert bench.crossover(rows, drift=1e-10)["crossover"] is None
+    # a relative state error where measured
+    rows = [row("FI", 1.0, 2.0, [0, 0, 0], [1e-9, 1e-8, 1e-5]), row("projection", None, 3.0, [0, 0, 0], [0, 0, 0])]
+    assert bench.crossover(rows, drift=1e-10, error=1e-6)["crossover"] is None
+    assert bench.crossover(rows, drift=1e-10, error=1e-4)["crossover"] == 1e2
+
+
+def test_horizon_row_reads_prefixes():
+    """horizon_row turns a run into prefix maxima of the drift and of the relative error (exact solution)."""
+    task = dict(scene="suslov", variant=None, method="FI", scheme="rk4", dt=8e-3, rtol=None, t_final=200.0,
+                configuration=True, n_save=200, gain=1.0)
+    r = bench.horizon_row(task, bench.run_task(task))
+    assert r["horizons"] == [100.0, 200.0] and r["error_measured"]
+    assert r["drift_at"][0] <= r["drift_at"][1] == pytest.approx(r["max_drift"])
+    assert 0 < r["error_at"][0] <= r["error_at"][1] < 1e-6
+
+
+def test_interrupt_stops_a_process_pool_at_once():
+    """Ctrl-C while process-pool workers run long tasks: the workers are stopped and the sweep returns
+    within seconds, not after the running tasks finish."""
+    code = (
+        "import os, signal, threading, time, sys\n"
+        "from liefi.sweep import run_sweep, open_executor, SweepInterrupted\n"
+        "threading.Timer(1.0, lambda: os.kill(os.getpid(), signal.SIGINT)).start()\n"
+        "t = time.time()\n"
+        "try:\n"
+        "    with open_executor('processes:2') as ex:\n"
+        "        run_sweep(time.sleep, [60.0] * 4, ex)\n"
+        "except SweepInterrupted as e:\n"
+        "    print('interrupted', e.done, round(time.time() - t, 1))\n"
+    )
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    t = time.time()
+    out = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, timeout=120)
+    assert out.stdout.startswith("interrupted 0"), out.stderr
+    assert time.time() - t < 50  # the 60 s tasks did not run to the end

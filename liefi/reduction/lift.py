@@ -240,8 +240,6 @@ def unreduce(system, chart, chart_jacobian, *, names=None, sample=None, check: b
     Marsden & Ratiu, *Introduction to Mechanics and Symmetry*, 13.3 (left
     trivialization) and 14.6 (SE(2)).
     """
-    from ..system import NonholonomicSystem
-
     space = system.space
     if not isinstance(space, PhaseSpace) or space.d == 0:
         raise ValueError(
@@ -346,7 +344,8 @@ def unreduce(system, chart, chart_jacobian, *, names=None, sample=None, check: b
             A, dA = x_derivative(system.vector_potential, x, B.shape[:-2])
             return np.einsum("...lak,...a->...lk", dB, A) + np.einsum("...ak,...la->...lk", B, dA)
 
-    unreduced = NonholonomicSystem(
+    # the reduced system's own class: the reduction layer never imports the system layer
+    unreduced = type(system)(
         CotangentBundle(D, names + tuple(space.shape_names)),
         metric,
         constraints if system.K else None,

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import importlib
 
-from .base import RunResult, Scene, Variant
+from .base import PaperRun, RunResult, Scene, Variant
 
 #: scene name -> module (imported lazily, so a run loads only what it needs)
 REGISTRY = {
@@ -42,4 +42,4 @@ def get(name: str) -> Scene:
     return mod.SCENE
 
 
-__all__ = ["Scene", "Variant", "RunResult", "REGISTRY", "names", "get"]
+__all__ = ["Scene", "Variant", "RunResult", "PaperRun", "REGISTRY", "names", "get"]

@@ -7,6 +7,15 @@ integrates exactly what is asked -- the reduced state alone unless the
 configuration is needed -- and returns a :class:`RunResult` with the error
 against the reference and the drift of every invariant.  No scene writes an
 equation of motion: the fields come from :mod:`liefi.reduction`.
+
+A scene also owns what is particular to it, so that the plotting, the
+``liefi`` command and ``liefi reproduce`` stay generic: its figures
+(:meth:`Scene.figures`, drawn with the helpers of :mod:`liefi.plotting`),
+whether they need the configuration (:attr:`Scene.figures_need_configuration`),
+the runs ``liefi reproduce`` makes (:meth:`Scene.paper_runs`), its reference
+solution and what it costs (:meth:`Scene.reference_solution`, computed once per
+start), and its extreme cases for the stability battery
+(:attr:`Scene.stability_cases`).
 """
 
 from __future__ import annotations
@@ -18,6 +27,7 @@ from functools import cached_property
 
 import numpy as np
 
+from .. import plotting
 from ..feedback import FeedbackIntegrator
 from ..reduction import core as _core
 
@@ -42,6 +52,27 @@ class Variant:
     energy: str = "extended"
     field: str = "extended"
     options: dict = _field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class PaperRun:
+    """One run of ``liefi reproduce`` (see :meth:`Scene.paper_runs`).
+
+    ``label`` names the run among the variant's runs (it is the key of the mapping
+    :meth:`Scene.figures` receives); ``scheme``, ``t_final``, ``save_every`` and
+    ``configuration`` are passed to :meth:`Scene.run` (``None``: the scene's
+    setting); ``experiment`` is recorded in the summary; a ``variant_independent``
+    run does not depend on the variant (e.g. a scheme that ignores ``V``): it runs
+    once and every variant reuses it.
+    """
+
+    label: str = "paper"
+    scheme: str | None = None
+    t_final: float | None = None
+    save_every: int | None = None
+    configuration: bool | None = None
+    experiment: str = "paper"
+    variant_independent: bool = False
 
 
 @dataclass
@@ -72,8 +103,13 @@ class RunResult:
     invariants: dict
     max_error: dict
     max_drift: dict
-    #: seconds spent besides the integration (estimate, guard, kernel loading)
+    #: CPU seconds of the whole :meth:`Scene.run` besides the integration itself
+    #: (setup, stability estimate, compilation, reference solution, invariants)
     overhead_seconds: float = 0.0
+    #: seconds spent computing the reference solution for this run (0 when cached)
+    reference_seconds: float = 0.0
+    #: the engine that stepped the run (``"numpy"``, ``"numba"``, ``"scipy"``)
+    backend: str | None = None
     #: invariants left out of ``V`` (kept exactly by the scheme): ``[{"name", "reason"}]``
     dropped: list = _field(default_factory=list)
 
@@ -96,6 +132,8 @@ class RunResult:
             "gains": self.gains,
             "max_error": {k: float(v) for k, v in self.max_error.items()},
             "max_drift": {k: float(v) for k, v in self.max_drift.items()},
+            "reference_seconds": self.reference_seconds,
+            "backend": self.backend,
             "dropped": [dict(d) for d in self.dropped],
         }
 
@@ -109,6 +147,11 @@ class Scene:
     ``variants`` (dict of :class:`Variant`), ``error_variables`` (names
     compared with the reference).  Methods to supply: :meth:`build_system`,
     :meth:`initial_state`; and :meth:`exact` when ``reference == "exact"``.
+
+    What is particular to a scene and used by the generic tools: :meth:`figures`
+    (default: one generic figure per run), :attr:`figures_need_configuration`,
+    :meth:`paper_runs` (default: one run at the paper's settings),
+    :meth:`reference_solution` and :attr:`stability_cases`.
     """
 
     name = ""
@@ -123,6 +166,13 @@ class Scene:
     error_variables: tuple = ()
     #: schemes besides liefi's RK tableaux and ``scipy:METHOD`` this scene supports
     extra_schemes: tuple = ()
+    #: one of the paper's experiments: ``liefi reproduce`` runs it (others: ``--only`` or ``--all``)
+    in_paper: bool = True
+    #: the scene's figures need the group element integrated (e.g. ``||R^T R - I||``)
+    figures_need_configuration: bool = False
+    #: tolerances of the numerical reference (DOP853 on the constrained field)
+    reference_rtol: float = 1e-12
+    reference_atol: float = 1e-12
     #: the variant the stability experiments run (default: the first)
     stability_variant = None
     #: this scene's own extreme cases for the stability battery (see :meth:`stability_case`);
@@ -193,25 +243,116 @@ class Scene:
             field=v.field,
         )
 
-    def numerical_reference(self, t, variant: Variant, rtol=1e-12, atol=1e-12):
-        """High-accuracy integration (DOP853) of the *constrained* field from the start."""
-        from scipy.integrate import solve_ivp
+    def numerical_reference(self, t, variant: Variant):
+        """The constrained motion from the variant's start at the times ``t``: ``{name: array}``
+        (configuration names, then the state names); see :meth:`reference_solution`."""
+        t = np.asarray(t, float)
+        return self.reference_solution(variant, float(t[-1]) if t.size else 0.0)(t)
 
-        key = (variant.name, float(t[-1]), len(t))
+    def reference_solution(self, variant: Variant, t_final, *, backend=None):
+        """The numerical reference on ``[0, t_final]``: a callable ``t -> {name: array}``.
+
+        DOP853 (``reference_rtol``, ``reference_atol``) on the *constrained* field
+        (:func:`~liefi.reduction.core.full_vector_field` with ``kind="constrained"``) from
+        the full start ``(g, z)``, evaluated through its dense output -- the
+        interpolant ``solve_ivp`` evaluates ``t_eval`` with, so the values are those
+        of a ``t_eval`` run.  Its cost is paid once per start: the solution is cached
+        on the scene by the start (variants that share a start, e.g. ones that only
+        change ``V``, share it) and reused for every horizon up to the longest
+        computed; ask for the longest horizon first to integrate once.  The field is
+        the compiled one (:mod:`liefi.compiled`) unless ``backend="numpy"`` or numba
+        is missing; the seconds spent are added to ``reference_seconds``.
+        """
+        v = self.variant(variant) if not isinstance(variant, Variant) else variant
+        y0 = np.asarray(self.initial_state(v), float)
+        T = float(t_final)
         cache = self.__dict__.setdefault("_refcache", {})
-        if key not in cache:
-            y0 = np.asarray(self.initial_state(variant), float)
+        key = y0.tobytes()
+        hit = cache.get(key)
+        if hit is None or hit[0] < T:
+            from scipy.integrate import solve_ivp
+
+            start = time.perf_counter()
             sys = self.system
-
-            def f(_t, y):
-                return _core.full_vector_field(sys, y, kind="constrained")
-
-            sol = solve_ivp(f, (0.0, float(t[-1])), y0, method="DOP853", rtol=rtol, atol=atol, t_eval=t)
+            names = tuple(sys.space.group.config_names) + sys.state_names
+            fun = self._constrained_field(v, backend)
+            sol = solve_ivp(fun, (0.0, T), y0, method="DOP853", rtol=self.reference_rtol,
+                            atol=self.reference_atol, dense_output=True)
             if not sol.success:
                 raise RuntimeError(f"reference solution of {self.name!r} failed: {sol.message}")
-            names = tuple(sys.space.group.config_names) + sys.state_names
-            cache[key] = {n: sol.y[i] for i, n in enumerate(names)}
-        return cache[key]
+            hit = cache[key] = (T, sol.sol, names)
+            self.reference_seconds = getattr(self, "reference_seconds", 0.0) + time.perf_counter() - start
+        _, dense, names = hit
+
+        def at(t):
+            t = np.asarray(t, float)
+            if t.size and (t.min() < 0.0 or t.max() > T * (1 + 1e-12) + 1e-12):
+                raise ValueError(f"t: the reference of {self.name!r} covers [0, {T:g}]; got t up to {t.max():g}")
+            Y = dense(t) if t.size else np.zeros((len(names), 0))
+            return {n: Y[i] for i, n in enumerate(names)}
+
+        return at
+
+    def _constrained_field(self, v, backend):
+        """``fun(t, y)`` of the constrained field on the full state; compiled when possible."""
+        sys = self.system
+
+        def numpy_field(_t, y):
+            return _core.full_vector_field(sys, y, kind="constrained")
+
+        if backend == "numpy":
+            return numpy_field
+        import importlib.util
+
+        if importlib.util.find_spec("numba") is None:
+            return numpy_field
+        try:
+            from .. import compiled
+
+            fi = self.integrator(v, configuration=True)
+            return compiled.compile_constrained(fi).fun(np.zeros(0))
+        except Exception as exc:  # noqa: BLE001 - the numpy field is the reference; say why it is used
+            import warnings
+
+            warnings.warn(
+                f"reference of {self.name!r}: the compiled constrained field is not available "
+                f"({type(exc).__name__}: {exc}); integrating the numpy field (slower)",
+                RuntimeWarning, stacklevel=3,
+            )
+            return numpy_field
+
+    def reference_method(self):
+        """How the reference is computed, in words (``liefi run --json``: ``reference_method``)."""
+        if self.reference == "numerical":
+            return (f"DOP853 (scipy solve_ivp, rtol {self.reference_rtol:g}, atol {self.reference_atol:g}) "
+                    "on the constrained field from the start")
+        return "closed-form exact solution"
+
+    # --- what the generic tools ask of a scene -----------------------------------------
+    @staticmethod
+    def as_runs(runs):
+        """``runs`` as a mapping ``label -> RunResult`` (a single result is ``{"run": result}``)."""
+        return {"run": runs} if isinstance(runs, RunResult) else dict(runs)
+
+    def figures(self, runs, *, tag=""):
+        """The figures of ``runs`` (a :class:`RunResult`, or the mapping ``label -> RunResult``
+        of :meth:`paper_runs`): a list of :class:`liefi.plotting.FigureSpec`.
+
+        The default is :func:`liefi.plotting.generic` (errors and drifts) for each run;
+        a scene with figures in the paper overrides it.  ``tag`` is appended to titles.
+        """
+        return [
+            plotting.FigureSpec("generic", lambda f, r=r: plotting.generic(r, f, title=self.title, tag=tag), 11, 4.0)
+            for r in self.as_runs(runs).values()
+        ]
+
+    def paper_runs(self, variant: Variant):
+        """The runs ``liefi reproduce`` makes for ``variant`` (a tuple of :class:`PaperRun`).
+
+        Default: one run at the paper's settings, with the configuration when the
+        figures need it.
+        """
+        return (PaperRun(configuration=True if self.figures_need_configuration else None),)
 
     # --- running ---------------------------------------------------------------------
     def run(
@@ -245,9 +386,10 @@ class Scene:
         ``backend``: ``"numpy"``, ``"numba"`` or ``"auto"`` (:mod:`liefi.compiled`);
         default ``"auto"`` when numba is installed (``liefi[fast]``), else ``"numpy"``.
         """
-        if backend is None:
-            import importlib.util
+        import importlib.util
 
+        clock = (time.process_time(), getattr(self, "reference_seconds", 0.0))
+        if backend is None:
             backend = "auto" if importlib.util.find_spec("numba") is not None else "numpy"
         from ..stability import positive_number
 
@@ -265,7 +407,7 @@ class Scene:
         fi = self.integrator(v, gains=gains, configuration=configuration)
         self._check_start(fi, v)
 
-        overhead = 0.0
+        dropped = []  # invariants the fixed-step run left out of V
         if scheme in self.extra_schemes:
             t, Y, names, cpu, steps, nfev = self.run_extra(scheme, v, dt, T, save_every, fi)
             if check_stability:
@@ -302,12 +444,16 @@ class Scene:
                 # report the gains the run started with (0 for the invariants left out of V)
                 fi = fi.with_gains({**{d["name"]: 0.0 for d in dropped}, **sol.stability.gains})
             t, Y, names, cpu, steps, nfev = sol.t, sol.y, sol.names, sol.cpu_seconds, sol.steps, sol.rhs_evaluations
-            overhead = getattr(sol, "overhead_seconds", 0.0)
-        res = self._result(v, str(scheme), dt, T, fi, t, Y, names, cpu, steps, nfev)
-        res.overhead_seconds = float(overhead)
-        if scheme not in self.extra_schemes and not str(scheme).lower().startswith("scipy:"):
-            res.dropped = dropped
-        return res
+        ran = getattr(sol, "backend", None) if "sol" in locals() else None
+        if str(scheme).startswith("scipy:"):
+            ran = "scipy"
+        elif ran is None:
+            ran = "numba" if (backend != "numpy" and scheme in self.extra_schemes
+                              and importlib.util.find_spec("numba") is not None) else "numpy"
+        result = self._result(v, str(scheme), dt, T, fi, t, Y, names, cpu, steps, nfev, clock=clock)
+        result.backend = ran
+        result.dropped = dropped
+        return result
 
     def _check_start(self, fi, v, rtol=1e-9):
         """The reference solution is the *constrained* motion: the start must be on ``J = 0``."""
@@ -329,7 +475,7 @@ class Scene:
         """Run a scene-specific scheme; returns ``(t, Y, names, cpu, steps, nfev)``."""
         raise ValueError(f"scheme: {scheme!r} is not available for scene {self.name!r}")
 
-    def _result(self, v, scheme, dt, T, fi, t, Y, names, cpu, steps, nfev):
+    def _result(self, v, scheme, dt, T, fi, t, Y, names, cpu, steps, nfev, clock=None):
         data = {n: Y[i] for i, n in enumerate(names)}
         data.update(self.observables(Y, names))
         ref = self.exact(t, v)
@@ -354,7 +500,12 @@ class Scene:
             base = 0.0 if k.startswith("J_") or k == "orthogonality" else val[0]
             max_drift[k] = float(np.max(np.abs(val - base)))
         max_error = {k: float(np.max(np.abs(e))) for k, e in errors.items()}
+        overhead = ref_seconds = 0.0
+        if clock is not None:
+            overhead = max(0.0, time.process_time() - clock[0] - float(cpu))
+            ref_seconds = getattr(self, "reference_seconds", 0.0) - clock[1]
         return RunResult(
             self.name, v.name, scheme, dt, T, int(steps), float(cpu), int(nfev), self.reference,
             dict(fi.gains), t, Y, tuple(names), errors, invariants, max_error, max_drift,
+            overhead_seconds=overhead, reference_seconds=ref_seconds,
         )

@@ -38,6 +38,7 @@ neither grows nor decays), and ten percent more gain or step diverges.
 
 import numpy as np
 
+from .. import plotting
 from ..phase_space import CotangentBundle
 from ..system import NonholonomicSystem
 from . import exact as _exact
@@ -100,6 +101,81 @@ class KnifeEdge(Scene):
             t, m=self.m, J=self.J, g=self.g, alpha=self.alpha, p_phi0=self.p_phi0,
             x0=x0, y0=y0, phi0=phi0, v0=self.v0,
         )
+
+    def figures(self, runs, *, tag=""):
+        """``figure:knife_cycloid``, ``figure:knife_exact`` and ``figure:knife_integrals`` of each run."""
+        out = []
+        for r in self.as_runs(runs).values():
+            out += [
+                plotting.FigureSpec("figure:knife_cycloid", lambda f, r=r: cycloid_figure(r, f, tag=tag), 13, 4.2),
+                plotting.FigureSpec("figure:knife_exact", lambda f, r=r: errors_figure(r, f, tag=tag), 13, 3.4),
+                plotting.FigureSpec("figure:knife_integrals", lambda f, r=r: integrals_figure(r, f, tag=tag), 13, 3.4),
+            ]
+        return out
+
+
+def cycloid_figure(result, fig=None, *, tag=""):
+    """``figure:knife_cycloid``: ``(x(t), y(t))`` numerical and exact; ``y`` horizontal, as in the paper.
+
+    A third panel overlays both over the last two arches (``t >= t_final - 4 pi``), where
+    the numerical error is largest.
+    """
+    fig = plotting.figure(fig, 13, 3.8)
+    axes = fig.subplots(1, 3, gridspec_kw={"width_ratios": [2, 2, 1.3]})
+    x, y = plotting.component(result, "x"), plotting.component(result, "y")
+    xe, ye = plotting.reference_of(result, "x"), plotting.reference_of(result, "y")
+    for ax, (xx, yy, what, color) in zip(axes[:2], ((x, y, "feedback integrator", "C0"), (xe, ye, "exact solution", "C1"))):
+        ax.set_xlabel("$y$")
+        ax.set_ylabel("$x$")
+        ax.grid(alpha=0.3)
+        ax.set_title(what, fontsize=10)
+        if xx is None or yy is None:
+            ax.text(0.5, 0.5, f"{what}: not available", transform=ax.transAxes, ha="center")
+            continue
+        ax.plot(yy, xx, lw=0.6, color=color)
+    ax = axes[2]
+    if x is not None and xe is not None:
+        last = result.t >= result.t[-1] - 4 * np.pi
+        ax.plot(ye[last], xe[last], lw=2.5, color="C1", alpha=0.6, label="exact")
+        ax.plot(y[last], x[last], lw=0.9, color="C0", label="feedback integrator")
+        ax.set_ylim(top=1.45 * max(np.max(x[last]), np.max(xe[last])))
+        ax.legend(fontsize=8, loc="upper center", ncol=1, framealpha=0.9)
+    ax.set_title("both, last two arches", fontsize=10)
+    ax.set_xlabel("$y$")
+    ax.set_ylabel("$x$")
+    ax.grid(alpha=0.3)
+    fig.suptitle(
+        r"Fig. figure:knife_cycloid: knife edge trajectory $(x(t), y(t))$ ($y$ and $x$ swapped), "
+        r"exact $x = (1-\cos t)/2$, $y = (t - \sin t)/2$" "\n"
+        r"(the paper prints $x = 1-\cos t$, $\varphi = t$: docs/paper_notes.md, item 1)" + tag + "\n"
+        + plotting.run_caption(result),
+        fontsize=10,
+    )
+    return fig
+
+
+def errors_figure(result, fig=None, *, tag=""):
+    """``figure:knife_exact``: ``|Delta x|``, ``|Delta y|``, ``|Delta phi|`` against the exact solution."""
+    panels = [(result.errors.get(k, f"no {k}"), rf"$|\Delta {plotting.label(k).strip('$')}|$", "log")
+              for k in ("x", "y", "phi")]
+    return plotting.panel_row(
+        fig, result, panels,
+        title=r"Fig. figure:knife_exact: error of $(x, y, \varphi)$ of the knife edge against the exact solution" + tag,
+    )
+
+
+def integrals_figure(result, fig=None, *, tag=""):
+    """``figure:knife_integrals``: ``|Delta J_1|``, ``|Delta J_2| = |Delta p_phi|``, ``|Delta H|`` (original H)."""
+    panels = []
+    for k, ylabel in (("J_1", r"$|\Delta J_1|$"), ("p_phi", r"$|\Delta J_2| = |\Delta p_\varphi|$"),
+                      ("h", r"$|\Delta H|$")):
+        vals = result.invariants.get(k, plotting.component(result, k))
+        panels.append((f"no {k}" if vals is None else plotting.drift(k, vals), ylabel, "log"))
+    return plotting.panel_row(
+        fig, result, panels,
+        title=r"Fig. figure:knife_integrals: constraint momentum error $|\Delta J_1|$, momentum error "
+        r"$|\Delta p_\varphi|$ and energy error $|\Delta H|$ (original $H$) of the knife edge" + tag,
+    )
 
 
 SCENE = KnifeEdge()

@@ -78,6 +78,7 @@ from .oscillator import H_Y
 
 
 class GaugeShiftedContactOscillator(Scene):
+    in_paper = False  # a study beyond the paper: liefi reproduce runs it with --all or --only
     """The contact oscillator ``U = |q|^2/2 + eps x^2 z^2/2`` with momenta shifted by ``grad cos z``."""
 
     reference = "numerical"

@@ -47,6 +47,7 @@ def _vector_potential(q):
 
 class NonreversibleKnifeEdge(KnifeEdge):
     name = "nonreversible-knife-edge"
+    in_paper = False  # a study beyond the paper: liefi reproduce runs it with --all or --only
     title = "Knife edge on an inclined plane with gauge-shifted momenta (not reversible)"
     paper = "Modin & Verdier 2020 recipe on the paper's Sec. 3 knife edge, p -> p - grad cos(x + y)"
     reference = "exact"

@@ -39,12 +39,16 @@ import time
 
 import numpy as np
 
+from .. import plotting
 from ..dla import DLAIntegrator
 from ..feedback import Invariant
 from ..phase_space import CotangentBundle
 from ..system import NonholonomicSystem
 from . import exact as _exact
-from .base import Scene, Variant
+from .base import PaperRun, Scene, Variant
+
+#: the Poincaré sections of the oscillator run over [0, 400] (paper, "Comparisons")
+POINCARE_T_FINAL = 400.0
 
 
 def _y_energy(z):
@@ -96,6 +100,40 @@ class Oscillator(Scene):
         ref = dict(self.numerical_reference(t, variant))
         ref.update(_exact.oscillator_y(t, self.q0[1], self.p0[1]))
         return ref
+
+    def paper_runs(self, variant):
+        """``figure:oscillator``: FI (Euler) and DLA on the paper's horizon ``[0, 200]``;
+        ``figure:Poincare:FI``: both on ``[0, 400]`` with every step saved (the crossings
+        ``y = 0`` are interpolated between saved points).  The DLA does not see ``V``, so
+        its runs do not depend on the variant: they run once and every variant reuses them."""
+        return (
+            PaperRun("fi", scheme="euler", experiment="figure:oscillator"),
+            PaperRun("dla", scheme="dla", experiment="figure:oscillator", variant_independent=True),
+            PaperRun("fi-long", scheme="euler", t_final=POINCARE_T_FINAL, save_every=1,
+                     experiment="figure:Poincare:FI"),
+            PaperRun("dla-long", scheme="dla", t_final=POINCARE_T_FINAL, save_every=1,
+                     experiment="figure:Poincare:FI", variant_independent=True),
+        )
+
+    def figures(self, runs, *, tag=""):
+        """``figure:oscillator`` (a column per run on the paper's horizon: FI left, DLA right) and
+        ``figure:Poincare:FI`` (a row per long run; a single run serves both figures)."""
+        runs = self.as_runs(runs)
+        short = [r for k, r in runs.items() if not k.endswith("-long")]
+        long = [r for k, r in runs.items() if k.endswith("-long")] or short
+        short.sort(key=lambda r: r.scheme == "dla")
+        long.sort(key=lambda r: r.scheme == "dla")
+        out = []
+        if short:
+            out.append(plotting.FigureSpec("figure:oscillator", lambda f: integrals_figure(short, f, tag=tag),
+                                           5.5 * len(short) + 1.0, 7.5))
+        if long:
+            out.append(plotting.FigureSpec(
+                "figure:Poincare:FI",
+                lambda f: poincare_figure([(r, *sections_with_reference(r)) for r in long], f, tag=tag),
+                12, 3.4 * len(long) + 0.4,
+            ))
+        return out
 
     def run_extra(self, scheme, variant, dt, T, save_every, fi):
         """``"dla"``: the discrete Lagrange--d'Alembert integrator from the same data."""
@@ -171,3 +209,108 @@ def poincare_section(result, coordinates=("x", "z", "p_z"), variable="y", moment
 
 
 SCENE = Oscillator()
+
+
+def sections_with_reference(result):
+    """``(sections, reference_sections)`` of an oscillator run (``figure:Poincare:FI``).
+
+    ``sections`` is :func:`poincare_section` of the run; the reference sections apply
+    it to the reference solution at the saved times (``data - error``: no extra
+    integration), or are ``None`` when the run lacks errors.
+    """
+    from types import SimpleNamespace
+
+    sec = poincare_section(result)
+    if not all(n in result.errors for n in result.names):
+        return sec, None
+    Y = np.stack([np.asarray(result[n]) - np.asarray(result.errors[n]) for n in result.names])
+    return sec, poincare_section(SimpleNamespace(t=result.t, y=Y, names=result.names))
+
+
+def quantities(result):
+    """``(Delta H, Delta H_y, J_c)`` along a run, as ``figure:oscillator`` plots them.
+
+    ``H`` (the original energy ``h``), ``H_y`` and ``J_1`` are the run's invariants
+    (derived by the library); ``J_c = p_x + y p_z = sqrt(1 + y^2) J_1`` undoes the
+    normalization of the constraint vector ``e``.
+    """
+    inv = result.invariants
+    missing = [k for k in ("h", "H_y", "J_1") if k not in inv]
+    if missing or "y" not in result.names:
+        raise KeyError(f"oscillator run without {missing or ['y']} (has {sorted(inv)}, {result.names})")
+    H, Hy = np.asarray(inv["h"]), np.asarray(inv["H_y"])
+    Jc = np.sqrt(1.0 + np.asarray(result["y"]) ** 2) * np.asarray(inv["J_1"])
+    return H - H[0], Hy - Hy[0], Jc
+
+
+def integrals_figure(runs, fig=None, *, tag=""):
+    """``figure:oscillator``: ``Delta H``, ``Delta H_y``, ``J_c`` vs ``t``, one column per run
+    (the paper: feedback integrator left, DLA right).  Signed values on linear axes, as printed."""
+    fig = plotting.figure(fig, 5.5 * len(runs) + 1.0, 7.5)
+    axes = np.asarray(fig.subplots(3, len(runs), sharex=True, squeeze=False))
+    names = (r"$\Delta H$", r"$\Delta H_y$", r"$J_c = p_x + y\,p_z$")
+    for j, r in enumerate(runs):
+        what = "DLA" if r.scheme == "dla" else "feedback integrator"
+        for i, (val, ylabel) in enumerate(zip(quantities(r), names)):
+            ax = axes[i, j]
+            ax.plot(*plotting.thinned(r.t, val), lw=0.6, color="C3" if r.scheme == "dla" else "C0")
+            ax.set_ylabel(ylabel)
+            ax.ticklabel_format(axis="y", style="sci", scilimits=(-2, 2))
+            ax.grid(alpha=0.3)
+        axes[0, j].set_title(f"{what}\n{plotting.run_caption(r)}", fontsize=9)
+        axes[-1, j].set_xlabel("$t$")
+    fig.suptitle(
+        r"Fig. figure:oscillator: energy error $\Delta H$, $y$-energy error $\Delta H_y$ and constraint $J_c$ "
+        "of the nonholonomic oscillator" + tag,
+        fontsize=10,
+    )
+    return fig
+
+
+def poincare_figure(runs, fig=None, *, tag=""):
+    """``figure:Poincare:FI``: one row per run (FI, DLA): ``y(t)``, snapshots in the ``xz`` plane
+    and in the ``z p_z`` (DLA: ``z v_z``) plane when ``y`` crosses 0 upwards.
+
+    ``runs`` is a list of ``(result, sections)`` or ``(result, sections, reference_sections)``
+    (:func:`sections_with_reference`).  The reference sections, when given, are drawn
+    underneath in gray: not in the paper, but they show what the snapshots should look like.
+    """
+    fig = plotting.figure(fig, 12, 3.4 * len(runs) + 0.4)
+    axes = np.asarray(fig.subplots(len(runs), 3, squeeze=False))
+    for i, run in enumerate(runs):
+        r, sec = run[0], run[1] or {}
+        ref = run[2] if len(run) > 2 else None
+        dla = r.scheme == "dla"
+        color = "C3" if dla else "C0"
+        what = "first-order DLA" if dla else f"feedback integrator ({r.scheme})"
+        a0, a1, a2 = axes[i]
+        y = plotting.component(r, "y")
+        if y is not None:
+            a0.plot(*plotting.thinned(r.t, y), lw=0.5, color=color)
+        a0.set_xlabel("$t$")
+        a0.set_ylabel("$y$")
+        a0.set_title(f"{what}: $y(t)$", fontsize=9)
+        a0.grid(alpha=0.3)
+        mom = "v" if dla else "p"
+        n = len(sec.get("z", ()))
+        for ax, (u, v, xl, yl) in ((a1, ("x", "z", "$x$", "$z$")), (a2, ("z", "p_z", "$z$", f"${mom}_z$"))):
+            if ref is not None and u in ref and v in ref:
+                ax.plot(ref[u], ref[v], "o", ms=5, mfc="none", mec="0.6", mew=0.8, label="reference (DOP853)")
+            if u in sec and v in sec:
+                ax.plot(sec[u], sec[v], ".", ms=4, color=color, label=what)
+            ax.set_xlabel(xl)
+            ax.set_ylabel(yl)
+            ax.grid(alpha=0.3)
+        a1.set_title(f"snapshots in the $xz$ plane ({n} crossings)", fontsize=9)
+        a2.set_title(f"snapshots in the $z{mom}_z$ plane", fontsize=9)
+        if ref is not None:
+            a2.legend(fontsize=7, loc="center", framealpha=0.8)
+    T = max(run[0].t_final for run in runs) if runs else 0
+    rows = " / ".join("DLA" if run[0].scheme == "dla" else "feedback integrator" for run in runs)
+    fig.suptitle(
+        r"Fig. figure:Poincare:FI: nonholonomic oscillator, Poincaré section $y = 0$, $\dot y > 0$; "
+        + (f"rows: {rows}, " if len(runs) > 1 else "")
+        + f"$0 \\leq t \\leq {T:g}$" + tag,
+        fontsize=10,
+    )
+    return fig

@@ -145,6 +145,7 @@ def splitting(R0, Pi0, inertia, h, n_steps, save_every=1):
 
 class RigidBody(Scene):
     name = "rigid-body"
+    in_paper = False  # Bae & Chang's benchmark: liefi reproduce runs it with --all or --only
     title = "Free rigid body on SO(3) (Bae & Chang's benchmark)"
     paper = "Bae & Chang, arXiv:2512.01528, free rigid body"
     reference = "numerical"

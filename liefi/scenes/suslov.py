@@ -10,6 +10,7 @@ Variants: ``extended`` (``V`` penalizes ``h~``, eq. ``(grad:V:Suslov)``) and
 
 import numpy as np
 
+from .. import plotting
 from ..groups import SO3
 from ..phase_space import LieGroupPhaseSpace
 from ..system import NonholonomicSystem
@@ -30,6 +31,8 @@ class Suslov(Scene):
         "original": Variant("original", "V penalizes the original energy h (Remark)", energy="original"),
     }
     error_variables = ("Pi_1", "Pi_2", "Pi_3")
+    #: ``figure:Suslov_integrals`` shows ``||R^T R - I||``: the rotation is integrated
+    figures_need_configuration = True
 
     inertia = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 1.0], [0.0, 1.0, 2.0]])
     a = np.array([0.0, 0.0, 1.0])
@@ -45,6 +48,44 @@ class Suslov(Scene):
 
     def exact(self, t, variant):
         return _exact.suslov(t, Pi0=self.Pi0)
+
+    def figures(self, runs, *, tag=""):
+        """``figure:Suslov_Pi_exact`` and ``figure:Suslov_integrals`` of each run."""
+        out = []
+        for r in self.as_runs(runs).values():
+            out.append(plotting.FigureSpec("figure:Suslov_Pi_exact", lambda f, r=r: momentum_error_figure(r, f, tag=tag),
+                                           11, 3.4))
+            out.append(plotting.FigureSpec("figure:Suslov_integrals", lambda f, r=r: integrals_figure(r, f, tag=tag),
+                                           11, 3.4))
+        return out
+
+
+def momentum_error_figure(result, fig=None, *, tag=""):
+    """``figure:Suslov_Pi_exact``: ``Delta Pi_i(t) = Pi_i(t) - Pi_i,exact(t)``, one panel each."""
+    panels = [
+        (result.errors.get(k, f"no {k}"), rf"$\Delta {plotting.label(k).strip('$')}$", "linear")
+        for k in ("Pi_1", "Pi_2", "Pi_3")
+    ]
+    return plotting.panel_row(
+        fig, result, panels,
+        title="Fig. figure:Suslov_Pi_exact: momentum error "
+        r"$\Delta\Pi = \Pi - \Pi_{\rm exact}$ of the Suslov problem" + tag,
+    )
+
+
+def integrals_figure(result, fig=None, *, tag=""):
+    """``figure:Suslov_integrals``: ``||R^T R - I||``, ``|Delta J|``, ``|Delta h|`` (original h)."""
+    panels = []
+    for k, ylabel in (("orthogonality", r"$\|R^TR - I\|$"), ("J_1", r"$|\Delta J|$"), ("h", r"$|\Delta h|$")):
+        if k in result.invariants:
+            panels.append((plotting.drift(k, result.invariants[k]), ylabel, "log"))
+        else:
+            panels.append((f"{k} not available\n(integrate the configuration)", ylabel, "log"))
+    return plotting.panel_row(
+        fig, result, panels,
+        title=r"Fig. figure:Suslov_integrals: $\|R^TR-I\|$, constraint error $|\Delta J|$ and energy error "
+        r"$|\Delta h|$ (original $h$) of the Suslov problem" + tag,
+    )
 
 
 SCENE = Suslov()

@@ -4,11 +4,17 @@
 tolerances ``rtol`` (each run from the scene's start to ``t_final``):
 
 ==================  =======================================================================
-``FI``              the feedback integrator (``X - grad V``, the scene's gains) with
-                    liefi's fixed-step schemes ``euler``, ``heun``, ``rk4``
+``FI``              the feedback integrator (``X - grad V``) with liefi's fixed-step schemes
+                    ``euler``, ``heun``, ``rk4``, with the scene's gains and with each fixed
+                    gain k of :data:`FI_GAINS` on every invariant (column ``gain``)
 ``FI-tuned``        the feedback integrator with fixed gains matched to ``dt`` and the scheme
                     (:func:`liefi.stability.auto_gains`: ``dt lambda_max(Hess V)`` at the
                     scheme's optimal rate along a pilot run), same schemes
+``FI-accurate``     the feedback integrator with the gains of :func:`liefi.gains.accurate_gains`
+                    (least drift bound for the scheme, ``dt`` and ``t_final``; zero on the
+                    invariants the scheme keeps exactly); a run whose gains vanish on an
+                    invariant the scheme does not keep is the no-feedback method, and is
+                    recorded as ``not-applicable``
 ``FI/solve_ivp``    the same field with ``solve_ivp`` ``RK45``, ``DOP853``, ``LSODA``
 ``no-feedback``     the extended field ``X`` alone (gains zero) with ``euler``, ``heun``, ``rk4``
 ``constrained``     the original constrained equations (multipliers
@@ -27,7 +33,7 @@ right-hand-side evaluations, the max error against the scene's exact (or
 reference) solution, and the max drift of every invariant (the constraint
 momenta ``J_i``, ``h``, ``h~``, the scene's other invariants and
 ``orthogonality = ||R^T R - I||``).  :func:`write_csv` and :func:`plot` write
-the CSV and the log-log diagrams; :func:`long_horizon` follows the drift of
+the CSV and the log-log diagrams; :func:`~liefi.bench.horizon.long_horizon` follows the drift of
 each invariant against time up to ``t = 1e4`` for the feedback integrator and
 each peer at matched cost.
 
@@ -55,7 +61,10 @@ How the runs are made comparable
 * Drifts are measured at the saved points (``n_save`` per run, uniform in time).
 
 Tasks are plain dicts run by :func:`run_task` through :func:`liefi.sweep.run_sweep`,
-so any executor (processes, a Dask cluster) can run the grid.  matplotlib is
+so any executor (processes, a Dask cluster) can run the grid; every run is
+measured as it arrives and appended to ``results.sqlite`` in the output folder
+(a rerun resumes), and a run that raises or whose worker dies is a row with
+``status = "error"``, never a lost sweep.  matplotlib is
 imported by the plotting functions only.
 """
 
@@ -68,34 +77,20 @@ import time
 
 import numpy as np
 
-from . import compiled as _compiled
-from . import scenes as _scenes
-from .sweep import run_sweep
-
-__all__ = [
-    "FIXED_SCHEMES",
-    "IVP_METHODS",
-    "default_grid",
-    "build_tasks",
-    "run_task",
-    "work_precision",
-    "measure",
-    "write_csv",
-    "read_csv",
-    "plot",
-    "cheapest",
-    "long_horizon",
-    "plot_long_horizon",
-    "save_curves",
-    "load_curves",
-    "add_arguments",
-    "run_from_args",
-    "main",
-]
+from .. import compiled as _compiled
+from .. import scenes as _scenes
+from ..sweep import ResultStore, SweepInterrupted, TaskError, run_sweep
 
 FIXED_SCHEMES = ("euler", "heun", "rk4")
 IVP_METHODS = ("RK45", "DOP853", "LSODA")
-METHODS = ("FI", "FI-tuned", "FI/solve_ivp", "no-feedback", "constrained", "projection", "DLA")
+METHODS = ("FI", "FI-tuned", "FI-accurate", "FI/solve_ivp", "no-feedback", "constrained", "projection", "DLA")
+#: the gains of the ``FI`` rows: ``None`` is the scene's own (the paper's) gains, a number k is k on every
+#: invariant.  Small gains belong here: with RK4 at the scene's step, k = 0.1 keeps the oscillator's
+#: invariants bounded at the cost of plain RK4.  Zero is the ``no-feedback`` method, not an FI.
+FI_GAINS = (None, 0.1, 1.0, 10.0)
+#: the methods that count as a feedback integrator in :func:`summarize`
+FI_METHODS = ("FI", "FI-tuned", "FI-accurate", "FI/solve_ivp")
+STORE = "results.sqlite"
 
 
 # ======================================================================================
@@ -119,12 +114,16 @@ def applicable_methods(scene):
 
 
 def build_tasks(scene, t_final, *, variant=None, dts=None, rtols=None, methods=None, configuration=True,
-                n_save=1000, quick=False, schemes=FIXED_SCHEMES, ivp_methods=IVP_METHODS):
+                n_save=1000, quick=False, schemes=FIXED_SCHEMES, ivp_methods=IVP_METHODS, gains=FI_GAINS):
     """The list of task dicts of a work-precision sweep (see :func:`run_task`).
 
     ``schemes`` (liefi's fixed-step schemes) and ``ivp_methods`` (``solve_ivp``'s)
     restrict the grid; the defaults are :data:`FIXED_SCHEMES` and :data:`IVP_METHODS`.
+    ``gains`` are the gains of the ``FI`` rows (:data:`FI_GAINS`; ``None``: the scene's).
     """
+    from .validate import check_grid
+
+    t_final, dts, rtols, gains = check_grid(t_final, dts, rtols, gains)
     sc = _scenes.get(scene) if isinstance(scene, str) else scene
     v = sc.variant(variant).name
     g_dts, g_rtols = default_grid(sc, t_final, quick)
@@ -132,10 +131,13 @@ def build_tasks(scene, t_final, *, variant=None, dts=None, rtols=None, methods=N
     rtols = g_rtols if rtols is None else list(rtols)
     methods = applicable_methods(sc) if methods is None else list(methods)
     common = {"scene": sc.name, "variant": v, "t_final": float(t_final), "configuration": bool(configuration),
-              "n_save": int(n_save)}
+              "n_save": int(n_save), "gain": None}
     tasks = []
     for m in methods:
-        if m in ("FI", "FI-tuned", "no-feedback", "projection"):
+        if m == "FI":
+            tasks += [dict(common, method=m, scheme=s, dt=float(dt), rtol=None, gain=k)
+                      for k in gains for s in schemes for dt in dts]
+        elif m in ("FI-tuned", "FI-accurate", "no-feedback", "projection"):
             tasks += [dict(common, method=m, scheme=s, dt=float(dt), rtol=None) for s in schemes for dt in dts]
         elif m in ("FI/solve_ivp", "constrained"):
             tasks += [dict(common, method=m, scheme=s, dt=None, rtol=float(r)) for s in ivp_methods for r in rtols]
@@ -170,7 +172,7 @@ def run_task(task):
     """
     from scipy.integrate import solve_ivp
 
-    from .schemes import IntegrationError
+    from ..schemes import IntegrationError
 
     out = dict(task)
     out.update(status="ok", message="", cpu_seconds=math.nan, compile_seconds=0.0, rhs_evaluations=0,
@@ -179,19 +181,35 @@ def run_task(task):
         sc, v, fi = _integrator(task)
         method, scheme, T = task["method"], task["scheme"], task["t_final"]
         w = time.perf_counter()
-        if method in ("FI", "FI-tuned", "no-feedback", "projection"):
+        if method in ("FI", "FI-tuned", "FI-accurate", "no-feedback", "projection"):
             n, se = _steps(T, task["dt"], task["n_save"])
             if method == "projection":
                 cf = _compiled.compile_constrained(fi, projection=True)
                 p, proj = np.zeros(0), _compiled.projection_targets(fi)
             elif method == "FI-tuned":
-                from .stability import auto_gains
+                from ..stability import auto_gains
 
                 fi = fi.with_gains(auto_gains(fi, task["dt"], scheme, y=fi.y0, t_final=T))
                 out["message"] = "gains " + ", ".join(f"{k}={v:.3g}" for k, v in fi.gains.items())
                 cf = _compiled.compile_feedback(fi)
                 p, proj = _compiled.parameters(fi), None
+            elif method == "FI-accurate":
+                from ..gains import accurate_gains, exactly_kept
+
+                g = accurate_gains(fi, task["dt"], scheme, t_final=T)
+                out["message"] = "gains " + ", ".join(f"{k}={v:.3g}" for k, v in g.items())
+                kept = set(exactly_kept(fi, scheme))
+                zero = [k for k, v in g.items() if v == 0 and k not in kept]
+                if zero or not any(g.values()):
+                    out.update(status="not-applicable",
+                               message=f"accurate gains are zero on {zero or list(g)}: that is the no-feedback method")
+                    return out
+                fi = fi.with_gains(g)
+                cf = _compiled.compile_feedback(fi)
+                p, proj = _compiled.parameters(fi), None
             else:
+                if method == "FI" and task.get("gain") is not None:
+                    fi = fi.with_gains(task["gain"])
                 cf = _compiled.compile_feedback(fi, feedback=method == "FI")
                 p, proj = _compiled.parameters(fi), None
             cf.warmup(scheme, project=proj is not None)
@@ -221,7 +239,7 @@ def run_task(task):
             else:
                 out.update(t=sol.t, y=sol.y)
         elif method == "DLA":
-            from .dla import DLAIntegrator
+            from ..dla import DLAIntegrator
 
             sys_ = sc.system
             n, se = _steps(T, task["dt"], task["n_save"])
@@ -281,6 +299,18 @@ def reference(scene, variant, fi, t_final):
     return ref
 
 
+_ROW_KEYS = ("scene", "variant", "method", "scheme", "dt", "rtol", "gain", "t_final", "configuration", "status",
+             "cpu_seconds", "compile_seconds", "rhs_evaluations", "projection_evaluations", "steps", "message")
+
+
+def error_row(task, err):
+    """The CSV row of a task that raised or whose worker died (a :class:`~liefi.sweep.TaskError`)."""
+    row = {k: task.get(k) for k in _ROW_KEYS}
+    row.update(status="error", message=str(err)[:300], cpu_seconds=math.nan, compile_seconds=0.0,
+               rhs_evaluations=0, projection_evaluations=0, steps=0, max_error=math.nan, max_drift=math.nan)
+    return row
+
+
 def measure(scene, fi, result, ref=None):
     """Errors and drifts of one run (a :func:`run_task` result) -> a CSV row (dict).
 
@@ -289,9 +319,7 @@ def measure(scene, fi, result, ref=None):
     and ``orthogonality`` against 0), as :class:`~liefi.scenes.Scene` reports it.
     """
     sc = _scenes.get(scene) if isinstance(scene, str) else scene
-    row = {k: result[k] for k in ("scene", "variant", "method", "scheme", "dt", "rtol", "t_final", "configuration", "status",
-                                  "cpu_seconds", "compile_seconds", "rhs_evaluations", "projection_evaluations",
-                                  "steps", "message")}
+    row = {k: result.get(k) for k in _ROW_KEYS}
     row["max_error"] = math.nan
     row["max_drift"] = math.nan
     if result["y"] is None:
@@ -336,48 +364,95 @@ def invariant_drifts(fi, Y):
 
 def work_precision(scene, t_final=None, out_dir=None, executor=None, *, variant=None, dts=None, rtols=None,
                    methods=None, configuration=True, n_save=1000, quick=False, schemes=FIXED_SCHEMES,
-                   ivp_methods=IVP_METHODS, plots=True, log=None):
+                   ivp_methods=IVP_METHODS, gains=FI_GAINS, plots=True, log=None, progress=None, store=None,
+                   select=None):
     """Run the work-precision sweep of ``scene``; write ``<scene>-work-precision.csv`` and diagrams.
 
     Parameters
     ----------
     scene : str or Scene
     t_final : float, optional
-        Horizon of every run (default: the scene's ``t_final``).
+        Horizon of every run (default: the scene's ``t_final``); finite and > 0.
     out_dir : str, optional
-        Where to write the CSV and PNGs (nothing is written without it).
+        Where to write the CSV and PNGs, and the results store ``results.sqlite``
+        (:class:`~liefi.sweep.ResultStore`) that every run is appended to as it
+        finishes; a rerun into the same ``out_dir`` skips the runs already there.
+        Nothing is written without it.
     executor : concurrent.futures.Executor, optional
         Runs the grid (default: serially in this process); see :mod:`liefi.sweep`.
-    variant, dts, rtols, methods, configuration, n_save, quick, schemes, ivp_methods
+    variant, dts, rtols, methods, configuration, n_save, quick, schemes, ivp_methods, gains
         The grid: see :func:`build_tasks` and :func:`default_grid`.
+    select : callable, optional
+        ``select(task) -> bool`` keeps part of the grid only.
     plots : bool
         Write the PNGs too (with ``out_dir``).
     log : callable, optional
-        ``log(message)`` for progress.
+        ``log(message)`` for messages.
+    progress : bool, optional
+        Progress on stderr (default: when stderr is a terminal).
+    store : ResultStore, optional
+        The store to use instead of ``out_dir/results.sqlite``.
 
     Returns
     -------
     list of dict
-        One row per run (the CSV's rows), in task order.
+        One row per run (the CSV's rows), in task order.  A run that raised or
+        whose worker died is a row with ``status = "error"`` and the error in
+        ``message``; a run that diverged has ``status = "diverged"``.
+
+    Raises
+    ------
+    liefi.sweep.SweepInterrupted
+        On Ctrl-C, after the CSV of the runs finished so far is written
+        (``exc.rows``).
     """
     sc = _scenes.get(scene) if isinstance(scene, str) else scene
-    T = float(sc.t_final if t_final is None else t_final)
+    T = sc.t_final if t_final is None else t_final
     tasks = build_tasks(sc, T, variant=variant, dts=dts, rtols=rtols, methods=methods,
                         configuration=configuration, n_save=n_save, quick=quick, schemes=schemes,
-                        ivp_methods=ivp_methods)
+                        ivp_methods=ivp_methods, gains=gains)
+    if select is not None:
+        tasks = [t for t in tasks if select(t)]
+        if not tasks:
+            raise ValueError("select: no task of the grid is selected")
+    T = tasks[0]["t_final"]
+    own = None
+    if store is None and out_dir:
+        os.makedirs(out_dir, exist_ok=True)  # checked before any work: an unwritable --out fails here
+        store = own = ResultStore(os.path.join(out_dir, STORE), sweep=sc.name)
     if log:
         log(f"{sc.name}: {len(tasks)} runs to t = {T:g}")
     w = time.perf_counter()
-    results = run_sweep(run_task, tasks, executor)
     _, v, fi = _integrator(tasks[0])
-    ref = reference(sc, v, fi, T)
-    rows = [measure(sc, fi, r, ref) for r in results]
+    ref_cache = []
+
+    def convert(task, result):
+        if not ref_cache:
+            ref_cache.append(reference(sc, v, fi, T))
+        return measure(sc, fi, result, ref_cache[0])
+
+    def rows_of(values):
+        return [error_row(t, x) if isinstance(x, TaskError) else x for t, x in zip(tasks, values) if x is not None]
+
+    try:
+        rows = rows_of(run_sweep(run_task, tasks, executor, store=store, convert=convert, progress=progress,
+                                 label=sc.name))
+    except SweepInterrupted as exc:
+        exc.rows = rows_of(exc.results)
+        if out_dir and exc.rows:
+            write_csv(exc.rows, os.path.join(out_dir, f"{sc.name}-work-precision.csv"))
+        raise
+    finally:
+        if own is not None:
+            own.close()
     if log:
-        log(f"{sc.name}: done in {time.perf_counter() - w:.1f} s wall")
+        bad = sum(r["status"] == "error" for r in rows)
+        log(f"{sc.name}: done in {time.perf_counter() - w:.1f} s wall" + (f"; {bad} runs raised (see the CSV)" if bad else ""))
     if out_dir:
-        os.makedirs(out_dir, exist_ok=True)
         write_csv(rows, os.path.join(out_dir, f"{sc.name}-work-precision.csv"))
         if plots:
+            from .plots import plot
+
             plot(rows, out_dir, sc.name)
     return rows
 
@@ -386,7 +461,7 @@ def work_precision(scene, t_final=None, out_dir=None, executor=None, *, variant=
 # CSV
 # ======================================================================================
 
-_FIRST = ("scene", "variant", "method", "scheme", "dt", "rtol", "t_final", "configuration", "status", "cpu_seconds",
+_FIRST = ("scene", "variant", "method", "scheme", "dt", "rtol", "gain", "t_final", "configuration", "status", "cpu_seconds",
           "compile_seconds", "rhs_evaluations", "projection_evaluations", "steps", "max_error", "max_drift")
 
 
@@ -441,320 +516,64 @@ def cheapest(rows, *, drift=1e-8, error=None, methods=None):
 
 def _label(r):
     p = f"dt={r['dt']:.3g}" if r.get("dt") else f"rtol={r['rtol']:.0e}"
-    return f"{r['method']} {r['scheme']} ({p})"
+    k = f", k={r['gain']:g}" if r.get("gain") is not None else ""
+    return f"{r['method']} {r['scheme']} ({p}{k})"
+
+
+def _brief(r):
+    if r is None:
+        return None
+    keys = ("method", "scheme", "dt", "rtol", "gain", "cpu_seconds", "rhs_evaluations", "max_drift", "max_error")
+    return {k: r.get(k) for k in keys}
+
+
+def summarize(rows, drift=1e-8, tasks=None):
+    """The verdict of one scene's sweep, for ``summary.json``.
+
+    ``cheapest_overall``: the run of least CPU time whose every invariant drifts
+    by at most ``drift`` (``max_drift``, each invariant's max over the run);
+    ``cheapest_fi``: the same among the feedback integrators (:data:`FI_METHODS`:
+    every gain nonzero -- zero gains are ``no-feedback``); ``fi_over_best``: the
+    ratio of their CPU times (``None`` if either is missing).  Each holds
+    ``method``, ``scheme``, ``dt`` or ``rtol``, ``gain`` (``None``: the scene's
+    gains; ``FI-tuned``: chosen from ``dt``), ``cpu_seconds``, ``max_drift`` and
+    ``max_error``.  Only runs with ``status = "ok"`` count; ``runs``,
+    ``failed`` (diverged or solver failures), ``not_applicable`` and ``errors``
+    (raised, worker died) count the rest, and ``complete`` says whether every task of the grid
+    (``tasks``; ``None`` when not given) finished.
+    """
+    best = cheapest(rows, drift=drift)
+    fi = cheapest(rows, drift=drift, methods=FI_METHODS)
+    ratio = None
+    if best is not None and fi is not None:
+        ratio = fi["cpu_seconds"] / max(best["cpu_seconds"], 1e-12)
+    return {
+        "criterion": f"every invariant's max drift <= {drift:g}",
+        "t_final": rows[0]["t_final"] if rows else None,
+        "runs": len(rows),
+        "tasks": None if tasks is None else int(tasks),
+        "complete": None if tasks is None else len(rows) >= tasks,
+        "failed": sum(r["status"] in ("diverged", "failed") for r in rows),
+        "not_applicable": sum(r["status"] == "not-applicable" for r in rows),
+        "errors": sum(r["status"] == "error" for r in rows),
+        "cheapest_overall": _brief(best),
+        "cheapest_fi": _brief(fi),
+        "fi_over_best": ratio,
+        "cheapest_accurate": _brief(cheapest(rows, drift=drift, error=1e-6)),
+        "cheapest_fi_accurate": _brief(cheapest(rows, drift=drift, error=1e-6, methods=FI_METHODS)),
+    }
 
 
 def summary(rows, drift=1e-8):
     """One paragraph of text: the cheapest method reaching ``drift`` and the feedback integrator's."""
-    best = cheapest(rows, drift=drift)
-    fi = cheapest(rows, drift=drift, methods=("FI",))
-    lines = []
-    lines.append(f"cheapest with max drift <= {drift:g}: "
-                 + (f"{_label(best)}, {best['cpu_seconds']:.3g} s" if best else "none"))
-    lines.append("feedback integrator (fixed step) reaching it: "
+    s = summarize(rows, drift)
+    best, fi = s["cheapest_overall"], s["cheapest_fi"]
+    lines = [f"cheapest with max drift <= {drift:g}: "
+             + (f"{_label(best)}, {best['cpu_seconds']:.3g} s" if best else "none")]
+    lines.append("cheapest feedback integrator reaching it: "
                  + (f"{_label(fi)}, {fi['cpu_seconds']:.3g} s" if fi else "none in the grid"))
+    if s["fi_over_best"] is not None:
+        lines.append(f"fi_over_best = {s['fi_over_best']:.3g}")
+    if s["failed"] or s["errors"]:
+        lines.append(f"{s['failed']} runs diverged or failed, {s['errors']} raised or lost their worker (see the CSV)")
     return "\n".join(lines)
-
-
-# ======================================================================================
-# plots
-# ======================================================================================
-
-_COLORS = {"FI": "C3", "FI-tuned": "C6", "FI/solve_ivp": "C1", "no-feedback": "C7", "constrained": "C0", "projection": "C2", "DLA": "C4"}
-_STYLES = {"euler": ("o", "-"), "heun": ("s", "-"), "rk4": ("^", "-"), "RK45": ("o", "--"), "DOP853": ("D", "--"),
-           "LSODA": ("v", ":"), "dla": ("x", "-")}
-
-
-def _series(rows):
-    groups = {}
-    for r in rows:
-        if r["status"] != "ok":
-            continue
-        groups.setdefault((r["method"], r["scheme"]), []).append(r)
-    return groups
-
-
-def _draw(ax, rows, xkey, ykey):
-    for (m, s), rs in _series(rows).items():
-        pts = [(r[xkey], r[ykey]) for r in rs if r.get(ykey) is not None and np.isfinite(r[ykey]) and r[xkey]]
-        if not pts:
-            continue
-        pts.sort()
-        x, y = np.array(pts).T
-        y = np.maximum(y, 1e-17)
-        mk, ls = _STYLES.get(s, ("o", "-"))
-        ax.loglog(x, y, marker=mk, ls=ls, color=_COLORS.get(m, "k"), ms=4, lw=1, label=f"{m} {s}")
-    ax.grid(True, which="major", alpha=0.3)
-
-
-def plot(rows, out_dir, name):
-    """Write ``<name>-error.png`` (error vs CPU time and vs RHS evaluations) and
-    ``<name>-drift.png`` (each invariant's drift vs CPU time); log-log."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    T = rows[0]["t_final"] if rows else float("nan")
-    paths = []
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4.8))
-    _draw(axes[0], rows, "cpu_seconds", "max_error")
-    axes[0].set_xlabel("CPU time [s]")
-    axes[0].set_ylabel("max error vs reference")
-    _draw(axes[1], rows, "rhs_evaluations", "max_error")
-    axes[1].set_xlabel("right-hand-side evaluations")
-    axes[0].set_title(f"{name}: error vs CPU time, t in [0, {T:g}]")
-    axes[1].set_title("error vs work (engine independent)")
-    h, lab = axes[0].get_legend_handles_labels()
-    fig.legend(h, lab, loc="center right", fontsize=7)
-    fig.tight_layout(rect=(0, 0, 0.84, 1))
-    p = os.path.join(out_dir, f"{name}-error.png")
-    fig.savefig(p, dpi=110)
-    plt.close(fig)
-    paths.append(p)
-
-    drifts = sorted({k for r in rows for k in r if k.startswith("drift_")})
-    if all(not r.get("drift_orthogonality") for r in rows):  # no embedded rotation (older CSVs have zeros)
-        drifts = [k for k in drifts if k != "drift_orthogonality"]
-    if drifts:
-        nc = min(3, len(drifts))
-        nr = int(math.ceil(len(drifts) / nc))
-        fig, axes = plt.subplots(nr, nc, figsize=(4.6 * nc + 2, 3.6 * nr), squeeze=False)
-        for ax, k in zip(axes.flat, drifts):
-            _draw(ax, rows, "cpu_seconds", k)
-            ax.axhline(1e-8, color="k", lw=0.6, ls=":")
-            ax.set_title(f"max |{k[6:]} drift|", fontsize=9)
-            ax.set_xlabel("CPU time [s]", fontsize=8)
-        for ax in list(axes.flat)[len(drifts):]:
-            ax.axis("off")
-        h, lab = axes.flat[0].get_legend_handles_labels()
-        fig.legend(h, lab, loc="center right", fontsize=7)
-        fig.suptitle(f"{name}: max drift of each invariant over t in [0, {T:g}] vs CPU time "
-                     "(dotted: 1e-8; exact zeros drawn at 1e-17)")
-        fig.tight_layout(rect=(0, 0, 1 - 1.9 / (4.6 * nc + 2), 0.95))
-        p = os.path.join(out_dir, f"{name}-drift.png")
-        fig.savefig(p, dpi=110)
-        plt.close(fig)
-        paths.append(p)
-    return paths
-
-
-# ======================================================================================
-# long horizon
-# ======================================================================================
-
-
-def matched_tasks(rows, *, reference_method="FI", reference_scheme=None, t_final=1e4, n_save=2000, usable=1e-2):
-    """For each (method, scheme) the run whose CPU time per unit time is closest to the feedback
-    integrator's at the scene's own settings; returned as tasks with horizon ``t_final``.
-
-    Candidates are the finished runs with finite drifts; a feedback-integrator run
-    whose drift exceeds ``usable`` is left out: the feedback keeps the drift small
-    by construction, so such a run is past its stability limit (it can end
-    without overflowing and still be garbage).  The peers' runs are all kept:
-    their drift is what they are compared on."""
-    ok = [r for r in rows if r["status"] == "ok" and r.get("max_drift") is not None
-          and np.isfinite(r["max_drift"])
-          and (not r["method"].startswith("FI") or r["max_drift"] < usable)]
-    if not ok:
-        return []
-    sc = _scenes.get(ok[0]["scene"])
-    scheme = sc.scheme if reference_scheme is None else reference_scheme
-    ref = [r for r in ok if r["method"] == reference_method and r["scheme"] == scheme]
-    if not ref:
-        return []
-    target = min(ref, key=lambda r: abs(math.log(r["dt"] / sc.dt)))
-    cost = target["cpu_seconds"] / target["t_final"]
-    tasks = []
-    for (m, s), rs in _series(ok).items():
-        if (m, s) == (reference_method, scheme):
-            pick = target
-        else:
-            pick = min(rs, key=lambda r: abs(math.log(max(r["cpu_seconds"], 1e-9) / r["t_final"] / max(cost, 1e-12))))
-        t = {k: pick[k] for k in ("scene", "variant", "method", "scheme", "dt", "rtol")}
-        t.update(t_final=float(t_final), configuration=bool(pick.get("configuration", True)), n_save=int(n_save))
-        if t["dt"] is not None and abs(round(t_final / t["dt"]) * t["dt"] - t_final) > 1e-9 * t_final:
-            continue
-        tasks.append(t)
-    return tasks
-
-
-def long_horizon(rows, out_dir=None, executor=None, *, t_final=1e4, n_save=2000, curves_dir=None, log=None):
-    """Drift of every invariant against time up to ``t_final`` for the feedback integrator (the
-    scene's scheme and step) and each peer at matched cost (:func:`matched_tasks`).
-
-    Returns ``(rows, curves)``: summary rows (as :func:`measure`, no error) and
-    ``{label: (t, {invariant: drift(t)}, cpu_seconds)}``; writes
-    ``<scene>-long-horizon.csv`` and ``<scene>-long-horizon.png`` into ``out_dir``
-    and the curves (:func:`save_curves`, to redraw the figure) into ``curves_dir``
-    (default ``out_dir``).
-    """
-    tasks = matched_tasks(rows, t_final=t_final, n_save=n_save)
-    if not tasks:
-        return [], {}
-    if log:
-        log(f"{tasks[0]['scene']}: long horizon, {len(tasks)} runs to t = {t_final:g}")
-    results = run_sweep(run_task, tasks, executor)
-    _, _, fi = _integrator(tasks[0])
-    sc = _scenes.get(tasks[0]["scene"])
-    out_rows, curves = [], {}
-    for r in results:
-        row = measure(sc, fi, r, None)
-        out_rows.append(row)
-        if r["y"] is not None:
-            curves[_label(row)] = (r["t"], invariant_drifts(fi, r["y"]), row["cpu_seconds"], row["method"], row["scheme"])
-    if out_dir:
-        os.makedirs(out_dir, exist_ok=True)
-        write_csv(out_rows, os.path.join(out_dir, f"{sc.name}-long-horizon.csv"))
-        cdir = out_dir if curves_dir is None else curves_dir
-        os.makedirs(cdir, exist_ok=True)
-        save_curves(curves, os.path.join(cdir, f"{sc.name}-long-horizon.npz"))
-        plot_long_horizon(curves, os.path.join(out_dir, f"{sc.name}-long-horizon.png"), sc.name, t_final)
-    return out_rows, curves
-
-
-def save_curves(curves, path):
-    """Store the curves of :func:`long_horizon` (``np.savez_compressed``); see :func:`load_curves`."""
-    arrays, meta = {}, []
-    for i, (label, (t, d, cpu, m, s)) in enumerate(curves.items()):
-        arrays[f"t{i}"] = np.asarray(t, np.float32)
-        for k, v in d.items():
-            arrays[f"d{i}:{k}"] = np.asarray(v, np.float32)
-        meta.append([label, float(cpu), m, s, list(d)])
-    import json
-
-    np.savez_compressed(path, meta=json.dumps(meta), **arrays)
-    return path
-
-
-def load_curves(path):
-    """The curves saved by :func:`save_curves`."""
-    import json
-
-    with np.load(path) as z:
-        meta = json.loads(str(z["meta"]))
-        return {label: (z[f"t{i}"], {k: z[f"d{i}:{k}"] for k in keys}, cpu, m, s)
-                for i, (label, cpu, m, s, keys) in enumerate(meta)}
-
-
-def plot_long_horizon(curves, path, name, t_final):
-    """Each invariant's drift against time (log-log), one panel per invariant."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    invs = sorted({k for _, d, *_ in curves.values() for k in d})
-    if not invs:
-        return None
-    nc = min(3, len(invs))
-    nr = int(math.ceil(len(invs) / nc))
-    fig, axes = plt.subplots(nr, nc, figsize=(4.6 * nc + 2.6, 3.6 * nr), squeeze=False)
-    for ax, k in zip(axes.flat, invs):
-        for label, (t, d, cpu, m, s) in curves.items():
-            if k not in d:
-                continue
-            mk, ls = _STYLES.get(s, ("o", "-"))
-            ax.loglog(t[1:], np.maximum(d[k][1:], 1e-17), ls=ls, color=_COLORS.get(m, "k"), lw=0.6,
-                      marker=mk, ms=3.5, markevery=0.12, label=f"{label}, {cpu:.2g} s", rasterized=True)
-        ax.set_title(f"|{k}(t) - {k}(0)|" if not k.startswith("J_") and k != "orthogonality" else f"|{k}(t)|",
-                     fontsize=9)
-        ax.set_xlabel("t", fontsize=8)
-        ax.grid(True, alpha=0.3)
-    for ax in list(axes.flat)[len(invs):]:
-        ax.axis("off")
-    h, lab = axes.flat[0].get_legend_handles_labels()
-    fig.legend(h, lab, loc="center right", fontsize=6)
-    fig.suptitle(f"{name}: drift vs time to t = {t_final:g}, each method at the cost closest to the FI's "
-                 "(CPU s in the legend; exact zeros drawn at 1e-17)")
-    fig.tight_layout(rect=(0, 0, 1 - 2.5 / (4.6 * nc + 2.6), 0.95))
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
-
-
-# ======================================================================================
-# command line: `liefi bench` (see add_arguments / run_from_args) and `python -m liefi.bench`
-# ======================================================================================
-
-
-def add_arguments(parser):
-    """Add ``liefi bench``'s arguments to an ``argparse`` (sub)parser."""
-    parser.add_argument("scene", metavar="SCENE", help="scene name, or 'all'")
-    parser.add_argument("--t-final", type=float, default=None, dest="t_final",
-                        help="horizon of every run (default: the scene's)")
-    parser.add_argument("--out", default="./liefi-bench", metavar="DIR", help="output directory")
-    parser.add_argument("--variant", default=None, help="variant (default: the scene's first)")
-    parser.add_argument("--scheduler", default=None, metavar="ADDR",
-                        help="serial (default), processes[:N], threads[:N], dask[:N] or tcp://host:8786")
-    parser.add_argument("--quick", action="store_true", help="a small grid (3 steps, 2 tolerances)")
-    parser.add_argument("--long-horizon", type=float, default=None, dest="long_horizon", metavar="T",
-                        help="also the drift against time up to T at matched cost (e.g. 1e4)")
-    parser.add_argument("--no-configuration", action="store_true", dest="no_configuration",
-                        help="integrate the reduced state only")
-    parser.add_argument("--methods", default=None, metavar="M[,M]",
-                        help=f"method families (default: all that apply): {','.join(METHODS)}")
-    parser.add_argument("--schemes", default=None, metavar="S[,S]",
-                        help=f"schemes (default: all): {','.join(FIXED_SCHEMES + IVP_METHODS)}")
-    return parser
-
-
-def _list(text, allowed, what):
-    if text is None:
-        return None
-    items = [t.strip() for t in text.split(",") if t.strip()]
-    bad = [t for t in items if t not in allowed]
-    if bad or not items:
-        raise ValueError(f"{what}: unknown {bad or text!r}; choose from {','.join(allowed)}")
-    return items
-
-
-def run_from_args(args, log=None):
-    """Run ``liefi bench`` from parsed arguments; prints the summary, returns the exit code."""
-    import sys
-
-    from .sweep import open_executor
-
-    log = log or (lambda m: print(m, file=sys.stderr, flush=True))
-    if args.scene != "all" and args.scene not in _scenes.REGISTRY:
-        raise ValueError(f"scene: unknown scene {args.scene!r}; choose one of {_scenes.names()} or 'all'")
-    names = _scenes.names() if args.scene == "all" else [args.scene]
-    if not _compiled.available():
-        log(f"liefi bench: numba is not available ({_compiled.NUMBA_ERROR}); the generated code runs as plain "
-            "Python, orders of magnitude slower. Install it with `pip install liefi[fast]`.")
-    methods = _list(getattr(args, "methods", None), METHODS, "methods")
-    chosen = _list(getattr(args, "schemes", None), FIXED_SCHEMES + IVP_METHODS, "schemes")
-    schemes = FIXED_SCHEMES if chosen is None else tuple(s for s in chosen if s in FIXED_SCHEMES)
-    ivp = IVP_METHODS if chosen is None else tuple(s for s in chosen if s in IVP_METHODS)
-    with open_executor(args.scheduler) as ex:
-        for name in names:
-            try:
-                sc = _scenes.get(name)
-            except ImportError as exc:  # with 'all': a scene whose module is missing
-                if args.scene != "all":
-                    raise
-                log(f"{name}: skipped ({exc})")
-                continue
-            use = None if methods is None else [m for m in methods if m in applicable_methods(sc)]
-            rows = work_precision(sc, args.t_final, args.out, ex, variant=args.variant, quick=args.quick,
-                                  configuration=not args.no_configuration, methods=use, schemes=schemes,
-                                  ivp_methods=ivp, log=log)
-            print(f"{name} (t_final = {rows[0]['t_final']:g}):")
-            print("  " + summary(rows).replace("\n", "\n  "))
-            if args.long_horizon:
-                long_horizon(rows, args.out, ex, t_final=args.long_horizon, log=log)
-    print(f"written to {args.out}")
-    return 0
-
-
-def main(argv=None):
-    """``python -m liefi.bench SCENE [--t-final T] [--out DIR] [--scheduler ADDR] ...``."""
-    import argparse
-
-    p = argparse.ArgumentParser(prog="liefi bench", description="work-precision diagrams of a scene")
-    add_arguments(p)
-    return run_from_args(p.parse_args(argv))
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -1,0 +1,211 @@
+"""``liefi bench``: the command line of the work-precision harness.
+
+Every run is appended to ``OUT/results.sqlite`` as it finishes (a rerun into
+the same ``--out`` resumes, skipping the runs already there);
+``OUT/summary.json`` is rebuilt from that store after each scene and on
+Ctrl-C, so it always describes exactly what is in the store.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import sys
+
+from .. import compiled as _compiled
+from .. import scenes as _scenes
+from ..sweep import ResultStore, SweepInterrupted, TaskError
+from .core import (FI_GAINS, FIXED_SCHEMES, IVP_METHODS, METHODS, STORE, applicable_methods, build_tasks,
+                   error_row, summarize, summary, work_precision)
+from .validate import positive
+
+
+def add_arguments(parser):
+    """Add ``liefi bench``'s arguments to an ``argparse`` (sub)parser."""
+    parser.add_argument("scene", metavar="SCENE", help="scene name, or 'all'")
+    parser.add_argument("--t-final", type=float, default=None, dest="t_final",
+                        help="horizon of every run (default: the scene's)")
+    parser.add_argument("--out", default="./liefi-bench", metavar="DIR",
+                        help="output directory; a rerun into the same DIR resumes (results.sqlite)")
+    parser.add_argument("--variant", default=None, help="variant (default: the scene's first)")
+    parser.add_argument("--scheduler", default=None, metavar="ADDR",
+                        help="serial (default), processes[:N], threads[:N], dask[:N] or tcp://host:8786")
+    parser.add_argument("--quick", action="store_true", help="a small grid (3 steps, 2 tolerances)")
+    parser.add_argument("--long-horizon", type=float, default=None, dest="long_horizon", metavar="T",
+                        help="also the drift against time up to T at matched cost (e.g. 1e4)")
+    parser.add_argument("--no-configuration", action="store_true", dest="no_configuration",
+                        help="integrate the reduced state only")
+    parser.add_argument("--methods", default=None, metavar="M[,M]",
+                        help=f"method families (default: all that apply): {','.join(METHODS)}")
+    parser.add_argument("--schemes", default=None, metavar="S[,S]",
+                        help=f"schemes (default: {','.join(FIXED_SCHEMES + IVP_METHODS)}): any explicit tableau of "
+                        "the scheme registry (`liefi list`) or a solve_ivp method")
+    parser.add_argument("--gains", default=None, metavar="K[,K]",
+                        help="gains of the FI rows, 'scene' for the scene's own (default: scene,0.1,1,10)")
+    parser.add_argument("--progress", action=argparse_bool(), default=None,
+                        help="progress on stderr (default: when stderr is a terminal)")
+    return parser
+
+
+def argparse_bool():
+    import argparse
+
+    return argparse.BooleanOptionalAction
+
+
+def _list(text, allowed, what):
+    if text is None:
+        return None
+    items = [t.strip() for t in text.split(",") if t.strip()]
+    bad = [t for t in items if t not in allowed]
+    if bad or not items:
+        raise ValueError(f"{what}: unknown {bad or text!r}; choose from {','.join(allowed)}")
+    return items
+
+
+def _schemes(text):
+    """``--schemes`` -> ``(fixed-step tableaux, solve_ivp methods)``, names from the scheme registry
+    (:func:`liefi.schemes.get`): any explicit tableau (the compiled engine unrolls any), and
+    ``scipy:METHOD`` or ``METHOD`` for solve_ivp."""
+    if text is None:
+        return FIXED_SCHEMES, IVP_METHODS
+    from ..schemes import get, names
+
+    fixed, ivp = [], []
+    for t in (x.strip() for x in text.split(",") if x.strip()):
+        name = t if t.lower() in names("explicit") or t.lower().startswith("scipy:") else f"scipy:{t}"
+        try:
+            sch = get(name, ("explicit", "scipy"))
+        except ValueError:
+            raise ValueError(f"schemes: unknown scheme {t!r}; choose from "
+                             f"{','.join(names('explicit') + [n.split(':', 1)[1] for n in names('scipy')])}") from None
+        (fixed if sch.kind == "explicit" else ivp).append(sch.name if sch.kind == "explicit" else sch.method)
+    if not fixed and not ivp:
+        raise ValueError("schemes: empty list")
+    return tuple(fixed), tuple(ivp)
+
+
+def _gains(text):
+    if text is None:
+        return FI_GAINS
+    out = []
+    for t in (x.strip() for x in text.split(",") if x.strip()):
+        if t == "scene":
+            out.append(None)
+            continue
+        try:
+            out.append(float(t))
+        except ValueError:
+            raise ValueError(f"gains: {t!r} is not a number; give numbers > 0 or 'scene'") from None
+    if not out:
+        raise ValueError("gains: empty list; give numbers > 0 or 'scene'")
+    return tuple(out)
+
+
+def write_summary(out_dir, expected=None):
+    """Rebuild ``out_dir/summary.json`` from ``out_dir/results.sqlite``: per scene, :func:`summarize`.
+
+    ``expected`` (``{scene: number of tasks}``) marks a scene ``complete`` or not.
+    Written to a temporary file and renamed, so a reader never sees half a file.
+    """
+    path = os.path.join(out_dir, STORE)
+    if not os.path.exists(path):
+        return None
+    by = {}
+    with ResultStore(path) as store:
+        for task, value in store.rows():
+            row = error_row(task, value) if isinstance(value, TaskError) else value
+            if row.get("t_final") is None:
+                continue
+            by.setdefault(row["scene"], []).append(row)
+    expected = expected or {}
+    doc = {"criterion": "every invariant's max drift <= 1e-8 over [0, t_final]", "store": STORE,
+           "scenes": {name: summarize(rows, 1e-8, tasks=expected.get(name)) for name, rows in sorted(by.items())}}
+    out = os.path.join(out_dir, "summary.json")
+    tmp = out + ".tmp"
+    with open(tmp, "w") as fh:
+        json.dump(doc, fh, indent=1, default=lambda x: None if isinstance(x, float) and not math.isfinite(x) else x)
+    os.replace(tmp, out)
+    return out
+
+
+def run_from_args(args, log=None):
+    """Run ``liefi bench`` from parsed arguments; prints the summary, returns the exit code.
+
+    0: every task finished (some runs may have diverged: they are data); 1: some
+    task raised or lost its worker (reported, every other result kept); 130:
+    interrupted (what finished is in the store and ``summary.json``).
+    """
+    from ..sweep import open_executor
+
+    log = log or (lambda m: print(m, file=sys.stderr, flush=True))
+    if args.scene != "all" and args.scene not in _scenes.REGISTRY:
+        raise ValueError(f"scene: unknown scene {args.scene!r}; choose one of {_scenes.names()} or 'all'")
+    if args.t_final is not None:
+        positive("--t-final", args.t_final)
+    if args.long_horizon is not None:
+        positive("--long-horizon", args.long_horizon)
+    names = _scenes.names() if args.scene == "all" else [args.scene]
+    methods = _list(getattr(args, "methods", None), METHODS, "methods")
+    schemes, ivp = _schemes(getattr(args, "schemes", None))
+    gains = _gains(getattr(args, "gains", None))
+    os.makedirs(args.out, exist_ok=True)  # outputs checked before any work
+    ResultStore(os.path.join(args.out, STORE)).close()
+    if not _compiled.available():
+        log(f"liefi bench: numba is not available ({_compiled.NUMBA_ERROR}); the generated code runs as plain "
+            "Python, orders of magnitude slower. Install it with `pip install liefi[fast]`.")
+    expected, errors = {}, 0
+    try:
+        with open_executor(args.scheduler) as ex:
+            for name in names:
+                try:
+                    sc = _scenes.get(name)
+                except ImportError as exc:  # with 'all': a scene whose module is missing
+                    if args.scene != "all":
+                        raise
+                    log(f"{name}: skipped ({exc})")
+                    continue
+                use = None if methods is None else [m for m in methods if m in applicable_methods(sc)]
+                kw = dict(variant=args.variant, quick=args.quick, configuration=not args.no_configuration,
+                          methods=use, schemes=schemes, ivp_methods=ivp, gains=gains)
+                expected[name] = len(build_tasks(sc, sc.t_final if args.t_final is None else args.t_final, **kw))
+                rows = work_precision(sc, args.t_final, args.out, ex, log=log,
+                                      progress=getattr(args, "progress", None), **kw)
+                errors += sum(r["status"] == "error" for r in rows)
+                write_summary(args.out, expected)
+                print(f"{name} (t_final = {rows[0]['t_final']:g}):")
+                print("  " + summary(rows).replace("\n", "\n  "), flush=True)
+                if args.long_horizon:
+                    from .horizon import long_horizon
+
+                    long_horizon(rows, args.out, ex, t_final=args.long_horizon, log=log)
+    except KeyboardInterrupt as exc:
+        write_summary(args.out, expected)
+        done = f"{exc.done} runs of this scene finished, " if isinstance(exc, SweepInterrupted) else ""
+        print(f"liefi bench: interrupted; {done}everything finished is kept in "
+              f"{os.path.join(args.out, STORE)} and summarized in {os.path.join(args.out, 'summary.json')}",
+              file=sys.stderr, flush=True)
+        return 130
+    print(f"written to {args.out}")
+    if errors:
+        log(f"liefi bench: {errors} runs raised or lost their worker; every other result is kept (see the CSV)")
+        return 1
+    return 0
+
+
+def main(argv=None):
+    """``python -m liefi.bench SCENE [--t-final T] [--out DIR] [--scheduler ADDR] ...``."""
+    import argparse
+
+    p = argparse.ArgumentParser(prog="liefi bench", description="work-precision diagrams of a scene")
+    add_arguments(p)
+    args = p.parse_args(argv)
+    try:
+        return run_from_args(args)
+    except KeyboardInterrupt:
+        print("liefi bench: interrupted", file=sys.stderr)
+        return 130
+    except (ValueError, OSError, ImportError) as exc:
+        print(f"liefi bench: error: {' '.join(str(exc).split())}", file=sys.stderr)
+        return 2
