@@ -204,8 +204,28 @@ class FeedbackIntegrator:
     gains : float, dict or "auto"
         One number for every gain, or ``{name: k}`` with names ``"J_1"``...,
         ``"energy"``, ``"penalty"``, the invariants' names; ``"constraints"`` sets every ``J_i``.
-        ``"auto"``: chosen by :meth:`run` from ``dt`` and the Hessian of ``V``, and
-        adapted along the run (:func:`liefi.stability.auto_gains`).
+        ``"auto"``: chosen by :meth:`run` for accuracy, from the scheme, ``dt`` and
+        the horizon ``T`` (:mod:`liefi.gains`, which holds the derivation).  The
+        residual ``r_j = I_j - I_j0`` relaxes at the rate ``kappa_j = k_j |grad I_j|^2``;
+        with ``z = dt kappa`` one step of an explicit Runge--Kutta tableau
+        ``(A, b, c)`` of order ``p`` maps ``r -> R(-z) r + delta(z)``, where
+        ``delta(z) <= sum_{l=2}^{p+1} (dt omega)^l |eps_l - z b^T (I + zA)^{-1} d_l|``
+        (``eps_l`` the scheme's own error coefficients, ``d_l`` its stage defects,
+        ``omega`` the spectral radius of ``dX/dy``), so after ``N = T/dt`` steps
+        ``|r| <= D(z) = delta(z) (1 - |R|^N)/(1 - |R|)`` plus a random walk of
+        rounding.  ``gains="auto"`` takes ``z* = argmin D`` (0, no feedback,
+        unless it buys a factor 2) and ``k_j = w_j z*/dt`` with ``w_j`` the
+        unit-rate weights of :func:`liefi.stability.unit_rate_gains`
+        (``1/|grad I_j|^2``, scaled so that ``lambda_max(Hess V) = 1``): Euler
+        gets ``z* = 1`` (Bae & Chang's ``k = 1/(dt L)``), RK4 ``kappa* ~ 0.26 omega``,
+        far below its stability limit, and short horizons ``z* = 0``.  Both
+        ``z*`` (a number built from ``dt omega`` and ``N``) and the weights are
+        unit-invariant: the same physics in other units gives the same relative
+        trajectory.  The gains are fixed along the run unless ``z*`` reaches a
+        quarter of the scheme's stability bound (Euler), where they are adapted
+        at the rate ``z*`` (``adaptive=``).  On the stiff-safe split schemes
+        (``imex-*``) ``"auto"`` keeps the contraction rate of
+        :func:`liefi.stability.auto_gains`, adapted along the run.
     energy : {"extended", "original"}
         Penalize ``h~`` (default, the paper's main choice) or ``h`` (its Remarks).
     configuration : bool
@@ -280,6 +300,11 @@ class FeedbackIntegrator:
                     f"component name {sp.state_names} or a liefi.Invariant"
                 )
         self.use_penalty = self.configuration and sp.group.penalty_hessian_bound() > 0
+        #: the constraint momenta ``J_i`` (0-based ``i``) that ``V`` penalizes (all, unless dropped)
+        self._J_kept = tuple(range(system.K)) if self.use_constraints else ()
+        #: ``({"name", "reason"}, ...)``: invariants left out of ``V`` (:meth:`without`)
+        self.dropped = ()
+        self._dropped_user = []  # user invariants left out of V, still monitored
         reserved = {f"J_{i + 1}" for i in range(system.K)} | {"energy", "penalty", "h", "h~"}
         seen = set()
         for u in self.user:
@@ -363,8 +388,8 @@ class FeedbackIntegrator:
         J = slice(0, 0)
         energy = energy_target = penalty = None
         if self.use_constraints:
-            J = slice(0, self.system.K)
-            i = self.system.K
+            J = slice(0, len(self._J_kept))
+            i = len(self._J_kept)
         if self.use_energy:
             energy, energy_target = i, i + 1
             i += 2
@@ -387,7 +412,7 @@ class FeedbackIntegrator:
         g = self.gains if gains is None else gains
         cols = []
         if self.use_constraints:
-            cols += [g[f"J_{i + 1}"] for i in range(self.system.K)]
+            cols += [g[f"J_{i + 1}"] for i in self._J_kept]
         if self.use_energy:
             cols += [g["energy"], self.energy_target]
         for u, tgt in zip(self.user, self.user_targets):
@@ -426,11 +451,45 @@ class FeedbackIntegrator:
         if self.use_penalty:
             names.append("penalty")
         if self.use_constraints:
-            names += [f"J_{i + 1}" for i in range(self.system.K)]
+            names += [f"J_{i + 1}" for i in self._J_kept]
         if self.use_energy:
             names.append("energy")
         names += [u.name for u in self.user]
         return tuple(names)
+
+    def without(self, drops):
+        """A copy whose ``V`` leaves out the invariants ``drops`` (``{name: reason}``); they stay monitored.
+
+        Used by :func:`liefi.run.run_feedback` for the invariants the scheme keeps
+        exactly (:func:`liefi.gains.exactly_kept`): their feedback term vanishes
+        identically and only costs work.  The copy's :attr:`dropped` lists
+        ``{"name", "reason"}``; its field (numpy and compiled) has no such term.
+        The embedding penalty cannot be dropped.
+        """
+        import copy
+
+        new = copy.copy(self)
+        new.__dict__.pop("parameter_layout", None)
+        new.user = list(self.user)
+        new._dropped_user = list(self._dropped_user)
+        kept_J = list(self._J_kept)
+        for name in drops:
+            if name.startswith("J_") and name[2:].isdigit() and int(name[2:]) - 1 in kept_J:
+                kept_J.remove(int(name[2:]) - 1)
+            elif name == "energy" and self.use_energy:
+                new.use_energy = False
+            elif name in [u.name for u in new.user]:
+                i = [u.name for u in new.user].index(name)
+                new._dropped_user.append(new.user.pop(i))
+            else:
+                raise ValueError(f"drops: {name!r} is not a penalized invariant that can be dropped; "
+                                 f"choose among {[n for n in self.invariant_names if n != 'penalty']}")
+        new._J_kept = tuple(kept_J)
+        new.use_constraints = bool(kept_J)
+        new.user_targets = [self.targets[u.name] for u in new.user]
+        new.dropped = tuple(self.dropped) + tuple({"name": k, "reason": str(v)} for k, v in drops.items())
+        new._set_gains({k: v for k, v in self.gains.items() if k in new.invariant_names})
+        return new
 
     def split(self, y):
         """``y -> (g, z)`` (``g`` has zero length without configuration)."""
@@ -450,7 +509,7 @@ class FeedbackIntegrator:
         out["h"] = t.h
         out["h~"] = t.ht
         out["energy"] = t.ht if self.energy == "extended" else t.h
-        for u in self.user:
+        for u in self.user + self._dropped_user:
             out[u.name] = u.value_and_grad(z)[0]
         return out
 
@@ -472,7 +531,7 @@ class FeedbackIntegrator:
         batch = y.shape[:-1]
         names, res, grads = [], [], []
         if self.use_constraints:
-            for i in range(self.system.K):
+            for i in self._J_kept:
                 names.append(f"J_{i + 1}")
                 res.append(t.J[..., i])
                 grads.append(t.dJ[..., i, :])
@@ -517,9 +576,13 @@ class FeedbackIntegrator:
         V = 0.0
         gz = 0.0
         if self.use_constraints:
-            kJ = p[..., lay.J] * t.J
-            V = V + 0.5 * np.einsum("...k,...k->...", kJ, t.J)
-            gz = gz + np.einsum("...k,...kj->...j", kJ, t.dJ)
+            Jv, dJ = t.J, t.dJ
+            if len(self._J_kept) < sys.K:  # some J_i dropped (kept exactly by the scheme)
+                Jv = np.stack([t.J[..., i] for i in self._J_kept], -1)
+                dJ = np.stack([t.dJ[..., i, :] for i in self._J_kept], -2)
+            kJ = p[..., lay.J] * Jv
+            V = V + 0.5 * np.einsum("...k,...k->...", kJ, Jv)
+            gz = gz + np.einsum("...k,...kj->...j", kJ, dJ)
         if self.use_energy:
             E, dE = (t.ht, t.dht) if self.energy == "extended" else (t.h, t.dh)
             dEv = E - p[..., lay.energy_target]
@@ -583,7 +646,7 @@ class FeedbackIntegrator:
 
     # --- running ------------------------------------------------------------------
     def run(self, dt, t_final, scheme="euler", *, y0=None, save_every=None, check_every=1, backend="numpy",
-            check_stability=True, adaptive=None, monitor_every=None, progress=None):
+            check_stability=True, adaptive=None, monitor_every=None, progress=None, drop_exact=True):
         """Integrate from ``y0`` (default: the one given at construction) to ``t_final``.
 
         The loop is :func:`liefi.run.run_feedback`.  Returns a
@@ -621,11 +684,22 @@ class FeedbackIntegrator:
         for ``gains="auto"``, off otherwise; with fixed gains it only lowers them).
         ``monitor_every``: steps between two checks (default: adaptive).  The
         solution carries the report as ``solution.stability``.
+
+        Invariants the scheme keeps exactly.  With ``drop_exact`` (default True)
+        an invariant that every Runge--Kutta step keeps to rounding
+        (:func:`liefi.gains.exactly_kept`: a first integral with a constant
+        gradient ``a`` that no other feedback term moves, so ``a . y_{n+1} = a . y_n``;
+        e.g. the vertical disk's momenta, the roller racer's ``J_2``) and that
+        starts on its target is left out of ``V`` for an explicit tableau
+        (:meth:`without`): its feedback term vanishes identically and only
+        costs work.  ``solution.dropped`` lists ``{"name", "reason"}`` (also in a
+        scene's ``RunResult`` and ``liefi run --json``); the invariant is still
+        monitored.  ``drop_exact=False`` keeps every term.
         """
         from .run import run_feedback
 
         return run_feedback(
             self, dt, t_final, scheme, y0=y0, save_every=save_every, check_every=check_every,
             backend=backend, check_stability=check_stability, adaptive=adaptive, monitor_every=monitor_every,
-            progress=progress,
+            progress=progress, drop_exact=drop_exact,
         )

@@ -234,6 +234,18 @@ def exactly_kept(fi, scheme="rk4", y=None, *, n_samples=6, rel=1e-2, tol=1e-10):
     return tuple(jet.names[j] for j in kept)
 
 
+def accurate_setting(fi, dt, scheme="rk4", t_final=None, y=None):
+    """``(z*, gains)``: the accurate rate (:func:`accurate_rate`) and the gains of :func:`accurate_gains`."""
+    dt = positive_number(dt, "dt")
+    T = 1000.0 * dt if t_final is None else positive_number(t_final, "t_final")
+    y = fi.y0 if y is None else np.asarray(y, float)
+    z = accurate_rate(scheme, dt, unforced_rate(fi, y), T)
+    gains = {k: float(v) * z / dt for k, v in unit_rate_gains(fi, y).items()}
+    for name in exactly_kept(fi, scheme, y):
+        gains[name] = 0.0
+    return z, gains
+
+
 def accurate_gains(fi, dt, scheme="rk4", t_final=None, y=None) -> dict:
     """Gains minimizing the drift bound ``D(z)`` for ``scheme``, ``dt`` and the horizon ``t_final``.
 
@@ -243,14 +255,8 @@ def accurate_gains(fi, dt, scheme="rk4", t_final=None, y=None) -> dict:
     (module docstring); the invariants of :func:`exactly_kept` get 0.
     ``t_final`` defaults to ``1000 dt``.  Unit-invariant.
     """
-    dt = positive_number(dt, "dt")
-    T = 1000.0 * dt if t_final is None else positive_number(t_final, "t_final")
-    y = fi.y0 if y is None else np.asarray(y, float)
-    z = accurate_rate(scheme, dt, unforced_rate(fi, y), T)
-    gains = {k: float(v) * z / dt for k, v in unit_rate_gains(fi, y).items()}
-    for name in exactly_kept(fi, scheme, y):
-        gains[name] = 0.0
-    return gains
+    return accurate_setting(fi, dt, scheme, t_final, y)[1]
 
 
-__all__ = ["accurate_gains", "accurate_rate", "drift_bound", "exactly_kept", "local_defect", "unforced_rate"]
+__all__ = ["accurate_gains", "accurate_rate", "accurate_setting", "drift_bound", "exactly_kept", "local_defect",
+           "unforced_rate"]

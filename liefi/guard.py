@@ -91,7 +91,7 @@ def _audit(fi, ts, Ys, dt, beta, sch, scales, delta0, schedule, max_points=2000)
         sc = {k: max(scales.get(k, 0.0), cur.get(k, 0.0)) or 1.0 for k in cur}
         rel = np.zeros(len(idx))
         who = np.full(len(idx), "", dtype=object)
-        res = np.abs(jet.residual).reshape(len(idx), -1, len(jet.names)).max(axis=1)
+        res = np.abs(jet.residual).reshape(len(idx), -1, max(len(jet.names), 1)).max(axis=1) if jet.names else None
         for j, nm in enumerate(jet.names):
             r = res[:, j] / sc.get(nm, 1.0)
             who = np.where(~(r <= rel), nm, who)
@@ -245,6 +245,9 @@ def _relabel(exc, dt, sch, extra):
 #: Largest number of states (batch members x saved points) the post-run audit evaluates
 #: (each costs a few field evaluations: the audit stays a few percent of an ensemble's loop).
 AUDIT_STATES = 2000
+#: ``gains="auto"`` on an explicit tableau adapts the gains along the run (at the accurate rate
+#: ``z*``) when ``z*`` is at least this fraction of the real stability bound (Euler: ``z* = 1``).
+AUTO_ADAPT_FRACTION = 0.25
 #: Members of a batch on which the unforced dynamics' resolution is estimated.
 RESOLUTION_MEMBERS = 16
 
@@ -275,7 +278,11 @@ class Guard:
         self.backend = backend
         self.check_stability = bool(check_stability)
         self.auto = getattr(fi, "gains_mode", "fixed") == "auto"
+        # auto on an explicit tableau: the accurate gains (liefi.gains), fixed unless their rate is
+        # near the stability limit (decided in before()); on a split scheme: the contraction rate,
+        # adapted along the run
         self.adaptive = self.auto if adaptive is None else bool(adaptive)
+        self._adaptive_default = adaptive is None
         self.monitor_every = monitor_every
         self.stacklevel = stacklevel
         self.rate = scheme.optimal_rate
@@ -300,8 +307,22 @@ class Guard:
         """The gains to start with (an integrator) and the pre-run checks; ``O(1)`` calls over the batch."""
         from .stability import auto_gains, check, estimate, first_integral_defect, unit_rate_gains
 
-        fi, dt, rate, rep = self.fi, self.dt, self.rate, self.report
-        if self.auto and self.adaptive:
+        fi, dt, rep = self.fi, self.dt, self.report
+        if self.auto and not self.split:
+            from .gains import accurate_setting
+
+            # the accurate rate z* (liefi.gains) for this scheme, step and horizon; adapted along
+            # the run (at that rate) only when it sits near the stability limit
+            z, acc = accurate_setting(fi, dt, self.sch.name, self.n_steps * dt, _subsample(y0, RESOLUTION_MEMBERS))
+            if self._adaptive_default:
+                self.adaptive = z >= AUTO_ADAPT_FRACTION * self.beta
+            if self.adaptive:
+                self.rate = z
+            rep.adaptive = self.adaptive
+        rate = self.rate
+        if self.auto and not self.split and not self.adaptive:
+            run_fi = fi.with_gains(acc)
+        elif self.auto and self.adaptive:
             run_fi = fi.with_gains({k: v * rate / dt for k, v in unit_rate_gains(fi, y0).items()})
         elif self.auto:
             run_fi = fi.with_gains(auto_gains(fi, dt, self.sch, y=y0))

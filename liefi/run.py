@@ -200,15 +200,50 @@ def _step_seconds(fi, y0, sch):
     return (time.perf_counter() - t) * getattr(sch, "stages", 1) * (3 if sch.kind == "split" else 1)
 
 
+def exact_drops(fi, sch, y0, *, rtol=1e-12):
+    """``{name: reason}``: the penalized invariants the scheme ``sch`` keeps exactly from ``y0`` (left out of ``V``).
+
+    :func:`liefi.gains.exactly_kept` (a first integral with a constant gradient,
+    untouched by the other invariants' feedback: every Runge--Kutta step keeps it
+    to rounding), for an explicit tableau, and only where the invariant is on its
+    target at every member of ``y0`` (relative ``rtol``): off it, its own
+    feedback is what brings it back.  ``O(1)`` evaluations (a few members).
+    """
+    if getattr(sch, "kind", None) != "explicit" or not fi.invariant_names:
+        return {}
+    from .gains import exactly_kept
+    from .stability import drift_scales
+
+    Y = np.asarray(y0, float).reshape(-1, fi.n)
+    Y = Y[np.unique(np.linspace(0, Y.shape[0] - 1, min(Y.shape[0], 16)).astype(int))]
+    with np.errstate(all="ignore"):
+        kept = exactly_kept(fi, sch.name, Y[0])
+        if not kept:
+            return {}
+        jet = fi.invariant_gradients(Y)
+        scales = drift_scales(fi)
+    out = {}
+    for name in kept:
+        j = jet.names.index(name)
+        if np.max(np.abs(jet.residual[..., j])) <= rtol * max(scales.get(name, 1.0), 1e-300):
+            out[name] = (f"kept exactly by {sch.name}: a first integral with a constant gradient that no other "
+                         "feedback term moves, so every Runge-Kutta step keeps it to rounding and its feedback "
+                         "term vanishes identically (liefi.gains.exactly_kept)")
+    return out
+
+
 def run_feedback(fi, dt, t_final, scheme="euler", *, y0=None, save_every=None, check_every=1, backend="numpy",
                  check_stability=True, adaptive=None, monitor_every=None, progress=None, max_saved_bytes=None,
-                 stacklevel=3) -> Solution:
+                 drop_exact=True, stacklevel=3) -> Solution:
     """Integrate the feedback integrator ``fi`` from ``y0`` to ``t_final`` with a fixed step (module docstring).
 
     The parameters are those of :meth:`liefi.FeedbackIntegrator.run`;
     ``progress``: ``None`` (automatic), True or False; ``max_saved_bytes``: the
     memory the saved output may use (default: :data:`DEFAULT_SAVE_BYTES` with
     ``save_every=None``, half the available memory with an explicit stride).
+    ``drop_exact`` (default True): leave out of ``V`` the invariants the scheme
+    keeps exactly (:func:`exact_drops`); ``solution.dropped`` lists them
+    (``{"name", "reason"}``).
 
     Returns the :class:`~liefi.schemes.Solution` with ``stability`` (the
     guard's :class:`~liefi.guard.RunReport`), ``plan`` (:class:`RunPlan`),
@@ -229,6 +264,9 @@ def run_feedback(fi, dt, t_final, scheme="euler", *, y0=None, save_every=None, c
         if not np.all(np.isfinite(y0)):
             raise ValueError("y0: contains non-finite numbers")
     sch = _fixed_step_scheme(scheme)
+    drops = exact_drops(fi, sch, y0) if drop_exact else {}
+    if drops:
+        fi = fi.without(drops)
     pl = plan(y0, n_steps, save_every, max_bytes=max_saved_bytes)
     save_every = pl.save_every
     names = fi.names
@@ -295,6 +333,7 @@ def run_feedback(fi, dt, t_final, scheme="euler", *, y0=None, save_every=None, c
             setattr(sol, attr, getattr(last, attr))
     sol.backend = getattr(sol, "backend", runner.state["backend"])
     sol.stability = guard.report
+    sol.dropped = list(run_fi.dropped)
     sol.plan = pl
     sol.overhead_seconds = max(0.0, time.process_time() - start_all - cpu)
     return sol

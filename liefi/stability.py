@@ -594,7 +594,7 @@ def estimate(fi, dt, scheme="euler", *, t_final=None, y0=None, max_evals=None, r
     lam0 = float(max(per_t[0], 0.0))
     dom = np.asarray(st.dominant, dtype=object).reshape(len(ts), -1)[i]
     dom = str(dom[int(np.argmax(lam_t[i]))])
-    ev = np.asarray(st.eigenvalues).reshape((len(ts), -1) + st.eigenvalues.shape[-1:])[i]
+    ev = np.asarray(st.eigenvalues).reshape((len(ts), lam_t.shape[1]) + st.eigenvalues.shape[-1:])[i]
     ev = ev[int(np.argmax(lam_t[i]))]
     rate = growth = float("nan")
     if resolution:
@@ -770,9 +770,18 @@ def first_integral_defect(fi, y, rtol=1e-6):
     Assumption A1 of the theory: ``grad I_j . X = 0``.  A user invariant that is
     not a first integral (e.g. ``L_z`` once the metric is not isotropic) makes
     the feedback fight the dynamics: the run then drifts whatever the gains.
+
+    Evaluated on the constraint set (``y`` projected onto ``{J = 0}`` at fixed
+    ``x``, :func:`liefi.reduction.project`): a first integral of the constrained
+    motion (the knife edge's ``p_phi``) is one of the extended field only there
+    (off it its rate is ``O(J)``), so a state off the set would be a false alarm.
     """
     try:
         with np.errstate(all="ignore"):
+            y = np.asarray(y, float)
+            if fi.system.K:
+                g, z = fi.split(y)
+                y = np.concatenate([g, _core.project(fi.system, z)], -1)
             jet = fi.invariant_gradients(y)
             X = fi.unforced_vector_field(y)
             dI = np.einsum("...mn,...n->...m", jet.grad, X)
@@ -785,7 +794,7 @@ def first_integral_defect(fi, y, rtol=1e-6):
     if not bad:
         return ""
     what = ", ".join(f"{nm} (relative dI/dt = {r:.2g})" for nm, r in bad)
-    return (f"liefi: invariants: {what} not conserved by the extended field (at the start or along the "
-            "pilot): V is not a first "
+    return (f"liefi: invariants: {what} not conserved by the extended field on the constraint set (at the "
+            "start): V is not a first "
             "integral (assumption A1), so the feedback fights the dynamics and the run drifts whatever the "
             "gains; check that the invariant belongs to this system.")

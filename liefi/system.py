@@ -103,6 +103,14 @@ class NonholonomicSystem:
     ):
         if not isinstance(space, PhaseSpace):
             raise TypeError(f"space: expected a liefi PhaseSpace, got {space!r}")
+        #: the constructor's arguments as given (for :meth:`replace`)
+        self._arguments = dict(
+            space=space, metric=metric, constraints=constraints, potential=potential,
+            metric_derivative=metric_derivative, constraints_derivative=constraints_derivative,
+            potential_gradient=potential_gradient, vector_potential=vector_potential,
+            vector_potential_derivative=vector_potential_derivative, sample=sample, orthonormalize=orthonormalize,
+            check=check,
+        )
         self.space = space
         n, D = space.n, space.D
         if n == 0:
@@ -270,6 +278,38 @@ class NonholonomicSystem:
         return cls(space, metric, constraints, potential, orthonormalize=scaling == "orthonormal", **kw)
 
     # --- names and sizes ---------------------------------------------------
+    def replace(self, **changes):
+        """A new system with the same data except ``changes`` (constructor arguments), every other datum kept.
+
+        E.g. ``system.replace(sample=x0)``.  The data are those given to the
+        constructor (callables, derivatives, the vector potential, ``orthonormalize``...).
+        """
+        unknown = sorted(set(changes) - set(self._arguments))
+        if unknown:
+            raise ValueError(f"changes: unknown argument(s) {unknown}; the data are {sorted(self._arguments)}")
+        return NonholonomicSystem(**{**self._arguments, **changes})
+
+    def with_scaled_metric(self, S, **changes):
+        """A copy whose metric is ``S m(x) S^T`` (``S``: a constant ``(D, D)`` matrix), every other datum kept.
+
+        The kinetic energy in other units of momentum (or a mass/inertia ratio);
+        a given ``metric_derivative`` is scaled the same way.  ``changes``: other
+        constructor arguments to replace (e.g. ``sample``).
+        """
+        from ._data import as_float_array
+
+        D = self.space.D
+        S = as_float_array(S, "S")
+        if S.shape != (D, D) or not np.all(np.isfinite(S)):
+            raise ValueError(f"S: expected a finite ({D}, {D}) matrix, got shape {S.shape}")
+        m, dm = self._arguments["metric"], self._arguments["metric_derivative"]
+        if callable(m):
+            metric = lambda x, f=m: S @ np.asarray(f(x)) @ S.T  # noqa: E731
+        else:
+            metric = S @ as_float_array(m, "metric") @ S.T
+        deriv = None if dm is None else (lambda x, f=dm: S @ np.asarray(f(x)) @ S.T)
+        return self.replace(metric=metric, metric_derivative=deriv, **changes)
+
     @property
     def state_names(self):
         return self.space.state_names

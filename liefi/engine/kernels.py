@@ -43,7 +43,8 @@ def _engine(engine):
 
 def _fi_key(fi, kind):
     return (
-        kind, fi.nc, fi.configuration, fi.field, fi.energy, fi.use_constraints, fi.use_energy,
+        kind, fi.nc, fi.configuration, fi.field, fi.energy, fi.use_constraints, getattr(fi, "_J_kept", None),
+        fi.use_energy,
         tuple((u.name, id(u.fun), id(u.grad)) for u in fi.user), fi.use_penalty,
         None if fi.A is None else fi.A.tobytes(),
     )

@@ -94,31 +94,20 @@ def battery_table(results):
 def _with_mass_ratio(sc, ratio):
     """A copy of scene ``sc`` whose metric is ``S m S``, ``S = diag(sqrt(logspace(0, log10 ratio, D)))``.
 
-    The constraint set, the potential and the start are unchanged; the mass
-    (inertia) ratio spans ``ratio``.  The copy has no reference solution.
+    The constraint set, the potential, the vector potential (every other datum:
+    :meth:`liefi.NonholonomicSystem.with_scaled_metric`) and the start are
+    unchanged; the mass (inertia) ratio spans ``ratio``.  The copy has no reference solution.
     """
     import copy
-
-    from ..system import NonholonomicSystem
 
     sys = sc.system
     D = sys.space.D
     S = np.diag(np.sqrt(np.logspace(0.0, math.log10(ratio), D)))
-    m = sys.metric
-    metric = S @ m.value @ S if m.constant else (lambda x, f=m.fun: S @ f(x) @ S)
-    cons = None
-    if sys.K:
-        cons = sys.constraints.value if sys.constraints.constant else sys.constraints.fun
-    pot = None
-    if not sys.potential.constant:
-        pot = sys.potential.fun
-    elif float(sys.potential.value) != 0.0:
-        pot = lambda x, c=float(sys.potential.value): c + 0.0 * x[..., 0]  # noqa: E731
     n = sys.space.n
     nc = sys.space.group.config_dim
-    v = sc.variant()
-    x0 = np.asarray(sc.initial_state(v), float)[nc : nc + n]
-    new = NonholonomicSystem(sys.space, metric, cons, pot, sample=x0 if n else None)
+    x0 = np.asarray(sc.initial_state(sc.variant()), float)[nc : nc + n]
+    # every datum kept (constraints, potential, vector potential, derivatives): only the metric changes
+    new = sys.with_scaled_metric(S, sample=x0 if n else None)
     sc2 = copy.copy(sc)
     sc2.__dict__ = dict(sc.__dict__)
     sc2.__dict__["system"] = new

@@ -110,6 +110,8 @@ class RunResult:
     reference_seconds: float = 0.0
     #: the engine that stepped the run (``"numpy"``, ``"numba"``, ``"scipy"``)
     backend: str | None = None
+    #: invariants left out of ``V`` (kept exactly by the scheme): ``[{"name", "reason"}]``
+    dropped: list = _field(default_factory=list)
 
     def __getitem__(self, name):
         return self.y[self.names.index(name)]
@@ -132,6 +134,7 @@ class RunResult:
             "max_drift": {k: float(v) for k, v in self.max_drift.items()},
             "reference_seconds": self.reference_seconds,
             "backend": self.backend,
+            "dropped": [dict(d) for d in self.dropped],
         }
 
 
@@ -377,8 +380,10 @@ class Scene:
         ``scheme`` is a liefi scheme name (``euler``, ``heun``, ``rk4``...), a
         stiff-safe split scheme (``imex-euler``, ``imex-rk4``: :mod:`liefi.schemes.split`),
         ``"scipy:METHOD"`` (``solve_ivp`` with ``rtol``/``atol``), or one of the
-        scene's ``extra_schemes`` (e.g. ``"dla"``).  ``gains="auto"``: chosen from
-        ``dt`` and the Hessian of ``V`` and adapted along the run.
+        scene's ``extra_schemes`` (e.g. ``"dla"``).  ``gains="auto"``: chosen for accuracy
+        from the scheme, ``dt`` and the horizon (:mod:`liefi.gains`; see
+        :class:`~liefi.FeedbackIntegrator`).  ``RunResult.dropped``: the
+        invariants left out of ``V`` because the scheme keeps them exactly.
         ``check_stability`` and ``adaptive`` are passed to
         :meth:`liefi.FeedbackIntegrator.run` (:mod:`liefi.stability`).
         ``backend``: ``"numpy"``, ``"numba"`` or ``"auto"`` (:mod:`liefi.engine`);
@@ -405,6 +410,7 @@ class Scene:
         fi = self.integrator(v, gains=gains, configuration=configuration)
         self._check_start(fi, v)
 
+        dropped = []  # invariants the fixed-step run left out of V
         if scheme in self.extra_schemes:
             t, Y, names, cpu, steps, nfev = self.run_extra(scheme, v, dt, T, save_every, fi)
             if check_stability:
@@ -436,8 +442,10 @@ class Scene:
                 dt, T, scheme, save_every=save_every, check_stability=check_stability, adaptive=adaptive,
                 backend=backend,
             )
-            if getattr(sol, "stability", None) is not None and sol.stability.gains:
-                fi = fi.with_gains(sol.stability.gains)  # report the gains the run started with
+            dropped = list(getattr(sol, "dropped", []))
+            if getattr(sol, "stability", None) is not None and (sol.stability.gains or dropped):
+                # report the gains the run started with (0 for the invariants left out of V)
+                fi = fi.with_gains({**{d["name"]: 0.0 for d in dropped}, **sol.stability.gains})
             t, Y, names, cpu, steps, nfev = sol.t, sol.y, sol.names, sol.cpu_seconds, sol.steps, sol.rhs_evaluations
         ran = getattr(sol, "backend", None) if "sol" in locals() else None
         if str(scheme).startswith("scipy:"):
@@ -447,6 +455,7 @@ class Scene:
                               and importlib.util.find_spec("numba") is not None) else "numpy"
         result = self._result(v, str(scheme), dt, T, fi, t, Y, names, cpu, steps, nfev, clock=clock)
         result.backend = ran
+        result.dropped = dropped
         return result
 
     def _check_start(self, fi, v, rtol=1e-9):
