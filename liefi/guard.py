@@ -56,8 +56,7 @@ def _lam_schedule(fi, Y, gains_list):
         lam = np.linalg.eigvalsh(W @ np.swapaxes(W, -1, -2))[..., -1]
     if fi.use_penalty:
         k0 = np.array([g.get("penalty", 0.0) for g in gains_list]).reshape((len(gains_list),) + (1,) * (Y.ndim - 2))
-        H = _stiff.penalty_hessian(fi.system.space.group, Y[..., : fi.nc])
-        lam = np.maximum(lam, k0 * np.linalg.eigvalsh(0.5 * (H + np.swapaxes(H, -1, -2)))[..., -1])
+        lam = np.maximum(lam, k0 * fi.system.space.group.penalty_hessian_max(Y[..., : fi.nc]))
     return lam.reshape(len(gains_list), -1).max(axis=1), jet
 
 

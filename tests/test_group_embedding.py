@@ -171,3 +171,19 @@ def test_check_runs_once_per_group_object():
     C.check()
     assert len(calls) == n > 0
     assert G == SE3() and isinstance(G, LieGroup)
+
+
+@pytest.mark.parametrize("G", GROUPS, ids=repr)
+def test_penalty_hessian_max_is_the_largest_eigenvalue_of_the_complex_step_hessian(G):
+    """``3 s_max^2 - 1`` (closed form) against the spectrum of the complex-step Hessian, off the group."""
+    from liefi import _diff
+
+    rng = np.random.default_rng(3)
+    g = G.random_config(rng, (5,)) + 0.3 * rng.normal(size=(5, G.config_dim))  # well off the group
+    H = _diff.jacobian(G.penalty_grad, g)[1]
+    want = np.linalg.eigvalsh(0.5 * (H + np.swapaxes(H, -1, -2)))[..., -1]
+    if not G.orthogonal_matrices(g):
+        want = np.zeros(5)
+    np.testing.assert_allclose(G.penalty_hessian_max(g), want, rtol=1e-12, atol=1e-12)
+    on = G.random_config(rng, (3,))
+    np.testing.assert_allclose(G.penalty_hessian_max(on), G.penalty_hessian_bound(), atol=1e-12)
