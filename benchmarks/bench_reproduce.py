@@ -6,13 +6,14 @@ Run::
     python benchmarks/bench_reproduce.py --warm          # reuse ~/.cache/liefi (second run)
     python benchmarks/bench_reproduce.py --backend numpy # the reference path, for comparison
 
-``liefi reproduce`` runs every scene through ``Scene.run -> FeedbackIntegrator.run``.
-Until ``Scene.run`` passes a ``backend`` through (see the wiring notes in
-``docs/work_precision.md``), this script makes ``backend`` default to the one
-asked for by wrapping ``FeedbackIntegrator.run``; nothing else changes.  With
-the default fresh cache (a temporary ``LIEFI_CACHE_DIR``) every kernel is
-traced and compiled in the run, as on a first installation.  Prints wall and
-CPU seconds and the per-experiment table of ``liefi reproduce``.
+``liefi reproduce`` runs every scene through ``Scene.run -> FeedbackIntegrator.run``,
+whose backend is ``"auto"`` when numba is installed; ``--backend`` forces one by
+wrapping ``FeedbackIntegrator.run`` (the oscillator's DLA runs are stepped by the
+compiled DLA kernel too).  With the default fresh cache (a temporary
+``LIEFI_CACHE_DIR``) every kernel is traced and compiled in the run, as on a first
+installation.  Prints wall and CPU seconds and the per-experiment table of
+``liefi reproduce``.  The command itself, timed the same way:
+``LIEFI_CACHE_DIR=$(mktemp -d) time liefi reproduce --out OUT``.
 """
 
 from __future__ import annotations
