@@ -192,6 +192,8 @@ def plot_path(path, scene, variant=None, *, suffix=""):
     from . import plotting
 
     plotting.require_matplotlib()
+    if path.endswith(("/", os.sep)) and not os.path.isdir(path):
+        raise UsageError(f"out: the folder {path!r} does not exist; create it (mkdir -p {path}) or choose another --out")
     if os.path.isdir(path):
         first = next(iter(scene.variants), None)
         name = scene.name + ("" if variant in (None, first) else f"-{variant}") + suffix

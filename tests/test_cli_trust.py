@@ -123,6 +123,16 @@ def test_run_out_is_checked_before_the_run(capsys, tmp_path, monkeypatch):
     _one_error_line(err, "out")
 
 
+def test_run_out_naming_a_missing_folder_says_so(capsys, tmp_path, monkeypatch):
+    """``--out figs/`` (a folder, by its slash) that does not exist: named, not taken for ``figs/.png``."""
+    pytest.importorskip("matplotlib")
+    _no_run(monkeypatch)
+    code, _, err = run_cli(capsys, "run", "suslov", "--out", str(tmp_path / "figs") + "/")
+    assert code == 2
+    _one_error_line(err, "out")
+    assert "does not exist" in err and ".png" not in err
+
+
 def test_run_out_into_a_folder_writes_and_reports_the_file(capsys, tmp_path):
     pytest.importorskip("matplotlib")
     d = tmp_path / "figs"
