@@ -425,3 +425,20 @@ def test_interrupt_stops_a_process_pool_at_once():
     out = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, timeout=120)
     assert out.stdout.startswith("interrupted 0"), out.stderr
     assert time.time() - t < 50  # the 60 s tasks did not run to the end
+
+
+def test_split_schemes_are_feedback_integrator_rows_of_the_harness():
+    """``--schemes imex-euler``: FI rows only (no-feedback/projection need an explicit tableau);
+    at the paper's knife-edge gains (1000) the split step is stable at dt = 8e-3, where explicit Euler is not."""
+    tasks = bench.build_tasks("knife-edge", 0.4, schemes=("euler", "imex-euler"), ivp_methods=(),
+                              methods=("FI", "no-feedback", "projection"), dts=(8e-3,), gains=(None,))
+    split = [t for t in tasks if t["scheme"] == "imex-euler"]
+    assert split and {t["method"] for t in split} == {"FI"}
+    rows = bench.work_precision("knife-edge", t_final=0.4, dts=[8e-3], methods=("FI",), schemes=("euler", "imex-euler"),
+                                ivp_methods=(), gains=(None,), n_save=10, plots=False)
+    by = {r["scheme"]: r for r in rows}
+    assert by["imex-euler"]["status"] == "ok" and by["imex-euler"]["max_error"] < 0.1
+    assert by["euler"]["status"] != "ok" or by["euler"]["max_error"] > 10 * by["imex-euler"]["max_error"]
+    from liefi.bench.cli import _schemes
+
+    assert _schemes("rk4,imex-rk4,LSODA") == (("rk4", "imex-rk4"), ("LSODA",))

@@ -66,21 +66,23 @@ def _list(text, allowed, what):
 
 def _schemes(text):
     """``--schemes`` -> ``(fixed-step tableaux, solve_ivp methods)``, names from the scheme registry
-    (:func:`liefi.schemes.get`): any explicit tableau (the compiled engine unrolls any), and
-    ``scipy:METHOD`` or ``METHOD`` for solve_ivp."""
+    (:func:`liefi.schemes.get`): any explicit tableau (the compiled engine unrolls any), a split
+    ``imex-*`` scheme (feedback-integrator rows only, numpy path), and ``scipy:METHOD`` or ``METHOD``
+    for solve_ivp."""
     if text is None:
         return FIXED_SCHEMES, IVP_METHODS
     from ..schemes import get, names
 
     fixed, ivp = [], []
     for t in (x.strip() for x in text.split(",") if x.strip()):
-        name = t if t.lower() in names("explicit") or t.lower().startswith("scipy:") else f"scipy:{t}"
+        fixed_names = names("explicit") + names("split")
+        name = t if t.lower() in fixed_names or t.lower().startswith("scipy:") else f"scipy:{t}"
         try:
-            sch = get(name, ("explicit", "scipy"))
+            sch = get(name, ("explicit", "split", "scipy"))
         except ValueError:
             raise ValueError(f"schemes: unknown scheme {t!r}; choose from "
-                             f"{','.join(names('explicit') + [n.split(':', 1)[1] for n in names('scipy')])}") from None
-        (fixed if sch.kind == "explicit" else ivp).append(sch.name if sch.kind == "explicit" else sch.method)
+                             f"{','.join(fixed_names + [n.split(':', 1)[1] for n in names('scipy')])}") from None
+        (ivp if sch.kind == "scipy" else fixed).append(sch.method if sch.kind == "scipy" else sch.name)
     if not fixed and not ivp:
         raise ValueError("schemes: empty list")
     return tuple(fixed), tuple(ivp)
