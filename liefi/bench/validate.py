@@ -2,20 +2,13 @@
 
 from __future__ import annotations
 
-import math
+from ..schemes import positive_number
 
 
 def positive(name, value):
-    """``float(value)`` if it is a finite number > 0, else a ``ValueError`` naming ``name``."""
-    if isinstance(value, bool) or value is None:
-        raise ValueError(f"{name}: expected a finite number > 0, got {value!r}")
-    try:
-        x = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name}: expected a finite number > 0, got {value!r}") from None
-    if not math.isfinite(x) or x <= 0:
-        raise ValueError(f"{name}: must be a finite number > 0, got {value!r}")
-    return x
+    """``float(value)`` if it is a finite number > 0, else a ``ValueError`` naming ``name``
+    (the one run-argument validator, :func:`liefi.schemes.positive_number`)."""
+    return positive_number(value, name, "must be a finite number > 0")
 
 
 def check_grid(t_final, dts, rtols, gains):
