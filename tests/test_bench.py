@@ -118,12 +118,14 @@ def test_run_sweep_is_executor_independent():
 
 
 def test_schemes_come_from_the_registry(capsys):
-    """--schemes takes any explicit tableau of the scheme registry and solve_ivp's methods, and names the choices."""
+    """--schemes takes any explicit tableau or split scheme of the scheme registry and solve_ivp's methods,
+    and names the choices (DLA is a method of its own, not a scheme of the grid)."""
     from liefi.bench.cli import _schemes
 
     assert _schemes("midpoint,rk4,scipy:LSODA,RK45") == (("midpoint", "rk4"), ("LSODA", "RK45"))
-    with pytest.raises(ValueError, match="schemes: unknown scheme 'imex-euler'.*midpoint"):
-        _schemes("imex-euler")
+    for bad in ("rk5", "dla"):
+        with pytest.raises(ValueError, match=f"schemes: unknown scheme '{bad}'.*midpoint.*imex-euler"):
+            _schemes(bad)
 
 
 def test_accurate_gains_are_an_fi_over_a_long_enough_horizon():
