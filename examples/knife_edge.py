@@ -26,10 +26,14 @@ def potential(q):
     return -m * g * np.sin(alpha) * q[..., 0]
 
 
-def constraint(q):
-    """One constraint vector ``e = (sin phi, -cos phi, 0)/sqrt(m)``, shape ``(..., 1, 3)``."""
+def no_side_slip(q):
+    """The constraint as one writes it, on velocities: ``xdot sin(phi) - ydot cos(phi) = 0``.
+
+    One Pfaffian row ``a(q) = (sin phi, -cos phi, 0)``, shape ``(..., 1, 3)``; liefi forms
+    ``e = m^{-1} a`` scaled to unit Gram diagonal, the paper's ``(sin phi, -cos phi, 0)/sqrt(m)``.
+    """
     phi = q[..., 2]
-    return (np.stack([np.sin(phi), -np.cos(phi), np.zeros_like(phi)], -1) / np.sqrt(m))[..., None, :]
+    return np.stack([np.sin(phi), -np.cos(phi), np.zeros_like(phi)], -1)[..., None, :]
 
 
 def main(t_final=200.0, dt=1e-3, gains=1000.0, scheme="euler"):
@@ -40,7 +44,7 @@ def main(t_final=200.0, dt=1e-3, gains=1000.0, scheme="euler"):
     max_error, max_drift : dict
     """
     space = liefi.CotangentBundle(3, names=("x", "y", "phi"))
-    system = liefi.NonholonomicSystem(space, np.diag([m, m, J]), constraint, potential)
+    system = liefi.NonholonomicSystem.from_velocity_constraints(space, np.diag([m, m, J]), no_side_slip, potential)
     z0 = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.5])  # (x, y, phi, p_x, p_y, p_phi)
     fi = liefi.FeedbackIntegrator(system, z0, invariants=("constraints", "energy", "p_phi"), gains=gains)
     n_steps = int(round(t_final / dt))
