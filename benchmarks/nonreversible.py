@@ -244,19 +244,14 @@ _STYLE = {"0.1": ":", "1": "--", "auto": "-."}
 
 
 def plot_scene(curves, name, T, path):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from liefi.plotting import finish_panel_grid, panel_grid
 
     if not curves:
         return None
     invs = [k for k in curves[0] if k not in ("scene", "run", "t")]
-    nc = min(2, len(invs))
-    nr = int(math.ceil(len(invs) / nc))
-    fig, axes = plt.subplots(nr, nc, figsize=(6.2 * nc + 2.8, 3.8 * nr), squeeze=False)
+    fig, axes = panel_grid(len(invs), ncols=2, width=6.2, height=3.8, legend_width=2.8)
     labels = list(dict.fromkeys(c["run"] for c in curves))
-    for ax, k in zip(axes.flat, invs):
+    for ax, k in zip(axes, invs):
         for lab in labels:
             pts = [(c["t"], c[k]) for c in curves if c["run"] == lab and k in c]
             if not pts:
@@ -271,15 +266,8 @@ def plot_scene(curves, name, T, path):
         ax.set_title(f"|{k}(t) - {k}(0)|" if not k.startswith("J_") else f"|{k}(t)|", fontsize=9)
         ax.set_xlabel("t", fontsize=8)
         ax.grid(True, alpha=0.3)
-    for ax in list(axes.flat)[len(invs):]:
-        ax.axis("off")
-    h, lab = axes.flat[0].get_legend_handles_labels()
-    fig.legend(h, lab, loc="center right", fontsize=7)
-    fig.suptitle(f"{name}: drift of each first integral vs time, t in [0, {T:g}] (exact zeros drawn at 1e-17)")
-    fig.tight_layout(rect=(0, 0, 1 - 2.7 / (6.2 * nc + 2.8), 0.95))
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return finish_panel_grid(fig, axes, f"{name}: drift of each first integral vs time, t in [0, {T:g}] "
+                             "(exact zeros drawn at 1e-17)", path)
 
 
 def main(argv=None):

@@ -117,6 +117,35 @@ def save(fig, path):
     return path
 
 
+def panel_grid(n, *, ncols=3, width=4.6, height=3.6, legend_width=2.0):
+    """A figure of ``n`` panels in rows of ``ncols`` (each ``width x height`` inches) with
+    ``legend_width`` inches on the right for one shared legend; returns ``(fig, axes)``, the
+    ``n`` axes in reading order (spare cells are hidden).  Finish it with :func:`finish_panel_grid`."""
+    require_matplotlib()
+    from matplotlib.figure import Figure
+
+    nc = max(1, min(ncols, n))
+    nr = -(-n // nc)
+    fig = Figure(figsize=(width * nc + legend_width, height * nr), dpi=110)
+    cells = list(fig.subplots(nr, nc, squeeze=False).flat)
+    for ax in cells[n:]:
+        ax.axis("off")
+    fig.liefi_legend_width = legend_width
+    return fig, cells[:n]
+
+
+def finish_panel_grid(fig, axes, title, path, *, legend_fontsize=7):
+    """One legend for every panel on the right (each label once), the title, a tight layout; saves to ``path``."""
+    entries = {}
+    for ax in axes:
+        for h, lab in zip(*ax.get_legend_handles_labels()):
+            entries.setdefault(lab, h)
+    fig.legend(list(entries.values()), list(entries), loc="center right", fontsize=legend_fontsize)
+    fig.suptitle(title)
+    fig.tight_layout(rect=(0, 0, 1 - fig.liefi_legend_width / fig.get_figwidth(), 0.95))
+    return save(fig, path)
+
+
 def figure(fig, width, height):
     """``fig``, or a new figure of the given size when ``fig`` is ``None``."""
     return new_figure(width, height) if fig is None else fig

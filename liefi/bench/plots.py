@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-import json
-import math
 import os
 
 import numpy as np
+
+from ..plotting import finish_panel_grid, panel_grid
 
 # ======================================================================================
 # plots
@@ -75,24 +75,14 @@ def plot(rows, out_dir, name):
     if all(not r.get("drift_orthogonality") for r in rows):  # no embedded rotation (older CSVs have zeros)
         drifts = [k for k in drifts if k != "drift_orthogonality"]
     if drifts:
-        nc = min(3, len(drifts))
-        nr = int(math.ceil(len(drifts) / nc))
-        fig, axes = plt.subplots(nr, nc, figsize=(4.6 * nc + 2, 3.6 * nr), squeeze=False)
-        for ax, k in zip(axes.flat, drifts):
+        fig, axes = panel_grid(len(drifts), legend_width=2.0)
+        for ax, k in zip(axes, drifts):
             _draw(ax, rows, "cpu_seconds", k)
             ax.axhline(1e-8, color="k", lw=0.6, ls=":")
             ax.set_title(f"max |{k[6:]} drift|", fontsize=9)
             ax.set_xlabel("CPU time [s]", fontsize=8)
-        for ax in list(axes.flat)[len(drifts):]:
-            ax.axis("off")
-        h, lab = axes.flat[0].get_legend_handles_labels()
-        fig.legend(h, lab, loc="center right", fontsize=7)
-        fig.suptitle(f"{name}: max drift of each invariant over t in [0, {T:g}] vs CPU time "
-                     "(dotted: 1e-8; exact zeros drawn at 1e-17)")
-        fig.tight_layout(rect=(0, 0, 1 - 1.9 / (4.6 * nc + 2), 0.95))
-        p = os.path.join(out_dir, f"{name}-drift.png")
-        fig.savefig(p, dpi=110)
-        plt.close(fig)
+        p = finish_panel_grid(fig, axes, f"{name}: max drift of each invariant over t in [0, {T:g}] vs CPU time "
+                              "(dotted: 1e-8; exact zeros drawn at 1e-17)", os.path.join(out_dir, f"{name}-drift.png"))
         paths.append(p)
     return paths
 
@@ -124,18 +114,11 @@ def load_curves(path):
 
 def plot_long_horizon(curves, path, name, t_final):
     """Each invariant's drift against time (log-log), one panel per invariant."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     invs = sorted({k for _, d, *_ in curves.values() for k in d})
     if not invs:
         return None
-    nc = min(3, len(invs))
-    nr = int(math.ceil(len(invs) / nc))
-    fig, axes = plt.subplots(nr, nc, figsize=(4.6 * nc + 2.6, 3.6 * nr), squeeze=False)
-    for ax, k in zip(axes.flat, invs):
+    fig, axes = panel_grid(len(invs), legend_width=2.6)
+    for ax, k in zip(axes, invs):
         for label, (t, d, cpu, m, s) in curves.items():
             if k not in d:
                 continue
@@ -146,15 +129,7 @@ def plot_long_horizon(curves, path, name, t_final):
                      fontsize=9)
         ax.set_xlabel("t", fontsize=8)
         ax.grid(True, alpha=0.3)
-    for ax in list(axes.flat)[len(invs):]:
-        ax.axis("off")
-    h, lab = axes.flat[0].get_legend_handles_labels()
-    fig.legend(h, lab, loc="center right", fontsize=6)
-    fig.suptitle(f"{name}: drift vs time to t = {t_final:g}, each method at the cost closest to the FI's "
-                 "(CPU s in the legend; exact zeros drawn at 1e-17)")
-    fig.tight_layout(rect=(0, 0, 1 - 2.5 / (4.6 * nc + 2.6), 0.95))
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return finish_panel_grid(fig, axes, f"{name}: drift vs time to t = {t_final:g}, each method at the cost closest "
+                             "to the FI's (CPU s in the legend; exact zeros drawn at 1e-17)", path, legend_fontsize=6)
 
 
