@@ -529,30 +529,40 @@ class FeedbackIntegrator:
         g, z = self.split(y)
         t = _core.evaluate(self.system, z)
         batch = y.shape[:-1]
-        names, res, grads = [], [], []
-        if self.use_constraints:
-            for i in self._J_kept:
-                names.append(f"J_{i + 1}")
-                res.append(t.J[..., i])
-                grads.append(t.dJ[..., i, :])
-        if self.use_energy:
-            E, dE = (t.ht, t.dht) if self.energy == "extended" else (t.h, t.dh)
-            names.append("energy")
-            res.append(E - self.energy_target)
-            grads.append(dE)
-        for u, tgt in zip(self.user, self.user_targets):
-            val, grad = u.value_and_grad(z)
-            names.append(u.name)
-            res.append(val - tgt)
-            grads.append(grad)
-        m = len(names)
+        terms = self.invariant_terms(z, t, self.parameters())
+        m = len(terms)
         r = np.zeros(batch + (m,))
         D = np.zeros(batch + (m, self.n))
-        for j in range(m):
-            r[..., j] = np.broadcast_to(res[j], batch)
-            D[..., j, self.nc :] = np.broadcast_to(grads[j], batch + (self.n - self.nc,))
-        k = np.array([self.gains[nm] for nm in names], dtype=float)
-        return InvariantJet(tuple(names), r, D, k)
+        for j, (_, res, grad, _) in enumerate(terms):
+            r[..., j] = np.broadcast_to(res, batch)
+            D[..., j, self.nc :] = np.broadcast_to(grad, batch + (self.n - self.nc,))
+        k = np.array([self.gains[term[0]] for term in terms], dtype=float)
+        return InvariantJet(tuple(term[0] for term in terms), r, D, k)
+
+    def invariant_terms(self, z, t, params, data=_core.NUMPY_DATA):
+        """``[(name, r_j, grad I_j, k_j), ...]``: the penalized invariants (all but the penalty) at ``z``.
+
+        The one list of the terms of ``V = 1/2 sum_j k_j r_j^2 + k0 P``: ``r_j =
+        I_j(z) - I_j0`` (shape ``(...)``), ``grad I_j = dI_j/dz`` (``(..., nz)``)
+        and the gain ``k_j``, read from ``params`` (laid out by
+        :attr:`parameter_layout`); ``t`` is :func:`liefi.reduction.core.evaluate`
+        at ``z`` with the accessor ``data``.  :meth:`field_parts`,
+        :meth:`invariant_gradients` and the split schemes' feedback step
+        (:func:`liefi.schemes.split.feedback_step`) all read it.
+        """
+        p, lay = params, self.parameter_layout
+        out = []
+        if self.use_constraints:
+            kJ = p[..., lay.J]
+            for c, i in enumerate(self._J_kept):
+                out.append((f"J_{i + 1}", t.J[..., i], t.dJ[..., i, :], kJ[..., c]))
+        if self.use_energy:
+            E, dE = (t.ht, t.dht) if self.energy == "extended" else (t.h, t.dh)
+            out.append(("energy", E - p[..., lay.energy_target], dE, p[..., lay.energy]))
+        for u, ik, it in zip(self.user, lay.user, lay.user_target):
+            val, grad = u.value_and_grad(z, data)
+            out.append((u.name, val - p[..., it], grad, p[..., ik]))
+        return out
 
     # --- V and its gradient -----------------------------------------------------------
     def field_parts(self, y, params=None, *, data=_core.NUMPY_DATA):
@@ -575,26 +585,10 @@ class FeedbackIntegrator:
 
         V = 0.0
         gz = 0.0
-        if self.use_constraints:
-            Jv, dJ = t.J, t.dJ
-            if len(self._J_kept) < sys.K:  # some J_i dropped (kept exactly by the scheme)
-                Jv = np.stack([t.J[..., i] for i in self._J_kept], -1)
-                dJ = np.stack([t.dJ[..., i, :] for i in self._J_kept], -2)
-            kJ = p[..., lay.J] * Jv
-            V = V + 0.5 * np.einsum("...k,...k->...", kJ, Jv)
-            gz = gz + np.einsum("...k,...kj->...j", kJ, dJ)
-        if self.use_energy:
-            E, dE = (t.ht, t.dht) if self.energy == "extended" else (t.h, t.dh)
-            dEv = E - p[..., lay.energy_target]
-            k = p[..., lay.energy]
-            V = V + 0.5 * k * dEv**2
-            gz = gz + np.asarray(k * dEv)[..., None] * dE
-        for u, ik, it in zip(self.user, lay.user, lay.user_target):
-            val, grad = u.value_and_grad(z, data)
-            dv = val - p[..., it]
-            k = p[..., ik]
-            V = V + 0.5 * k * dv**2
-            gz = gz + np.asarray(k * dv)[..., None] * grad
+        for _, r, grad, k in self.invariant_terms(z, t, p, data):
+            kr = k * r
+            V = V + 0.5 * kr * r
+            gz = gz + np.asarray(kr)[..., None] * grad
         gz = np.broadcast_to(gz, z.shape)
 
         if self.configuration:

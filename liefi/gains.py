@@ -68,6 +68,21 @@ only:
 * Short horizons (``N |1 - R(-z)| << 1`` for every useful ``z``): the
   contraction never acts and ``D`` grows with ``z``: ``z* = 0``, no feedback.
 
+*Split schemes* (:mod:`liefi.schemes.split`: the tableau on ``X``, then the
+linearly implicit feedback substep).  The tableau moves the residual as the
+scheme alone does (``delta(0)``: no feedback truncation error, the feedback
+is not in the stages) and the substep multiplies it by ``1/(1 + z)``:
+``e_1 = (e_0 + delta(0)) / (1 + z)``, so ``D(z) = delta(0) / z`` (long
+horizons) *decreases* for every ``z``: the larger the gain the smaller the
+drift, and the trajectory is that of the tableau on ``X`` followed by a
+Gauss--Newton step towards the invariant set (the substep's limit).  The
+accurate rate is the end of the range, ``z* = 1/sqrt(u) ~ 9.5e7``
+(:data:`SPLIT_RATE_MAX`): beyond it ``1/(1+z)`` is below ``sqrt(u)`` and the
+residual left is the ``O(r^2)`` curvature term the linear model leaves out,
+which further gain does not reduce.  This is the one regime where a feedback
+integrator keeps a quadratic invariant to rounding at the cost of the plain
+scheme plus one gradient evaluation per step.
+
 ``omega`` is the spectral radius of ``dX/dy`` (unit-invariant: eigenvalues
 survive a change of state units; it scales as 1/time), the largest over the
 states given; where it vanishes (a free motion) the horizon ``1/T`` is used.
@@ -89,26 +104,38 @@ import math
 
 import numpy as np
 
-from .schemes import ExplicitRungeKutta, get_scheme
+from .schemes import ExplicitRungeKutta
+from .schemes import registry as _registry
 from .stability import dynamics_rate, positive_number, real_stability_bound, unit_rate_gains
 
 
 #: Rounding error injected per step, relative to the state's scale (unit roundoff of float64).
 ROUNDOFF = 2.0**-53
+#: The largest rate ``z`` considered for a split scheme: ``1/sqrt(u)``.  Past it the feedback
+#: substep leaves ``1/(1 + z) < sqrt(u)`` of the residual, below the second-order term
+#: ``O(r^2)`` the linear model leaves out (module docstring, "Split schemes").
+SPLIT_RATE_MAX = 1.0 / math.sqrt(ROUNDOFF)
 
 
 def _tableau(scheme):
-    sch = get_scheme(scheme)
-    if not isinstance(sch, ExplicitRungeKutta):
+    """``(scheme, A, b, c)``: the explicit tableau of ``scheme`` (of its explicit part for a split scheme)."""
+    sch = _registry.get(scheme) if isinstance(scheme, str) else scheme
+    sch = getattr(sch, "scheme", sch)  # a split scheme bound to an integrator
+    tab = sch.explicit if getattr(sch, "kind", None) == "split" else sch
+    if not isinstance(tab, ExplicitRungeKutta):
         raise ValueError(
-            f"scheme: accurate gains are derived for explicit Runge-Kutta tableaux, got {scheme!r}; "
-            "use 'euler', 'heun', 'midpoint', 'rk3' or 'rk4'"
+            f"scheme: accurate gains are derived for explicit Runge-Kutta tableaux and the split schemes, got "
+            f"{scheme!r}; use one of {', '.join(_registry.names('explicit') + _registry.names('split'))}"
         )
-    s = sch.stages
-    A = np.array([list(r) + [0.0] * (s - len(r)) for r in sch.A], float)
-    b = np.array(sch.b, float)
+    s = tab.stages
+    A = np.array([list(r) + [0.0] * (s - len(r)) for r in tab.A], float)
+    b = np.array(tab.b, float)
     c = A.sum(axis=1)
     return sch, A, b, c
+
+
+def _is_split(sch):
+    return getattr(sch, "kind", None) == "split"
 
 
 def local_defect(scheme, z, hw):
@@ -122,6 +149,8 @@ def local_defect(scheme, z, hw):
     p = sch.order
     z = np.atleast_1d(np.asarray(z, float))
     out = np.zeros(z.shape)
+    if _is_split(sch):  # the tableau acts on X alone: the feedback substep adds no truncation error
+        z = np.zeros_like(z)
     M = np.eye(s)[None] + z[:, None, None] * A[None]  # (nz, s, s)
     for l in range(2, p + 2):
         eps = b @ c ** (l - 1) / math.factorial(l - 1) - 1.0 / math.factorial(l)
@@ -139,7 +168,10 @@ def drift_bound(scheme, z, hw, n_steps):
     """
     sch, A, b, c = _tableau(scheme)
     z = np.atleast_1d(np.asarray(z, float))
-    R = np.abs(np.array([1.0 + zi * -b @ np.linalg.solve(np.eye(len(b)) + zi * A, np.ones(len(b))) for zi in z]))
+    if _is_split(sch):  # explicit tableau on X, then the residual times 1/(1 + z)
+        R = 1.0 / (1.0 + z)
+    else:
+        R = np.abs(np.array([1.0 + zi * -b @ np.linalg.solve(np.eye(len(b)) + zi * A, np.ones(len(b))) for zi in z]))
     N = float(n_steps)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         geo = np.where(np.abs(1.0 - R) < 1e-12, N, (1.0 - R**N) / (1.0 - R))
@@ -155,7 +187,9 @@ def accurate_rate(scheme, dt, omega, t_final, *, grid=4001):
     """``z* = argmin_z D(z)`` on ``[0, 0.95 beta]`` (``z = dt * kappa``; module docstring).
 
     ``omega``: the rate of the unforced motion (1/time); ``t_final``: the horizon.
-    Returns 0 when no feedback beats the scheme alone.
+    Returns 0 when no feedback beats the scheme alone.  For a split scheme
+    (``beta = inf``) the range is ``[0, SPLIT_RATE_MAX]`` and ``D`` decreases
+    on all of it: ``z* = SPLIT_RATE_MAX`` whenever feedback helps (module docstring).
     """
     dt = positive_number(dt, "dt")
     t_final = positive_number(t_final, "t_final")
@@ -163,7 +197,7 @@ def accurate_rate(scheme, dt, omega, t_final, *, grid=4001):
     if not (omega > 0 and math.isfinite(omega)):
         omega = 1.0 / t_final
     beta = real_stability_bound(scheme)
-    zmax = 0.95 * (beta if math.isfinite(beta) else 2.0)
+    zmax = 0.95 * beta if math.isfinite(beta) else SPLIT_RATE_MAX
     hw = dt * omega
     n = max(1, int(round(t_final / dt)))
     # a log grid resolves small rates (z ~ h omega) and a linear one the stability range
@@ -259,4 +293,4 @@ def accurate_gains(fi, dt, scheme="rk4", t_final=None, y=None) -> dict:
 
 
 __all__ = ["accurate_gains", "accurate_rate", "accurate_setting", "drift_bound", "exactly_kept", "local_defect",
-           "unforced_rate"]
+           "unforced_rate", "SPLIT_RATE_MAX"]

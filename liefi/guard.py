@@ -304,14 +304,15 @@ class Guard:
     # --- before -----------------------------------------------------------------------
     def before(self, y0):
         """The gains to start with (an integrator) and the pre-run checks; ``O(1)`` calls over the batch."""
-        from .stability import auto_gains, check, estimate, first_integral_defect, unit_rate_gains
+        from .stability import check, estimate, first_integral_defect, unit_rate_gains
 
         fi, dt, rep = self.fi, self.dt, self.report
-        if self.auto and not self.split:
+        if self.auto:
             from .gains import accurate_setting
 
             # the accurate rate z* (liefi.gains) for this scheme, step and horizon; adapted along
-            # the run (at that rate) only when it sits near the stability limit
+            # the run (at that rate) only when it sits near the stability limit (never for a split
+            # scheme: its feedback substep is stable at every rate)
             z, acc = accurate_setting(fi, dt, self.sch.name, self.n_steps * dt, _subsample(y0, RESOLUTION_MEMBERS))
             if self._adaptive_default:
                 self.adaptive = z >= AUTO_ADAPT_FRACTION * self.beta
@@ -319,12 +320,10 @@ class Guard:
                 self.rate = z
             rep.adaptive = self.adaptive
         rate = self.rate
-        if self.auto and not self.split and not self.adaptive:
+        if self.auto and not self.adaptive:
             run_fi = fi.with_gains(acc)
         elif self.auto and self.adaptive:
             run_fi = fi.with_gains({k: v * rate / dt for k, v in unit_rate_gains(fi, y0).items()})
-        elif self.auto:
-            run_fi = fi.with_gains(auto_gains(fi, dt, self.sch, y=y0))
         elif self.adaptive:
             lam = float(np.max(stiffness(fi, y0).lam, initial=0.0))
             s = min(1.0, rate / (dt * lam)) if lam > 0 and not self.split else 1.0
@@ -464,7 +463,7 @@ class Guard:
         """The :class:`~liefi.schemes.IntegrationError` to raise for ``exc``, with the advice appended."""
         extra = _advice(run_fi, exc.y, exc.t, self.dt, self.sch, self.beta, earlier)
         if self.split:
-            extra = (f"The split scheme {self.sch.name} solves (I + dt A Hess V) delta = dt A grad V each step; at "
-                     f"gain*dt ~ 1/eps this matrix is singular to working precision: lower the gains (or dt) so "
-                     f"that dt*lambda_max stays below ~1e12. " + extra)
+            extra = (f"The split scheme {self.sch.name} solves (I + dt K W A W^T) mu = K r through the Gram matrix of "
+                     f"the invariants' gradients each step; non-finite numbers there mean the explicit part on X "
+                     f"blew up (reduce dt) or the gains overflow (dt*gain past ~1e300). " + extra)
         return _relabel(exc, self.dt, self.sch, extra)

@@ -149,10 +149,6 @@ def _segment_runner(sch, dt, backend, names):
     split = sch.kind == "split"
     if backend not in ("numpy", "numba", "auto"):
         raise ValueError(f"backend: expected 'numpy', 'numba' or 'auto', got {backend!r}")
-    if split and backend == "numba":
-        raise ValueError(f"backend: the split scheme {sch.name!r} runs on numpy only; pass backend='numpy'")
-    if split:
-        state["backend"] = "numpy"  # "auto": the split schemes have no compiled path
 
     def run(fi_cur, y, n, s0, save_every, check_every, out=None):
         t0 = s0 * dt
@@ -209,7 +205,7 @@ def exact_drops(fi, sch, y0, *, rtol=1e-12):
     target at every member of ``y0`` (relative ``rtol``): off it, its own
     feedback is what brings it back.  ``O(1)`` evaluations (a few members).
     """
-    if getattr(sch, "kind", None) != "explicit" or not fi.invariant_names:
+    if getattr(sch, "kind", None) not in ("explicit", "split") or not fi.invariant_names:
         return {}
     from .gains import exactly_kept
     from .stability import drift_scales

@@ -36,11 +36,30 @@ def test_auto_on_rk4_is_the_accurate_gains_fixed():
     assert dt * lam == pytest.approx(z, rel=1e-9)
 
 
-def test_auto_on_split_and_euler_keeps_adapting():
+def test_auto_on_split_is_the_projection_limit_and_keeps_the_invariants_to_rounding():
+    """Split scheme: D(z) = delta(0)/z decreases, so z* = 1/sqrt(u) (liefi.gains), fixed, not adapted."""
+    from liefi.gains import SPLIT_RATE_MAX
+
     sc = scenes.get("knife-edge")
     fi = sc.integrator(gains="auto")
-    sol = _quiet(fi.run, 1e-2, 3.0, "imex-euler")
-    assert sol.stability.adaptive and sol.stability.gain_history
+    z, acc = accurate_setting(fi, 1e-2, "imex-rk4", 3.0)
+    assert z == pytest.approx(SPLIT_RATE_MAX)
+    sol = _quiet(fi.run, 1e-2, 3.0, "imex-rk4")
+    assert not sol.stability.adaptive and sol.stability.gain_history == []
+    assert sol.stability.gains == pytest.approx(acc, rel=1e-12)
+    free = _quiet(fi.with_gains(0.0).run, 1e-2, 3.0, "rk4")
+    vals = fi.invariant_values(np.moveaxis(sol.y, -1, 0))
+    vals0 = fi.invariant_values(np.moveaxis(free.y, -1, 0))
+    for name in ("J_1", "energy"):
+        ref = 0.0 if name == "J_1" else fi.energy_target
+        split_drift = np.max(np.abs(vals[name] - ref))
+        free_drift = np.max(np.abs(vals0[name] - ref))
+        assert split_drift < 1e-15 and split_drift < free_drift / 100  # to rounding, plain RK4 drifts
+
+
+def test_auto_on_euler_keeps_adapting():
+    sc = scenes.get("knife-edge")
+    fi = sc.integrator(gains="auto")
     sol = _quiet(fi.run, 1e-2, 1.0, "euler")  # Euler: z* = 1, near the limit 2: adapted at z*
     assert sol.stability.adaptive
     lam = float(liefi.stability.stiffness(fi.with_gains(sol.stability.gains), fi.y0).lam)
@@ -124,14 +143,18 @@ def test_roller_racer_drops_J2_only(backend):
     assert np.max(np.abs(vals["J_2"])) < 1e-13
 
 
-def test_not_dropped_off_target_or_on_split_schemes():
+def test_not_dropped_off_target_and_dropped_on_split_schemes():
     sc = scenes.get("vertical-disk")
     fi = sc.integrator()
     off = liefi.FeedbackIntegrator(sc.system, fi.y0, invariants=fi.user, targets={"Pi_x": fi.targets["Pi_x"] + 0.1},
                                    configuration=fi.configuration)
     sol = _quiet(off.run, 1e-3, 0.1, "rk4")
     assert "Pi_x" not in [d["name"] for d in sol.dropped] and "Pi_y" in [d["name"] for d in sol.dropped]
-    assert _quiet(fi.run, 1e-3, 0.1, "imex-euler").dropped == []
+    # a split scheme: the kept invariant's row of the Gram system decouples with a zero residual
+    sol = _quiet(fi.run, 1e-3, 0.1, "imex-euler")
+    assert {d["name"] for d in sol.dropped} == {d["name"] for d in _quiet(fi.run, 1e-3, 0.1, "rk4").dropped} != set()
+    full = _quiet(fi.run, 1e-3, 0.1, "imex-euler", drop_exact=False)
+    assert np.max(np.abs(sol.y - full.y)) < 1e-12
 
 
 def test_without_rejects_unknown_names():

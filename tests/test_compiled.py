@@ -218,6 +218,35 @@ def test_compiled_run_equals_numpy_run(name, cfg, scheme):
 
 
 @needs_numba
+@pytest.mark.parametrize("name,cfg", [("suslov", True), ("knife-edge", False), ("roller-racer", True)])
+@pytest.mark.parametrize("scheme", ["imex-euler", "imex-rk4"])
+def test_compiled_split_run_equals_numpy_run(name, cfg, scheme):
+    """The split schemes compile (the trace of ``feedback_step``): same states to 1e-12, one kernel for every gain."""
+    sc = scenes.get(name)
+    for gains in (3.0, 1e6):
+        fi = sc.integrator(None, configuration=cfg).with_gains(gains)
+        a = fi.run(sc.dt, 300 * sc.dt, scheme, save_every=7, check_stability=False)
+        b = fi.run(sc.dt, 300 * sc.dt, scheme, save_every=7, backend="numba", check_stability=False)
+        assert b.backend == "numba" and a.backend == "numpy"
+        np.testing.assert_array_equal(a.t, b.t)
+        assert rel(b.y, a.y) < TOL
+        assert b.rhs_evaluations == a.rhs_evaluations
+
+
+@needs_numba
+def test_compiled_split_ensemble_equals_numpy():
+    sc = scenes.get("suslov")
+    base = sc.integrator(None, configuration=True)
+    rng = np.random.default_rng(2)
+    Y0 = np.repeat(base.y0[None], 4, 0)
+    Y0[:, 9:] = sc.system.project(base.y0[9:] + 0.3 * rng.normal(size=(4, 3)))
+    fi = FeedbackIntegrator(sc.system, Y0, gains=50.0)
+    a = fi.run(1e-2, 1.0, "imex-rk4", save_every=10, check_stability=False)
+    b = fi.run(1e-2, 1.0, "imex-rk4", save_every=10, backend="numba", check_stability=False)
+    assert rel(b.y, a.y) < TOL
+
+
+@needs_numba
 def test_ensemble_equals_single_runs():
     """A batch of trajectories (prange over trajectories) equals the numpy batch run,
     per-trajectory targets included."""

@@ -229,6 +229,55 @@ def test_feedback_step_is_backward_euler_on_a_linear_gradient_flow():
     assert yn[1] - 1.0 == pytest.approx(2.0 / (1 + 0.1 * 1e9))
 
 
+@pytest.mark.parametrize("name,cfg", [("knife-edge", False), ("roller-racer", True), ("oscillator", False),
+                                      ("suslov", False)])
+def test_feedback_step_through_the_gram_matrix_is_the_full_solve(name, cfg):
+    """``y - dt A W^T (I + dt K W A W^T)^{-1} K r`` equals ``y - (I + dt A H)^{-1} dt A grad V`` with the
+    Gauss--Newton Hessian ``H = W^T K W`` and ``grad V`` of field_parts (a second route), to rounding."""
+    sc = scenes.get(name)
+    fi0 = sc.integrator(configuration=cfg)
+    rng = np.random.default_rng(3)
+    y = fi0.y0 + 1e-2 * rng.standard_normal(fi0.n)
+    n = fi0.n - fi0.nc
+    A = np.eye(n) + 0.2 * np.diag(rng.uniform(size=n - 1), 1)  # non-symmetric, A + A^T > 0
+    for fi in (fi0.with_gains({k: 2.0 + i for i, k in enumerate(fi0.invariant_names)}),
+               FeedbackIntegrator(fi0.system, fi0.y0[fi0.nc:], invariants=(["constraints", "energy"] + fi0.user),
+                                  gains=7.0, A=A, configuration=False)):
+        yy = y[-fi.n:]
+        for dt in (1e-3, 0.1, 10.0):
+            jet = fi.invariant_gradients(yy)
+            H = np.einsum("mi,m,mj->ij", jet.grad, jet.gains, jet.grad)
+            AA = np.eye(fi.n) if fi.A is None else fi.A
+            ref = yy - np.linalg.solve(np.eye(fi.n) + dt * AA @ H, dt * AA @ fi.grad_lyapunov(yy))
+            got = stiff.feedback_step(fi, yy, dt)
+            assert np.max(np.abs(got - ref)) <= 1e-13 * max(1.0, np.max(np.abs(yy)))
+
+
+def test_feedback_step_on_the_penalty_is_newton_schulz_in_the_limit():
+    """``g - dt k0 grad P / (1 + 2 dt k0)`` -> ``R (3I - R^T R)/2``: the defect of R^T R = I squares."""
+    sc = scenes.get("suslov")
+    fi = sc.integrator(configuration=True).with_gains({"penalty": 1e12, "J_1": 0.0, "energy": 0.0})
+    G = fi.system.space.group
+    y = fi.y0.copy()
+    R = y[:9].reshape(3, 3) + 1e-4 * np.random.default_rng(4).standard_normal((3, 3))
+    y[:9] = R.reshape(-1)
+    yn = stiff.feedback_step(fi, y, 0.1)
+    np.testing.assert_allclose(yn[:9].reshape(3, 3), R @ (3 * np.eye(3) - R.T @ R) / 2, atol=1e-11)
+    d0 = np.linalg.norm(R.T @ R - np.eye(3))
+    Rn = yn[:9].reshape(3, 3)
+    assert np.linalg.norm(Rn.T @ Rn - np.eye(3)) < 10 * d0**2
+    np.testing.assert_array_equal(yn[9:], y[9:])  # zero gains: the reduced block does not move
+    assert G.penalty(yn[:9]) < 1e-6 * G.penalty(y[:9])  # P ~ d^2 -> d^4
+
+
+def test_split_with_A_and_a_penalty_is_refused_by_name():
+    sc = scenes.get("suslov")
+    fi0 = sc.integrator(configuration=True)
+    fi = FeedbackIntegrator(fi0.system, fi0.y0, A=np.eye(fi0.n))
+    with pytest.raises(ValueError, match="A: the split schemes"):
+        stiff.feedback_step(fi, fi.y0, 0.1)
+
+
 def test_split_scheme_is_stable_at_any_gain():
     ke = scenes.get("knife-edge")
     with pytest.raises(ValueError):

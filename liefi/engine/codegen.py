@@ -119,8 +119,12 @@ def _coeff_source(scheme):
     return L
 
 
-def loop_source(fname, scheme, N, *, project=False):
+def loop_source(fname, scheme, N, *, project=False, split=False):
     """Source of the fixed-step loop of one trajectory (and its batch version ``fname + '_batch'``).
+
+    ``scheme`` is an explicit tableau.  With ``split`` it steps ``xrhs`` (the
+    extended field ``X``) and follows every step by the feedback substep
+    ``fstep(y, p, hh, out)`` of a split scheme (:mod:`liefi.schemes.split`).
 
     ``fname(y0, p, dt, n_steps, save_every, check_every, out, bad, last, pp, maxit, tol)``
     returns ``(failed_step, last_good_step, projection_evaluations)``; ``failed_step == 0``
@@ -134,6 +138,8 @@ def loop_source(fname, scheme, N, *, project=False):
     for i in range(S):
         L.append(f"    k{i} = np.empty({N})")
     L += ["    yi = np.empty(%d)" % N]
+    if split:
+        L += ["    hh = np.empty(1)", "    hh[0] = dt"]
     if project:
         L += ["    buf = np.empty(PROJ_SIZE)", "    GG = np.empty((PROJ_M, PROJ_M))", "    lam = np.empty(PROJ_M)"]
     L += _coeff_source(scheme)
@@ -146,7 +152,9 @@ def loop_source(fname, scheme, N, *, project=False):
         "    nproj = 0",
         "    for step in range(1, n_steps + 1):",
     ]
-    L += _step_source(scheme, N)
+    L += _step_source(scheme, N, rhs="xrhs" if split else "rhs")
+    if split:
+        L += ["        fstep(y, p, hh, yi)", f"        for i in range({N}):", "            y[i] = yi[i]"]
     if project:
         L.append("        nproj += project(y, pp, buf, GG, lam, maxit, tol)")
     L += [
@@ -282,6 +290,18 @@ def loops_source(N, *, projection=False):
         if projection:
             src.append(loop_source(f"run_{sch.name}_proj", sch, N, project=True))
     return "\n".join(src)
+
+
+def split_loops_source(N):
+    """The loops of the split schemes of :mod:`liefi.schemes.split` (``run_imex_euler``, ...)."""
+    from ..schemes.split import SPLIT_SCHEMES
+
+    return "\n".join(loop_source(split_loop_name(s), s.explicit, N, split=True) for s in SPLIT_SCHEMES.values())
+
+
+def split_loop_name(scheme):
+    """The generated loop's name of a split scheme: ``imex-rk4`` -> ``run_imex_rk4``."""
+    return "run_" + scheme.name.replace("-", "_")
 
 
 def project_source(N, m):

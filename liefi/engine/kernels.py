@@ -28,7 +28,7 @@ import weakref
 import numpy as np
 
 from . import cache as _cache
-from .codegen import NJIT, dla_loop_source, function_source, loops_source, project_source
+from .codegen import NJIT, dla_loop_source, function_source, loops_source, project_source, split_loops_source
 from .runners import CompiledDLA, CompiledField
 from .trace import TRACED_DATA, CompilationWarning, NotCompilable, as_sym, jacobian, trace, traced_call
 
@@ -118,6 +118,32 @@ def compile_feedback(fi, *, feedback=True, engine=None):
         return src, size, "feedback" if feedback else "extended", 0
 
     return _field_kernel(fi, "feedback" if feedback else "extended", engine, make)
+
+
+def compile_split(fi, *, engine=None):
+    """The compiled split schemes (``imex-*``, :mod:`liefi.schemes.split`) of a :class:`~liefi.FeedbackIntegrator`.
+
+    The module holds ``xrhs``, the trace of
+    :meth:`~liefi.FeedbackIntegrator.unforced_vector_field` (``X`` alone, no
+    ``grad V``), ``fstep``, the trace of :func:`liefi.schemes.split.feedback_step`
+    at a symbolic state, parameter vector and step, and one loop per split scheme:
+    the tableau on ``xrhs``, then ``fstep`` once per step.  Run with
+    ``run(y0, fi.parameters(), dt, n_steps, "imex-rk4")``.
+    """
+    from ..schemes.split import feedback_step
+
+    def make(tr):
+        y = tr.symbols("y", fi.n)
+        size = fi.parameter_layout.size
+        p = tr.symbols("p", size)
+        h = tr.symbols("hh", 1)[0]
+        x = traced_call("the extended field", fi.unforced_vector_field, y, p, data=TRACED_DATA)
+        yn = traced_call("the feedback step", feedback_step, fi, y, h, p, data=TRACED_DATA)
+        src = (NJIT + function_source("xrhs", x) + "\n\n" + NJIT + function_source("fstep", yn, ("y", "p", "hh", "out"))
+               + "\n\n" + split_loops_source(fi.n))
+        return src, size, "split", 0
+
+    return _field_kernel(fi, "split", engine, make)
 
 
 def _constrained_field(fi, y):
@@ -290,8 +316,9 @@ def run_feedback(fi, dt, n_steps, scheme, y0, save_every, check_every, backend):
         return None
     y0 = fi.y0 if y0 is None else y0
     try:
-        cf = compile_feedback(fi)
-        cf.warmup(get_scheme(scheme), batch=np.ndim(y0) > 1)
+        sch = get_scheme(scheme)
+        cf = compile_split(fi) if getattr(sch, "kind", None) == "split" else compile_feedback(fi)
+        cf.warmup(sch, batch=np.ndim(y0) > 1)
     except NotCompilable as exc:
         _say(f"liefi: the compiled engine cannot run this system ({exc}); running the numpy path.",
              ("nc", id(fi.system)))
@@ -300,5 +327,5 @@ def run_feedback(fi, dt, n_steps, scheme, y0, save_every, check_every, backend):
         _say(f"liefi: the compiled kernel could not be built or loaded ({type(exc).__name__}: {exc}); "
              "running the numpy path.", ("load", id(fi.system), type(exc).__name__))
         return None
-    return cf.run(y0, fi.parameters(), dt, n_steps, scheme, save_every=save_every,
+    return cf.run(y0, fi.parameters(), dt, n_steps, sch, save_every=save_every,
                   check_every=check_every, names=fi.names)

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import cache as _cache
+from .codegen import split_loop_name
 
 
 class KernelLoadError(RuntimeError):
@@ -69,6 +70,13 @@ class _Overhead:
         self._reported = total
         return new
 
+
+
+def loop_name(sch):
+    """The generated loop of a scheme: ``run_rk4``; a split scheme's ``run_imex_rk4`` (:mod:`.codegen`)."""
+    if getattr(sch, "kind", None) == "split":
+        return split_loop_name(sch)
+    return f"run_{sch.name}"
 
 @dataclass
 class CompiledField(_Overhead):
@@ -139,7 +147,7 @@ class CompiledField(_Overhead):
         from ..schemes import get_scheme
 
         sch = get_scheme(scheme)
-        fname = f"run_{sch.name}" + ("_proj" if project else "")
+        fname = loop_name(sch) + ("_proj" if project else "")
         key = fname + ("_batch" if batch else "")
         if key in self.compile_seconds:
             return self.compile_seconds[key]
@@ -193,7 +201,7 @@ class CompiledField(_Overhead):
         batch = y0.shape[:-1]
         p = np.asarray(p, dtype=float)
         pp = np.atleast_1d(np.asarray(project if project is not None else [0.0], dtype=float))
-        fname = f"run_{sch.name}" + ("_proj" if project is not None else "")
+        fname = loop_name(sch) + ("_proj" if project is not None else "")
         compile_s = 0.0
         if batch == ():
             if p.ndim != 1:

@@ -12,11 +12,27 @@ into its two terms (the two "terms" of a diffrax ``MultiTerm``):
    ``y' = -A grad V(y)`` from ``y*``:
 
    .. math:: y_+ = y_* - \Delta t\,(I + \Delta t\, A H)^{-1} A \nabla V(y_*),
-             \qquad H = \sum_j k_j \nabla I_j \nabla I_j^T + k_0 \nabla^2 P,
+             \qquad H = W^T K W + k_0 \nabla^2 P,
 
-   with the Gauss--Newton Hessian ``H`` of ``V``: exact on the invariant set
-   ``V = 0``, where the terms ``(I_j - I_j0) Hess I_j`` vanish (``P`` is the
-   embedding penalty, whose Hessian is taken exactly, by complex step).
+   with the Gauss--Newton Hessian ``H`` of ``V`` (``W`` the rows
+   ``grad I_j``, ``K = diag(k_j)``): exact on the invariant set ``V = 0``,
+   where the terms ``(I_j - I_j0) Hess I_j`` vanish.
+
+   **Solved through the small Gram matrix.**  The invariants' rows vanish on
+   the group block, so ``H`` is block diagonal.  On the reduced block the
+   push-through identity ``(I + dt A W^T K W)^{-1} A W^T = A W^T (I + dt K W A
+   W^T)^{-1}`` turns the ``n x n`` solve into an ``m x m`` one (``m`` the
+   number of invariants, 1 to 4):
+
+   .. math:: \delta_z = \Delta t\, A W^T \mu, \qquad
+             (I_m + \Delta t\, K\, W A W^T)\, \mu = K r .
+
+   On the group block the penalty's Hessian on the group is ``2`` on the
+   symmetric directions ``R S`` and ``grad P = R (R^T R - I)`` is such a
+   direction to first order, so ``delta_g = dt k0 grad P / (1 + 2 dt k0)``
+   (as ``dt k0`` grows this is the Newton--Schulz step
+   ``R (3 I - R^T R) / 2`` towards the nearest rotation).  With a penalty
+   the block structure needs ``A = None``.
 
 For the linear model ``y' = -lambda y`` the second step multiplies by
 ``1 / (1 + dt lambda)``: stable for **every** gain and step, and the stiffest
@@ -30,7 +46,17 @@ of ``X``), so the splitting error is of the size of the drift the feedback
 removes and the trajectory error is that of the explicit tableau on ``X``.
 
 Cost per step: the tableau's stages of ``X`` plus one evaluation of the
-invariants' gradients and one ``n x n`` solve (``n`` is the state size).
+invariants' gradients and one ``m x m`` solve -- against the stages of
+``X - A grad V`` for the explicit tableau: the feedback is paid once per step,
+not once per stage.  The compiled engine runs these schemes too
+(:func:`liefi.engine.compile_split`: the trace of :func:`feedback_step`).
+
+Gains.  ``gains="auto"`` takes the rate ``z = dt k |grad I|^2`` of
+:mod:`liefi.gains` for a split scheme: the residual after a step is
+``(r + delta)/(1 + z)``, so the drift bound falls for every ``z`` and the
+accurate rate is ``1/sqrt(u)`` -- the substep is then one Gauss--Newton step
+onto the invariant set, and the invariants stay at rounding for the price of
+the tableau on ``X`` plus one gradient evaluation.
 
 Use them by name: ``FeedbackIntegrator.run(dt, T, scheme="imex-euler")``,
 ``Scene.run(scheme="imex-rk4")``; the registry lists them
@@ -46,6 +72,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import _diff
+from ..reduction import core as _core
 from .rk import EULER, HEUN, RK4, ExplicitRungeKutta
 
 
@@ -68,8 +95,8 @@ class LinearlyImplicitSplit:
     real_stability_bound = float("inf")
     #: Stable for every gain and step (the feedback substep is A-stable).
     stiff_safe = True
-    #: ``dt lambda_max`` targeted by automatic gains: the feedback substep damps the
-    #: stiffest mode by ``1/(1 + 10)`` per step.
+    #: ``dt lambda_max`` of the contraction gains (:func:`liefi.stability.auto_gains`; ``gains="auto"``
+    #: takes the accurate rate of :mod:`liefi.gains` instead): the substep damps the stiffest mode by 1/11.
     optimal_rate = 10.0
 
     @property
@@ -161,22 +188,52 @@ def feedback_hessian(fi, y, jet=None):
     return gradV, H
 
 
-def feedback_step(fi, y, dt):
-    """One linearly implicit Euler step of ``y' = -A grad V(y)``: ``y - dt (I + dt A H)^{-1} A grad V``."""
-    y = np.asarray(y, dtype=float)
-    gradV, H = feedback_hessian(fi, y)
-    n = y.shape[-1]
-    if fi.A is not None:
-        gradV = np.einsum("ij,...j->...i", fi.A, gradV)
-        H = np.einsum("ij,...jk->...ik", fi.A, H)
-    M = np.eye(n) + dt * H
-    with np.errstate(all="ignore"):
-        try:
-            delta = np.linalg.solve(M, (dt * gradV)[..., None])[..., 0]
-        except np.linalg.LinAlgError:
-            # I + dt A H singular to working precision (dt * gain ~ 1/eps): no meaningful step.
-            # Non-finite values make the run's check raise IntegrationError with the time.
-            return np.full(y.shape, np.nan)
+def feedback_step(fi, y, dt, params=None, *, data=_core.NUMPY_DATA):
+    """One linearly implicit Euler step of ``y' = -A grad V(y)``: ``y - dt (I + dt A H)^{-1} A grad V``.
+
+    Solved through the ``m x m`` Gram matrix of the invariants' gradients
+    (module docstring).  ``params`` (default ``fi.parameters()``) and ``data`` as
+    in :meth:`liefi.FeedbackIntegrator.field_parts`: the compiled engine traces
+    this function with a symbolic state, parameter vector and step.
+    """
+    y = _core.as_real(y)
+    p = fi.parameters() if params is None else params
+    if fi.A is not None and fi.use_penalty:
+        raise ValueError(
+            "A: the split schemes solve the feedback step block by block and need A=None on a system "
+            "with an embedding penalty; use an explicit scheme (euler, heun, rk4) or scheme='scipy:Radau'"
+        )
+    g, z = fi.split(y)
+    batch = y.shape[:-1]
+    terms = fi.invariant_terms(z, _core.evaluate(fi.system, z, data=data), p, data)
+    nz = z.shape[-1]
+    delta = np.zeros(y.shape, dtype=y.dtype)
+    if terms:
+        W = np.stack([np.broadcast_to(gr, batch + (nz,)) for _, _, gr, _ in terms], -2)  # (..., m, nz)
+        kk = np.stack([np.broadcast_to(k, batch) for *_, k in terms], -1)  # (..., m)
+        kr = np.stack([np.broadcast_to(k * r, batch) for _, r, _, k in terms], -1)
+        Az = None if fi.A is None else fi.A[:, fi.nc :]  # the columns that act on the reduced block
+        AWt = np.swapaxes(W, -1, -2) if Az is None else np.einsum("ij,...mj->...im", Az, W)  # (..., n or nz, m)
+        WAWt = W @ (AWt if Az is None else AWt[..., fi.nc :, :])
+        M = np.eye(len(terms)) + dt * kk[..., :, None] * WAWt
+        with np.errstate(all="ignore"):
+            try:
+                mu = np.linalg.solve(M, kr[..., None])[..., 0]
+            except np.linalg.LinAlgError:
+                # I + dt K W A W^T singular to working precision (dt * gain ~ 1/eps): no meaningful step.
+                # Non-finite values make the run's check raise IntegrationError with the time.
+                return np.full(y.shape, np.nan)
+        dz = dt * np.einsum("...im,...m->...i", AWt, mu)
+        if Az is None:
+            delta = np.concatenate([np.zeros(batch + (fi.nc,), dtype=dz.dtype), dz], -1)
+        else:
+            delta = dz
+    if fi.use_penalty:
+        G = fi.system.space.group
+        k0 = p[..., fi.parameter_layout.penalty]
+        c = dt * k0 / (1.0 + G.penalty_hessian_bound() * dt * k0)
+        dg = np.asarray(c)[..., None] * G.penalty_grad(g)
+        delta = delta + np.concatenate([np.broadcast_to(dg, batch + (fi.nc,)), np.zeros(batch + (nz,))], -1)
     return y - delta
 
 
