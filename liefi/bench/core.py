@@ -81,7 +81,7 @@ from .. import engine as _engine
 from .. import scenes as _scenes
 from ..sweep import ResultStore, SweepInterrupted, TaskError, run_sweep
 
-FIXED_SCHEMES = ("euler", "heun", "rk4")
+FIXED_SCHEMES = ("euler", "heun", "rk4", "imex-euler", "imex-heun", "imex-rk4")
 IVP_METHODS = ("RK45", "DOP853", "LSODA")
 METHODS = ("FI", "FI-tuned", "FI-accurate", "FI/solve_ivp", "no-feedback", "constrained", "projection", "DLA")
 #: the gains of the ``FI`` rows: ``None`` is the scene's own (the paper's) gains, a number k is k on every
@@ -134,7 +134,7 @@ def build_tasks(scene, t_final, *, variant=None, dts=None, rtols=None, methods=N
               "n_save": int(n_save), "gain": None}
     from ..schemes import get as _scheme
 
-    # a split imex-* scheme treats the feedback term implicitly: it is a feedback integrator only
+    # a split imex-* scheme steps the feedback field: it is a feedback integrator only
     split = [s for s in schemes if _scheme(s).kind == "split"]
     explicit = [s for s in schemes if s not in split]
     tasks = []
@@ -146,7 +146,10 @@ def build_tasks(scene, t_final, *, variant=None, dts=None, rtols=None, methods=N
             tasks += [dict(common, method=m, scheme=s, dt=float(dt), rtol=None) for s in schemes for dt in dts]
         elif m in ("no-feedback", "projection"):
             tasks += [dict(common, method=m, scheme=s, dt=float(dt), rtol=None) for s in explicit for dt in dts]
-        elif m in ("FI/solve_ivp", "constrained"):
+        elif m == "FI/solve_ivp":
+            tasks += [dict(common, method=m, scheme=s, dt=None, rtol=float(r), gain=k)
+                      for k in gains for s in ivp_methods for r in rtols]
+        elif m == "constrained":
             tasks += [dict(common, method=m, scheme=s, dt=None, rtol=float(r)) for s in ivp_methods for r in rtols]
         elif m == "DLA":
             tasks += [dict(common, method=m, scheme="dla", dt=float(dt), rtol=None) for dt in dts]
@@ -194,23 +197,10 @@ def run_task(task):
         sc, v, fi = _integrator(task)
         method, scheme, T = task["method"], task["scheme"], task["t_final"]
         w = time.perf_counter()
-        if method in ("FI", "FI-tuned", "FI-accurate") and _split_scheme(scheme):
-            # the split schemes (linearly implicit feedback step) run on the numpy path of the run module
+        if method in ("FI", "FI-tuned", "FI-accurate", "no-feedback", "projection"):
             n, se = _steps(T, task["dt"], task["n_save"])
-            if method == "FI-tuned":
-                from ..stability import auto_gains
-
-                fi = fi.with_gains(auto_gains(fi, task["dt"], scheme, y=fi.y0, t_final=T))
-            elif method == "FI-accurate":
-                out.update(status="not-applicable", message="accurate gains are derived for explicit tableaux")
-                return out
-            elif task.get("gain") is not None:
-                fi = fi.with_gains(task["gain"])
-            out["compile_seconds"] = time.perf_counter() - w
-            sol = fi.run(task["dt"], T, scheme, save_every=se, backend="numpy", check_stability=False)
-            out.update(t=sol.t, y=sol.y, cpu_seconds=sol.cpu_seconds, rhs_evaluations=sol.rhs_evaluations, steps=n)
-        elif method in ("FI", "FI-tuned", "FI-accurate", "no-feedback", "projection"):
-            n, se = _steps(T, task["dt"], task["n_save"])
+            # a split scheme (explicit tableau on X, then the feedback substep) has its own kernel
+            compile_fi = _engine.compile_split if _split_scheme(scheme) else _engine.compile_feedback
             if method == "projection":
                 cf = _engine.compile_constrained(fi, projection=True)
                 p, proj = np.zeros(0), _engine.projection_targets(fi)
@@ -219,7 +209,7 @@ def run_task(task):
 
                 fi = fi.with_gains(auto_gains(fi, task["dt"], scheme, y=fi.y0, t_final=T))
                 out["message"] = "gains " + ", ".join(f"{k}={v:.3g}" for k, v in fi.gains.items())
-                cf = _engine.compile_feedback(fi)
+                cf = compile_fi(fi)
                 p, proj = _engine.parameters(fi), None
             elif method == "FI-accurate":
                 from ..gains import accurate_gains, exactly_kept
@@ -233,12 +223,14 @@ def run_task(task):
                                message=f"accurate gains are zero on {zero or list(g)}: that is the no-feedback method")
                     return out
                 fi = fi.with_gains(g)
-                cf = _engine.compile_feedback(fi)
+                if kept:  # left out of V, as a default run does (liefi.run.exact_drops)
+                    fi = fi.without({k: "kept exactly by the scheme" for k in kept})
+                cf = compile_fi(fi)
                 p, proj = _engine.parameters(fi), None
             else:
                 if method == "FI" and task.get("gain") is not None:
                     fi = fi.with_gains(task["gain"])
-                cf = _engine.compile_feedback(fi, feedback=method == "FI")
+                cf = compile_fi(fi) if method == "FI" else _engine.compile_feedback(fi, feedback=False)
                 p, proj = _engine.parameters(fi), None
             cf.warmup(scheme, project=proj is not None)
             out["compile_seconds"] = time.perf_counter() - w
@@ -247,6 +239,8 @@ def run_task(task):
                        projection_evaluations=getattr(sol, "projection_evaluations", 0))
         elif method in ("FI/solve_ivp", "constrained"):
             if method == "FI/solve_ivp":
+                if task.get("gain") is not None:
+                    fi = fi.with_gains(task["gain"])
                 cf = _engine.compile_feedback(fi)
                 fun = cf.fun(_engine.parameters(fi))
             else:

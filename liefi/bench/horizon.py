@@ -99,7 +99,7 @@ def long_horizon(rows, out_dir=None, executor=None, *, t_final=1e4, n_save=2000,
 HORIZONS = (1e2, 2e2, 5e2, 1e3, 2e3, 5e3, 1e4, 2e4, 5e4, 1e5, 2e5, 5e5, 1e6)
 
 
-def horizon_tasks(scene, t_final=1e5, *, dts=None, schemes=("rk4",), gains=FI_GAINS, n_save=10000,
+def horizon_tasks(scene, t_final=1e5, *, dts=None, schemes=("rk4", "imex-rk4"), gains=FI_GAINS, n_save=10000,
                   configuration=True):
     """The long runs of :func:`crossover`: every compiled fixed-step family (``FI`` with each gain,
     ``FI-accurate`` with the gains for this horizon, ``no-feedback``, ``projection``) with ``schemes`` at steps ``dts`` (default ``scene.dt * (8, 4, 2, 1)``),

@@ -72,6 +72,15 @@ class _Overhead:
 
 
 
+def _loop_scheme(scheme):
+    """The scheme object of a compiled loop: an explicit tableau or a split scheme (by name or object)."""
+    from ..schemes import registry
+
+    if isinstance(scheme, str):
+        return registry.get(scheme, kind=("explicit", "split"))
+    return getattr(scheme, "scheme", scheme)  # a split scheme bound to an integrator
+
+
 def loop_name(sch):
     """The generated loop of a scheme: ``run_rk4``; a split scheme's ``run_imex_rk4`` (:mod:`.codegen`)."""
     if getattr(sch, "kind", None) == "split":
@@ -144,9 +153,7 @@ class CompiledField(_Overhead):
 
     def warmup(self, scheme="euler", *, batch=False, project=False):
         """Compile the loop of ``scheme`` now (the first call of a numba function compiles it)."""
-        from ..schemes import get_scheme
-
-        sch = get_scheme(scheme)
+        sch = _loop_scheme(scheme)
         fname = loop_name(sch) + ("_proj" if project else "")
         key = fname + ("_batch" if batch else "")
         if key in self.compile_seconds:
@@ -185,7 +192,7 @@ class CompiledField(_Overhead):
         """
         from ..schemes import Solution, _fail, run_arguments
 
-        sch, dt, n_steps, save_every = run_arguments(scheme, dt, n_steps, save_every)
+        sch, dt, n_steps, save_every = run_arguments(_loop_scheme(scheme), dt, n_steps, save_every)
         check_every = max(1, int(check_every))
         if project is not None and not self.projection:
             raise ValueError("project: this compiled field has no invariant residuals (compile it with projection=True)")
