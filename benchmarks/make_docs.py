@@ -19,7 +19,8 @@ for ``solve_ivp``; ``FI/solve_ivp`` with LSODA only (RK45 and DOP853 on the
 stiff FI field cost minutes per run and never win).
 
 ``long`` runs every compiled fixed-step family (FI with k = 0.1 and 1,
-``FI-accurate``, no-feedback, projection) with RK4 at ``dt * (8, 4)`` to ``--t-final`` and
+``FI-accurate``, no-feedback, projection) with RK4 and the split ``imex-rk4``
+(``--schemes``; projection and no-feedback with RK4 only) at ``dt * (8, 4)`` to ``--t-final`` and
 writes ``long-<T>.sqlite``, ``crossover.json`` and ``<scene>-cost-horizon.png``.
 """
 
@@ -87,7 +88,7 @@ def long(a, names):
             sc = scenes.get(name)
             gains = tuple(None if g == "scene" else float(g) for g in a.gains.split(","))
             tasks = bench.horizon_tasks(sc, a.t_final, dts=[sc.dt * f for f in factors], n_save=a.n_save,
-                                        gains=gains)
+                                        gains=gains, schemes=tuple(a.schemes.split(",")))
             if a.methods:
                 tasks = [t for t in tasks if t["method"] in a.methods.split(",")]
             log(f"{name}: {len(tasks)} runs to t = {a.t_final:g}")
@@ -154,6 +155,7 @@ def main(argv=None):
     ap.add_argument("--dts", default="8,4", help="long: steps as multiples of the scene's dt")
     ap.add_argument("--gains", default="0.1,1", help="long: fixed FI gains ('scene': the scene's)")
     ap.add_argument("--methods", default=None, help="long: only these families (FI,no-feedback,projection)")
+    ap.add_argument("--schemes", default="rk4,imex-rk4", help="long: the fixed-step schemes (default rk4,imex-rk4)")
     ap.add_argument("--n-save", type=int, default=10000, dest="n_save")
     ap.add_argument("--scheduler", default="processes:2")
     a = ap.parse_args(argv)
