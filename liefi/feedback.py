@@ -223,9 +223,10 @@ class FeedbackIntegrator:
         unit-invariant: the same physics in other units gives the same relative
         trajectory.  The gains are fixed along the run unless ``z*`` reaches a
         quarter of the scheme's stability bound (Euler), where they are adapted
-        at the rate ``z*`` (``adaptive=``).  On the stiff-safe split schemes
-        (``imex-*``) ``"auto"`` keeps the contraction rate of
-        :func:`liefi.stability.auto_gains`, adapted along the run.
+        at the rate ``z*`` (``adaptive=``).  On the split schemes (``imex-*``) the
+        feedback step maps ``r -> (r + delta(0))/(1 + z)``: ``D`` falls for every
+        ``z``, and ``"auto"`` takes ``z* = 1/sqrt(u)`` (a Gauss--Newton step onto
+        the invariant set; :data:`liefi.gains.SPLIT_RATE_MAX`), fixed along the run.
     energy : {"extended", "original"}
         Penalize ``h~`` (default, the paper's main choice) or ``h`` (its Remarks).
     configuration : bool
@@ -663,8 +664,11 @@ class FeedbackIntegrator:
         numpy path runs.
 
         ``scheme``: a tableau of :mod:`liefi.schemes` (``"euler"``, ``"rk4"``, ...)
-        or a stiff-safe split scheme of :mod:`liefi.schemes.split` (``"imex-euler"``,
-        ``"imex-heun"``, ``"imex-rk4"``: stable for any gain).
+        or a split scheme of :mod:`liefi.schemes.split` (``"imex-euler"``,
+        ``"imex-heun"``, ``"imex-rk4"``: the tableau on ``X``, then one linearly
+        implicit feedback step through the Gram matrix of the invariants'
+        gradients; stable for any gain, and with ``gains="auto"`` a Gauss--Newton
+        step onto the invariant set that keeps the invariants at rounding).
 
         Stability (:mod:`liefi.stability`).  ``check_stability`` (default True):
         before the run, estimate ``dt * lambda_max(A Hess V)`` at the start (one
@@ -684,8 +688,8 @@ class FeedbackIntegrator:
         (:func:`liefi.gains.exactly_kept`: a first integral with a constant
         gradient ``a`` that no other feedback term moves, so ``a . y_{n+1} = a . y_n``;
         e.g. the vertical disk's momenta, the roller racer's ``J_2``) and that
-        starts on its target is left out of ``V`` for an explicit tableau
-        (:meth:`without`): its feedback term vanishes identically and only
+        starts on its target is left out of ``V`` for an explicit tableau or a
+        split scheme (:meth:`without`): its feedback term vanishes identically and only
         costs work.  ``solution.dropped`` lists ``{"name", "reason"}`` (also in a
         scene's ``RunResult`` and ``liefi run --json``); the invariant is still
         monitored.  ``drop_exact=False`` keeps every term.
