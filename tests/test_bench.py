@@ -444,3 +444,22 @@ def test_split_schemes_are_feedback_integrator_rows_of_the_harness():
     from liefi.bench.cli import _schemes
 
     assert _schemes("rk4,imex-rk4,LSODA") == (("rk4", "imex-rk4"), ("LSODA",))
+
+
+@pytest.mark.skipif(not engine.available(), reason="numba not installed")
+def test_split_accurate_rows_run_compiled_and_keep_the_invariants_at_rounding():
+    """FI-accurate with imex-rk4: the compiled split kernel, gains at the rate 1/sqrt(u), drift at rounding where
+    plain RK4 at the same step drifts; FI/solve_ivp rows carry the grid's gains."""
+    base = dict(scene="suslov", variant=None, rtol=None, t_final=50.0, configuration=True, n_save=50, gain=None,
+                dt=8e-3)
+    split = bench.run_task(dict(base, method="FI-accurate", scheme="imex-rk4"))
+    plain = bench.run_task(dict(base, method="no-feedback", scheme="rk4"))
+    assert split["status"] == plain["status"] == "ok", split["message"]
+    assert split["rhs_evaluations"] == 5 * split["steps"]  # four stages of X and the feedback step
+    _, _, fi = bench.core._integrator(split)
+    d_split = max(float(np.max(v)) for v in bench.core.invariant_drifts(fi, split["y"]).values())
+    d_plain = max(float(np.max(v)) for v in bench.core.invariant_drifts(fi, plain["y"]).values())
+    assert d_split < 1e-14 and d_plain > 100 * d_split
+    tasks = bench.build_tasks("chaplygin", 10.0, methods=("FI/solve_ivp",), ivp_methods=("LSODA",), rtols=(1e-6,),
+                              gains=(None, 0.1))
+    assert sorted(str(t["gain"]) for t in tasks) == ["0.1", "None"]
