@@ -67,7 +67,8 @@ def test_auto_on_euler_keeps_adapting():
     assert 1e-2 * lam == pytest.approx(1.0, rel=1e-2)  # Bae & Chang's deadbeat rate (on the rate grid)
 
 
-def test_auto_is_unit_invariant():
+@pytest.mark.parametrize("scheme", ["rk4", "imex-rk4"])
+def test_auto_is_unit_invariant(scheme):
     """Suslov with momenta in other units (P -> s P, metric m -> s m): the same relative trajectory under auto."""
     sc = scenes.get("suslov")
     fi1 = sc.integrator(gains="auto", configuration=True)
@@ -77,7 +78,7 @@ def test_auto_is_unit_invariant():
     y2[9:] *= s
     fi2 = liefi.FeedbackIntegrator(sys2, y2, gains="auto")
     dt, T = 1e-2, 20.0
-    a, b = fi1.run(dt, T, "rk4"), fi2.run(dt, T, "rk4")
+    a, b = fi1.run(dt, T, scheme), fi2.run(dt, T, scheme)
     assert any(v > 0 for v in a.stability.gains.values())
     # grad_P' h' = m'^-1 P' = m^-1 P and grad J' = e: the gradients and so the gains do not change; the
     # residuals (h, J) scale like the momenta, and so does the feedback term
