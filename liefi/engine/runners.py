@@ -71,7 +71,6 @@ class _Overhead:
         return new
 
 
-
 def _loop_scheme(scheme):
     """The scheme object of a compiled loop: an explicit tableau or a split scheme (by name or object)."""
     from ..schemes import registry
@@ -86,6 +85,7 @@ def loop_name(sch):
     if getattr(sch, "kind", None) == "split":
         return split_loop_name(sch)
     return f"run_{sch.name}"
+
 
 @dataclass
 class CompiledField(_Overhead):

@@ -220,8 +220,9 @@ def feedback_step(fi, y, dt, params=None, *, data=_core.NUMPY_DATA):
             try:
                 mu = np.linalg.solve(M, kr[..., None])[..., 0]
             except np.linalg.LinAlgError:
-                # I + dt K W A W^T singular to working precision (dt * gain ~ 1/eps): no meaningful step.
-                # Non-finite values make the run's check raise IntegrationError with the time.
+                # I + dt K W W^T has eigenvalues >= 1 (similar to I + dt K^1/2 W W^T K^1/2); a singular
+                # matrix here means overflowed entries: non-finite values make the run's check raise
+                # IntegrationError with the time.
                 return np.full(y.shape, np.nan)
         dz = dt * np.einsum("...im,...m->...i", AWt, mu)
         if Az is None:
