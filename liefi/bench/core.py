@@ -24,6 +24,8 @@ tolerances ``rtol`` (each run from the scene's start to ``t_final``):
 ``projection``      the constrained equations with ``euler``, ``heun``, ``rk4``, each step
                     followed by a Newton projection onto the invariant set (see below):
                     what DifferentialEquations.jl's ``ManifoldProjection`` does
+``projection-1``    the same with exactly one Newton step per step and no convergence check:
+                    the projection peer closest to a split feedback step at large gains
 ``DLA``             the discrete Lagrange--d'Alembert scheme of :mod:`liefi.dla`, where it
                     applies (systems on ``T*R^n`` with a constant metric)
 ==================  =======================================================================
@@ -83,7 +85,8 @@ from ..sweep import ResultStore, SweepInterrupted, TaskError, run_sweep
 
 FIXED_SCHEMES = ("euler", "heun", "rk4", "imex-euler", "imex-heun", "imex-rk4")
 IVP_METHODS = ("RK45", "DOP853", "LSODA")
-METHODS = ("FI", "FI-tuned", "FI-accurate", "FI/solve_ivp", "no-feedback", "constrained", "projection", "DLA")
+METHODS = ("FI", "FI-tuned", "FI-accurate", "FI/solve_ivp", "no-feedback", "constrained", "projection", "projection-1",
+           "DLA")
 #: the gains of the ``FI`` rows: ``None`` is the scene's own (the paper's) gains, a number k is k on every
 #: invariant.  Small gains belong here: with RK4 at the scene's step, k = 0.1 keeps the oscillator's
 #: invariants bounded at the cost of plain RK4.  Zero is the ``no-feedback`` method, not an FI.
@@ -144,7 +147,7 @@ def build_tasks(scene, t_final, *, variant=None, dts=None, rtols=None, methods=N
                       for k in gains for s in schemes for dt in dts]
         elif m in ("FI-tuned", "FI-accurate"):
             tasks += [dict(common, method=m, scheme=s, dt=float(dt), rtol=None) for s in schemes for dt in dts]
-        elif m in ("no-feedback", "projection"):
+        elif m in ("no-feedback", "projection", "projection-1"):
             tasks += [dict(common, method=m, scheme=s, dt=float(dt), rtol=None) for s in explicit for dt in dts]
         elif m == "FI/solve_ivp":
             tasks += [dict(common, method=m, scheme=s, dt=None, rtol=float(r), gain=k)
@@ -197,11 +200,11 @@ def run_task(task):
         sc, v, fi = _integrator(task)
         method, scheme, T = task["method"], task["scheme"], task["t_final"]
         w = time.perf_counter()
-        if method in ("FI", "FI-tuned", "FI-accurate", "no-feedback", "projection"):
+        if method in ("FI", "FI-tuned", "FI-accurate", "no-feedback", "projection", "projection-1"):
             n, se = _steps(T, task["dt"], task["n_save"])
             # a split scheme (explicit tableau on X, then the feedback substep) has its own kernel
             compile_fi = _engine.compile_split if _split_scheme(scheme) else _engine.compile_feedback
-            if method == "projection":
+            if method in ("projection", "projection-1"):
                 cf = _engine.compile_constrained(fi, projection=True)
                 p, proj = np.zeros(0), _engine.projection_targets(fi)
             elif method == "FI-tuned":
@@ -234,7 +237,8 @@ def run_task(task):
                 p, proj = _engine.parameters(fi), None
             cf.warmup(scheme, project=proj is not None)
             out["compile_seconds"] = time.perf_counter() - w
-            sol = cf.run(fi.y0, p, task["dt"], n, scheme, save_every=se, names=fi.names, project=proj)
+            newton = dict(maxit=1, tol=-1.0) if method == "projection-1" else {}  # one step, no check
+            sol = cf.run(fi.y0, p, task["dt"], n, scheme, save_every=se, names=fi.names, project=proj, **newton)
             out.update(t=sol.t, y=sol.y, cpu_seconds=sol.cpu_seconds, rhs_evaluations=sol.rhs_evaluations, steps=n,
                        projection_evaluations=getattr(sol, "projection_evaluations", 0))
         elif method in ("FI/solve_ivp", "constrained"):

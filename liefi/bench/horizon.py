@@ -108,7 +108,8 @@ def horizon_tasks(scene, t_final=1e5, *, dts=None, schemes=("rk4", "imex-rk4"), 
 
     sc = _scenes.get(scene) if isinstance(scene, str) else scene
     dts = [sc.dt * f for f in (8.0, 4.0, 2.0, 1.0)] if dts is None else list(dts)
-    return build_tasks(sc, t_final, dts=dts, rtols=[1e-6], methods=("FI", "FI-accurate", "no-feedback", "projection"),
+    return build_tasks(sc, t_final, dts=dts, rtols=[1e-6],
+                       methods=("FI", "FI-accurate", "no-feedback", "projection", "projection-1"),
                        schemes=tuple(schemes), gains=gains, n_save=n_save, configuration=configuration)
 
 

@@ -12,7 +12,7 @@ from ..plotting import finish_panel_grid, panel_grid
 # plots
 # ======================================================================================
 
-_COLORS = {"FI": "C3", "FI-tuned": "C6", "FI-accurate": "C5", "FI/solve_ivp": "C1", "no-feedback": "C7", "constrained": "C0", "projection": "C2", "DLA": "C4"}
+_COLORS = {"FI": "C3", "FI-tuned": "C6", "FI-accurate": "C5", "FI/solve_ivp": "C1", "no-feedback": "C7", "constrained": "C0", "projection": "C2", "projection-1": "C8", "DLA": "C4"}
 _STYLES = {"euler": ("o", "-"), "heun": ("s", "-"), "rk4": ("^", "-"), "RK45": ("o", "--"), "DOP853": ("D", "--"),
            "LSODA": ("v", ":"), "dla": ("x", "-")}
 

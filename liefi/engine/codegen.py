@@ -191,11 +191,14 @@ def loop_source(fname, scheme, N, *, project=False, split=False):
 _PROJECT_SOURCE = '''
 @njit(cache=CACHE, error_model='numpy')
 def project(y, pp, buf, GG, lam, maxit, tol):
-    """Newton projection onto resid(y) = 0 along G^T (G G^T)^{{-1}}: returns evaluations used."""
+    """Newton projection onto resid(y) = 0 along G^T (G G^T)^{{-1}}: returns evaluations used.
+    tol < 0: exactly maxit Newton steps, no convergence check."""
     M = PROJ_M
     N = {N}
     nev = 0
     for it in range(maxit + 1):
+        if tol < 0.0 and it == maxit:
+            break
         resid(y, pp, buf)
         nev += 1
         rmax = 0.0

@@ -177,7 +177,8 @@ class CompiledField(_Overhead):
         Parameters as :func:`liefi.schemes.integrate`; ``p`` is ``(n_params,)`` or per
         trajectory ``(..., n_params)``.  ``project`` (parameters of the residuals,
         e.g. :func:`liefi.engine.projection_targets`) projects onto the invariant set after every
-        step by Newton's method (at most ``maxit`` iterations, stop at ``max |r| <= tol``).
+        step by Newton's method (at most ``maxit`` iterations, stop at ``max |r| <= tol``;
+        ``tol < 0``: exactly ``maxit`` iterations and no check).
 
         Returns
         -------
