@@ -24,3 +24,9 @@ $M --only nonreversible-contact-oscillator --dts 8 --methods FI-accurate --schem
 $M --only nonreversible-contact-oscillator --dts 8 --methods projection --schemes rk4
 $M --only rigid-body --dts 8 --methods FI-accurate --schemes imex-rk4
 $M --only rigid-body --dts 8 --methods projection --schemes rk4
+# the one-Newton-step projection, where it is the cheapest non-FI run at t = 1e5
+$M --only oscillator --dts 8 --methods projection-1 --schemes rk4
+$M --only nonreversible-oscillator --dts 8 --methods projection-1 --schemes rk4
+$M --only nonreversible-contact-oscillator --dts 8 --methods projection-1 --schemes rk4
+$M --only knife-edge --dts 8 --methods projection-1 --schemes rk4
+$M --only rigid-body --dts 8 --methods projection-1 --schemes rk4
