@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import assume, given
 from hypothesis import strategies as st
 
 from liefi import FeedbackIntegrator
@@ -118,7 +118,9 @@ def test_lyapunov_targets_and_invariant_values_from_a_start_off_constraint_set(s
     assert fi.invariant_names == tuple(names)
     E0 = float(energy(z0))
     assert abs(fi.targets["energy"] - E0) < 1e-12 * max(1.0, abs(E0))
-    assert abs(float(oracle_h(case)(z0)) - float(oracle_ht(case)(z0))) > 1e-9  # h != h~ here
+    # h - h~ = J^T C^-1 J / 2 can be tiny for a small drawn J: only a start where the two differ
+    # tells the energy target h~ from h, so the draw is discarded otherwise
+    assume(abs(float(oracle_h(case)(z0)) - float(oracle_ht(case)(z0))) > 1e-9)
     assert all(fi.targets[f"J_{i + 1}"] == 0.0 for i in range(case.K))
 
     y = np.concatenate([y0[:nc] + 0.05 * rng.normal(size=(3, nc)), case.random_state((3,))], -1) if nc else case.random_state((3,))
