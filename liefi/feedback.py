@@ -30,6 +30,7 @@ import numpy as np
 
 from . import _diff
 from .reduction import core as _core
+from ._parameters import gain_number, parse_gains, per_member, target_number, target_value  # noqa: F401
 from .system import NonholonomicSystem
 
 
@@ -79,7 +80,7 @@ class InvariantJet:
     names: tuple  #: the invariants' names (``m``)
     residual: np.ndarray  #: (..., m) ``I_j(y) - I_j0``
     grad: np.ndarray  #: (..., m, n) ``dI_j/dy``
-    gains: np.ndarray  #: (m,) ``k_j``
+    gains: np.ndarray  #: (..., m) ``k_j`` (each member's own, for gains that differ between members)
 
 
 def _gram_is_constant(system, z):
@@ -111,99 +112,26 @@ def momentum_component(system, name):
     return Invariant(name, fun, grad)
 
 
-def gain_number(v, what="the gain"):
-    """``float(v)`` for a finite non-negative gain; a ``ValueError`` naming it otherwise (a bool is not a number)."""
-    if isinstance(v, (bool, np.bool_)):
-        raise ValueError(f"gains: {what} must be a number (or gains='auto'), got {v!r} (a bool is not a gain)")
-    try:
-        x = float(v)
-    except (TypeError, ValueError):
-        raise ValueError(f"gains: {what} must be a number (or gains='auto'), got {v!r}") from None
-    if not np.isfinite(x) or x < 0:
-        raise ValueError(f"gains: {what} must be a finite non-negative number, got {v!r}")
-    return x
-
-
-def parse_gains(gains, names, *, defaults=None):
-    """The one gain parser (the API's ``gains=`` and the CLI's ``--gains``) -> ``{name: k}`` over ``names``, or ``"auto"``.
-
-    ``gains`` is a number (every gain), ``"auto"``, a dict ``{name: k}``
-    (``"constraints"`` sets every ``J_i``), or text: ``"K"``, ``"K1,K2,..."``
-    (in the order of ``names``), ``"name=K,..."``.  A dict or ``name=K`` text
-    sets the named gains over ``defaults`` (``{name: k}``; without them every
-    gain must be given).
-    """
-    names = tuple(names)
-    order = ",".join(names) or "(none)"
-    Js = [n for n in names if n.startswith("J_")]
-
-    def named(pairs):
-        out = dict(defaults or {})
-        for k, v in pairs:
-            if k == "constraints":
-                out.update({n: gain_number(v, "the gain of 'constraints'") for n in Js})
-            elif k in names:
-                out[k] = gain_number(v, f"the gain of {k!r}")
-            else:
-                raise ValueError(f"gains: unknown name {k!r}; the gains are {order}")
-        missing = [k for k in names if k not in out]
-        if missing:
-            raise ValueError(f"gains: no gain given for {missing} (the gains are {order})")
-        return {k: out[k] for k in names}
-
-    if isinstance(gains, str):
-        text = gains.strip()
-        if text == "auto":
-            return "auto"
-        parts = [p.strip() for p in text.split(",")]
-        if not text or any(not p for p in parts):
-            raise ValueError(f"gains: empty entry in {gains!r}; give K, K1,K2,... (order {order}) or name=K,...")
-        if all("=" in p for p in parts):
-            return named(tuple(x.strip() for x in p.split("=", 1)) for p in parts)
-        if any("=" in p for p in parts):
-            raise ValueError(f"gains: mix of name=K and plain numbers in {gains!r}; use one form")
-        if len(parts) == 1:
-            k = gain_number(parts[0], f"the gain {parts[0]!r} (order {order})")
-            return {n: k for n in names}
-        if len(parts) != len(names):
-            raise ValueError(f"gains: expected 1 or {len(names)} gains in the order {order}, got {len(parts)}")
-        return {n: gain_number(p, f"the gain of {n!r}") for n, p in zip(names, parts)}
-    if isinstance(gains, dict):
-        return named(gains.items())
-    if np.ndim(gains) == 0:
-        k = gain_number(gains)
-        return {n: k for n in names}
-    raise TypeError(f"gains: expected a number, a dict {{name: gain}} or 'auto', got {gains!r}")
-
-
-def target_number(name, v):
-    """A target value ``I_j0``: a finite real number, else a ``ValueError`` naming it."""
-    if isinstance(v, (bool, np.bool_)):
-        raise ValueError(f"targets: the target of {name!r} must be a finite number, got {v!r}")
-    try:
-        x = np.asarray(v, dtype=float)
-    except (TypeError, ValueError):
-        raise ValueError(f"targets: the target of {name!r} must be a finite number, got {v!r}") from None
-    if x.ndim or not np.isfinite(x):
-        raise ValueError(f"targets: the target of {name!r} must be a finite number, got {v!r}")
-    return float(x)
-
-
 class FeedbackIntegrator:
     """The feedback-integrator vector field of a nonholonomic system.
 
     Parameters
     ----------
     system : NonholonomicSystem
-    y0 : array_like
+    y0 : array_like (..., n)
         Initial state ``(g, z)`` (or ``z`` with ``configuration=False``); sets the
-        targets of the energy and user invariants.
+        targets of the energy and user invariants.  A batch of states is an
+        ensemble: every member keeps its own targets (its own initial energy,
+        ...), and with ``gains="auto"`` its own gains, so that each member's
+        trajectory is the one it has when run alone.
     invariants : sequence
         Which invariants ``V`` penalizes: ``"constraints"`` (every ``J_i``, target 0),
         ``"energy"`` (``h~`` or ``h`` by ``energy=``), and :class:`Invariant` objects.
     gains : float, dict or "auto"
         One number for every gain, or ``{name: k}`` with names ``"J_1"``...,
         ``"energy"``, ``"penalty"``, the invariants' names; ``"constraints"`` sets every ``J_i``.
+        For an ensemble a gain may differ between members: an array of shape
+        ``y0.shape[:-1]`` (e.g. ``{"energy": [10.0, 100.0, 1000.0]}``).
         ``"auto"``: chosen by :meth:`run` for accuracy, from the scheme, ``dt`` and
         the horizon ``T`` (:mod:`liefi.gains`, which holds the derivation).  The
         residual ``r_j = I_j - I_j0`` relaxes at the rate ``kappa_j = k_j |grad I_j|^2``;
@@ -239,7 +167,8 @@ class FeedbackIntegrator:
         Constant matrix with positive definite symmetric part; the field is
         ``X - A grad V``.  Identity by default.
     targets : dict, optional
-        Target values ``{name: I_j0}`` overriding those taken from ``y0``.
+        Target values ``{name: I_j0}`` overriding those taken from ``y0``: a
+        number, or for an ensemble one number per member (shape ``y0.shape[:-1]``).
     """
 
     def __init__(
@@ -281,6 +210,8 @@ class FeedbackIntegrator:
         if not np.all(np.isfinite(y0)):
             raise ValueError("y0: contains non-finite numbers")
         self.y0 = y0
+        #: the shape of the ensemble (``()`` for one trajectory): per-member gains and targets have it
+        self.batch = y0.shape[:-1]
 
         # --- which invariants -------------------------------------------------
         self.use_constraints = False
@@ -348,8 +279,9 @@ class FeedbackIntegrator:
         names = self.invariant_names
         vals = self.invariant_values(y0)
         constraint_names = {f"J_{i + 1}" for i in range(system.K)}
+        # every member of an ensemble keeps its own value (a float for one trajectory)
         self.targets = {
-            k: 0.0 if k in constraint_names else float(np.mean(v))
+            k: 0.0 if k in constraint_names else per_member(v, self.batch, f"the value of {k!r} at y0")
             for k, v in vals.items()
             if k in names and k != "penalty"
         }
@@ -357,7 +289,7 @@ class FeedbackIntegrator:
             for k, v in targets.items():
                 if k not in self.targets:
                     raise ValueError(f"targets: unknown name {k!r}; targets exist for {list(self.targets)}")
-                self.targets[k] = target_number(k, v)
+                self.targets[k] = target_value(k, v, self.batch)
         #: target of the penalized energy (``h~`` or ``h`` at ``y0`` unless given)
         self.energy_target = self.targets.get("energy", 0.0)
         #: targets of the user invariants, in the order of ``self.user``
@@ -372,11 +304,15 @@ class FeedbackIntegrator:
 
     # --- gains -----------------------------------------------------------------------
     def _parse_gains(self, gains):
-        """``gains`` (a number or ``{name: k}``) -> ``{name: k}`` over :attr:`invariant_names` (:func:`parse_gains`)."""
+        """``gains`` (a number or ``{name: k}``) -> ``{name: k}`` over :attr:`invariant_names` (:func:`parse_gains`).
+
+        A gain given per member (an array) must broadcast to :attr:`batch`; it is
+        kept as a float array of that shape, a common gain as a float.
+        """
         g = parse_gains(gains, self.invariant_names)
         if g == "auto":
             raise ValueError("gains: 'auto' is chosen by run() from dt; pass it to the constructor, not here")
-        return g
+        return {k: per_member(v, self.batch, f"gains: the gain of {k!r}") for k, v in g.items()}
 
     def _set_gains(self, g):
         self.gains = dict(g)
@@ -406,7 +342,10 @@ class FeedbackIntegrator:
         """The parameter vector ``p`` (gains and targets, :attr:`parameter_layout`) of the field.
 
         ``gains`` (a dict ``{name: k}``, optional) overrides :attr:`gains`.  Shape
-        ``(size,)``, or ``(..., size)`` when a target is given per trajectory.
+        ``(size,)`` when every gain and target is common to the ensemble, else
+        ``(..., size)`` with ``...`` = :attr:`batch`: row ``b`` holds member
+        ``b``'s own gains and targets (its initial energy, ...), which the numpy
+        field and the compiled ensemble kernel both read per member.
         """
         if gains is None and self._parameters is not None:
             return self._parameters
@@ -420,15 +359,69 @@ class FeedbackIntegrator:
             cols += [g[u.name], tgt]
         if self.use_penalty:
             cols.append(g["penalty"])
-        try:  # the common case: every gain and target a number
+        cols = [np.asarray(c, dtype=float) for c in cols]
+        if all(c.ndim == 0 for c in cols):  # every gain and target common to the ensemble
             p = np.array(cols, dtype=float)
-        except (TypeError, ValueError):  # per-trajectory targets (an ensemble)
-            cols = [np.asarray(c, dtype=float) for c in cols]
+        else:  # per-member gains or targets: one row per member
             shape = np.broadcast_shapes(*(c.shape for c in cols))
             p = np.stack([np.broadcast_to(c, shape) for c in cols], -1)
         if gains is None:
             self._parameters = p
         return p
+
+    def members(self, index=None):
+        """The integrator restricted to some members of the ensemble (their own targets and gains).
+
+        ``index``: ``None``, the whole ensemble flattened to ``(B,)``; an int,
+        that member alone (one trajectory); an integer array, those members
+        (flat indices into :attr:`batch`).  Without per-member values (one
+        trajectory) the integrator itself.  Used where a few members stand for
+        the ensemble (the stability pilot) or its states are flattened.
+        """
+        if not self.batch:
+            return self
+        import copy
+
+        B = int(np.prod(self.batch, dtype=int))
+
+        def pick(v):
+            if np.ndim(v) == 0:
+                return v
+            a = np.asarray(v, dtype=float).reshape(B)
+            if index is None:
+                return a
+            return float(a[index]) if np.ndim(index) == 0 else a[np.asarray(index)]
+
+        new = copy.copy(self)
+        Y = np.broadcast_to(self.y0, self.batch + (self.n,)).reshape(B, self.n)  # (one y0 after for_batch)
+        new.y0 = Y if index is None else Y[index]
+        new.batch = new.y0.shape[:-1]
+        new.targets = {k: pick(v) for k, v in self.targets.items()}
+        new.energy_target = new.targets.get("energy", 0.0)
+        new.user_targets = [new.targets[u.name] for u in new.user]
+        new._set_gains({k: pick(v) for k, v in self.gains.items()})
+        return new
+
+    def for_batch(self, batch):
+        """The integrator for an ensemble of shape ``batch`` (from ``run(y0=...)``).
+
+        Its per-member gains and targets must have that shape already (a
+        ``ValueError`` says so); common ones are kept for every member.
+        """
+        batch = tuple(batch)
+        if batch == self.batch:
+            return self
+        if self.batch:
+            raise ValueError(
+                f"y0: this integrator holds the targets and gains of an ensemble of shape {self.batch} (from the "
+                f"y0 it was built with); got states of shape {batch + (self.n,)}. Build the integrator from these "
+                "states (each member keeps its own targets), or pass y0 of that shape"
+            )
+        import copy
+
+        new = copy.copy(self)
+        new.batch = batch
+        return new
 
     def with_gains(self, gains):
         """A copy with other (fixed) gains; same system, invariants, targets and ``A``.
@@ -520,7 +513,7 @@ class FeedbackIntegrator:
         Returns an :class:`InvariantJet` with ``names`` (``m`` names, in the order
         of :attr:`invariant_names` without ``"penalty"``), ``residual``
         ``(..., m)`` = ``I_j(y) - I_j0``, ``grad`` ``(..., m, n)`` = ``dI_j/dy``
-        (zero on the group block) and ``gains`` ``(m,)``.  Then
+        (zero on the group block) and ``gains`` ``(..., m)``.  Then
         ``grad V = sum_j k_j r_j grad I_j + k0 grad P`` and, on the zero set of
         ``V``, ``Hess V = sum_j k_j grad I_j grad I_j^T + k0 Hess P``: its largest
         eigenvalue is that of the small Gram matrix
@@ -537,7 +530,9 @@ class FeedbackIntegrator:
         for j, (_, res, grad, _) in enumerate(terms):
             r[..., j] = np.broadcast_to(res, batch)
             D[..., j, self.nc :] = np.broadcast_to(grad, batch + (self.n - self.nc,))
-        k = np.array([self.gains[term[0]] for term in terms], dtype=float)
+        k = np.zeros(batch + (m,))
+        for j, term in enumerate(terms):
+            k[..., j] = np.broadcast_to(term[3], batch)
         return InvariantJet(tuple(term[0] for term in terms), r, D, k)
 
     def invariant_terms(self, z, t, params, data=_core.NUMPY_DATA):
@@ -616,7 +611,14 @@ class FeedbackIntegrator:
         return self.field_parts(y)[1]
 
     def unforced_vector_field(self, y, params=None, *, data=_core.NUMPY_DATA):
-        """The extended field ``X(y)`` alone (the feedback integrator with zero gains)."""
+        """The extended field ``X(y)`` alone (the feedback integrator with zero gains).
+
+        ``X`` reads no gain or target: without ``params`` it is evaluated with a
+        zero parameter vector, so any batch of states ``y`` will do (an
+        ensemble's per-member parameters need not match it).
+        """
+        if params is None:
+            params = np.zeros(self.parameter_layout.size)
         return self.field_parts(y, params, data=data)[0]
 
     def vector_field(self, y, params=None, *, data=_core.NUMPY_DATA):

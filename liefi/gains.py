@@ -118,7 +118,7 @@ import numpy as np
 
 from .schemes import ExplicitRungeKutta
 from .schemes import registry as _registry
-from .stability import dynamics_rate, positive_number, real_stability_bound, unit_rate_gains
+from .stability import dynamics_rate, dynamics_rates, positive_number, real_stability_bound, unit_rate_gains
 
 
 #: Rounding error injected per step, relative to the state's scale (unit roundoff of float64).
@@ -150,25 +150,51 @@ def _is_split(sch):
     return getattr(sch, "kind", None) == "split"
 
 
-def local_defect(scheme, z, hw):
-    r"""The bound ``delta(z)`` on the residual injected per step (module docstring), for rates ``z``.
+def _polynomials(scheme):
+    r"""``(sch, E, Q, P)``: the scheme's defect and stability polynomials in ``z``.
 
-    ``z``: ``dt * kappa`` (array); ``hw``: ``dt * omega``.  Returns an array
-    shaped like ``z``, in units of ``|varphi|`` (the state's scale).
+    ``A`` is strictly lower triangular (an explicit tableau), so
+    ``(I + zA)^{-1} = sum_{k<s} (-z)^k A^k`` and every quantity of the bound is a
+    polynomial in ``z``: ``b^T (I + zA)^{-1} d_l = sum_k Q[l, k] z^k`` and
+    ``R(-z) = 1 - z sum_k P[k] z^k``; ``E[l] = epsilon_l`` (module docstring),
+    rows ``l = 2 .. p + 1``.  Evaluated at many rates (and many members) at once.
     """
     sch, A, b, c = _tableau(scheme)
     s = len(b)
-    p = sch.order
+    powers = [np.linalg.matrix_power(A, k) for k in range(s)]
+    P = np.array([(-1.0) ** k * b @ powers[k] @ np.ones(s) for k in range(s)])
+    E, Q = [], []
+    for l in range(2, sch.order + 2):
+        E.append(b @ c ** (l - 1) / math.factorial(l - 1) - 1.0 / math.factorial(l))
+        d = A @ c ** (l - 1) / math.factorial(l - 1) - c**l / math.factorial(l)
+        Q.append([(-1.0) ** k * b @ powers[k] @ d for k in range(s)])
+    return sch, np.array(E), np.array(Q), P
+
+
+def _polyval(coef, z):
+    """``sum_k coef[k] z^k`` (Horner) at the rates ``z`` (any shape)."""
+    out = np.zeros(np.shape(z))
+    for ck in coef[::-1]:
+        out = out * z + ck
+    return out
+
+
+def local_defect(scheme, z, hw):
+    r"""The bound ``delta(z)`` on the residual injected per step (module docstring), for rates ``z``.
+
+    ``z``: ``dt * kappa`` (array); ``hw``: ``dt * omega`` (a number, or an array
+    broadcasting with ``z``, e.g. ``(B, 1)`` against rates ``(B, G)``: one per
+    member).  Returns an array shaped like ``z``, in units of ``|varphi|`` (the
+    state's scale).
+    """
+    sch, E, Q, _ = _polynomials(scheme)
     z = np.atleast_1d(np.asarray(z, float))
-    out = np.zeros(z.shape)
     if _is_split(sch):  # the tableau acts on X alone: the feedback substep adds no truncation error
         z = np.zeros_like(z)
-    M = np.eye(s)[None] + z[:, None, None] * A[None]  # (nz, s, s)
-    for l in range(2, p + 2):
-        eps = b @ c ** (l - 1) / math.factorial(l - 1) - 1.0 / math.factorial(l)
-        d = A @ c ** (l - 1) / math.factorial(l - 1) - c**l / math.factorial(l)
-        w = np.linalg.solve(M, np.broadcast_to(d, z.shape + (s,))[..., None])[..., 0]
-        out += hw**l * np.abs(eps - z * (w @ b))
+    hw = np.asarray(hw, float)
+    out = np.zeros(np.broadcast_shapes(z.shape, hw.shape))
+    for j in range(len(E)):
+        out = out + hw ** (j + 2) * np.abs(E[j] - z * _polyval(Q[j], z))
     return out
 
 
@@ -177,13 +203,14 @@ def drift_bound(scheme, z, hw, n_steps):
 
     ``D(z) = delta(z) (1 - |R|^N)/(1 - |R|) + u sqrt((1 - |R|^{2N})/(1 - |R|^2))``,
     ``R = R(-z)``, ``u`` = :data:`ROUNDOFF` (a random walk of rounding errors).
+    ``z`` and ``hw`` as in :func:`local_defect`.
     """
-    sch, A, b, c = _tableau(scheme)
+    sch, _, _, P = _polynomials(scheme)
     z = np.atleast_1d(np.asarray(z, float))
     if _is_split(sch):  # explicit tableau on X, then the residual times 1/(1 + z)
         R = 1.0 / (1.0 + z)
     else:
-        R = np.abs(np.array([1.0 + zi * -b @ np.linalg.solve(np.eye(len(b)) + zi * A, np.ones(len(b))) for zi in z]))
+        R = np.abs(1.0 - z * _polyval(P, z))
     N = float(n_steps)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         geo = np.where(np.abs(1.0 - R) < 1e-12, N, (1.0 - R**N) / (1.0 - R))
@@ -202,28 +229,40 @@ def accurate_rate(scheme, dt, omega, t_final, *, grid=4001):
     Returns 0 when no feedback beats the scheme alone.  For a split scheme
     (``beta = inf``) the range is ``[0, SPLIT_RATE_MAX]`` and ``D`` decreases
     on all of it: ``z* = SPLIT_RATE_MAX`` whenever feedback helps (module docstring).
+    ``omega`` may be an array (one rate per member of an ensemble): then ``z*``
+    is an array of the same shape, each entry the one a single run would get.
     """
     dt = positive_number(dt, "dt")
     t_final = positive_number(t_final, "t_final")
-    omega = float(omega)
-    if not (omega > 0 and math.isfinite(omega)):
-        omega = 1.0 / t_final
+    om = np.asarray(omega, dtype=float)
+    om = np.where((om > 0) & np.isfinite(om), om, 1.0 / t_final)
     beta = real_stability_bound(scheme)
     zmax = 0.95 * beta if math.isfinite(beta) else SPLIT_RATE_MAX
-    hw = dt * omega
     n = max(1, int(round(t_final / dt)))
-    # a log grid resolves small rates (z ~ h omega) and a linear one the stability range
-    zs = np.unique(np.concatenate([[0.0], np.geomspace(1e-6 * min(hw, 1.0), zmax, grid)]))
-    D = drift_bound(scheme, zs, hw, n)
-    i = int(np.argmin(D))
-    # no feedback unless it buys a clear factor (the bound is a model, not a measurement)
-    return float(zs[i]) if D[i] < 0.5 * D[0] else 0.0
+    hw = (dt * om).reshape(-1)
+    out = np.empty(hw.shape)
+    for i in range(0, hw.size, 64):  # a few MB at a time
+        h = hw[i : i + 64, None]
+        # a log grid resolves small rates (z ~ h omega) and a linear one the stability range
+        zs = np.concatenate([np.zeros(h.shape), np.geomspace(1e-6 * np.minimum(h[:, 0], 1.0), zmax, grid, axis=-1)], -1)
+        D = drift_bound(scheme, zs, h, n)
+        j = np.argmin(D, axis=-1)
+        best = np.take_along_axis(D, j[:, None], -1)[:, 0]
+        # no feedback unless it buys a clear factor (the bound is a model, not a measurement)
+        out[i : i + 64] = np.where(best < 0.5 * D[:, 0], np.take_along_axis(zs, j[:, None], -1)[:, 0], 0.0)
+    return float(out[0]) if om.ndim == 0 else out.reshape(om.shape)
 
 
 def unforced_rate(fi, y=None):
     """``omega``: spectral radius of ``dX/dy`` (the unforced field), max over the states ``y`` (default ``fi.y0``)."""
     y = fi.y0 if y is None else np.asarray(y, float)
     return dynamics_rate(fi, y)
+
+
+def unforced_rates(fi, y=None):
+    """``omega`` of each state of ``y`` (shape ``y.shape[:-1]``; a float for one state)."""
+    y = fi.y0 if y is None else np.asarray(y, float)
+    return dynamics_rates(fi, y)
 
 
 def exactly_kept(fi, scheme="rk4", y=None, *, n_samples=6, rel=1e-2, tol=1e-10):
@@ -245,6 +284,7 @@ def exactly_kept(fi, scheme="rk4", y=None, *, n_samples=6, rel=1e-2, tol=1e-10):
     _tableau(scheme)
     y0 = fi.y0 if y is None else np.asarray(y, float)
     y0 = np.asarray(y0, float).reshape(-1, fi.n)[0]
+    fi = fi.members(0)  # a property of the field: the first member's targets stand for all
     rng = np.random.default_rng(12345)
     scale = np.maximum(np.abs(y0), 1e-3 * max(1.0, float(np.max(np.abs(y0)))))
     Y = np.concatenate([y0[None], y0 + rel * scale * rng.standard_normal((n_samples, fi.n))])
@@ -281,12 +321,19 @@ def exactly_kept(fi, scheme="rk4", y=None, *, n_samples=6, rel=1e-2, tol=1e-10):
 
 
 def accurate_setting(fi, dt, scheme="rk4", t_final=None, y=None):
-    """``(z*, gains)``: the accurate rate (:func:`accurate_rate`) and the gains of :func:`accurate_gains`."""
+    """``(z*, gains)``: the accurate rate (:func:`accurate_rate`) and the gains of :func:`accurate_gains`.
+
+    For an ensemble ``y`` (``(..., n)``) every member gets its own: ``z*`` from
+    its own ``omega`` and the unit-rate gains at its own state (arrays of shape
+    ``y.shape[:-1]``), the values a single run of that member gets.
+    """
     dt = positive_number(dt, "dt")
     T = 1000.0 * dt if t_final is None else positive_number(t_final, "t_final")
     y = fi.y0 if y is None else np.asarray(y, float)
-    z = accurate_rate(scheme, dt, unforced_rate(fi, y), T)
-    gains = {k: float(v) * z / dt for k, v in unit_rate_gains(fi, y).items()}
+    z = accurate_rate(scheme, dt, unforced_rates(fi, y), T)
+    gains = {k: v * z / dt for k, v in unit_rate_gains(fi, y).items()}
+    if np.ndim(z) == 0:
+        gains = {k: float(v) for k, v in gains.items()}
     for name in exactly_kept(fi, scheme, y):
         gains[name] = 0.0
     return z, gains

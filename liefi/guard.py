@@ -38,6 +38,7 @@ from .stability import (
     drift,
     drift_scales,
     dynamics_rate,
+    dynamics_rates,
     metric_defect,
     stiffness,
 )
@@ -48,14 +49,15 @@ _stiff = _split
 def _lam_schedule(fi, Y, gains_list):
     """``lambda_max`` at states ``Y`` (``(N, ..., n)``) with per-state gain dicts ``gains_list``."""
     jet = fi.invariant_gradients(Y)
-    K = np.array([[g[nm] for nm in jet.names] for g in gains_list], float)  # (N, m)
-    K = K.reshape((len(gains_list),) + (1,) * (Y.ndim - 2) + (len(jet.names),))
+    batch = Y.shape[1:-1]  # each gain a number or one per member (shape batch)
+    K = np.stack([np.stack([np.broadcast_to(np.asarray(g[nm], float), batch) for nm in jet.names], -1)
+                  if jet.names else np.zeros(batch + (0,)) for g in gains_list])  # (N, ..., m)
     lam = np.zeros(Y.shape[:-1])
     if jet.names:
         W = jet.grad * np.sqrt(K)[..., None]
         lam = np.linalg.eigvalsh(W @ np.swapaxes(W, -1, -2))[..., -1]
     if fi.use_penalty:
-        k0 = np.array([g.get("penalty", 0.0) for g in gains_list]).reshape((len(gains_list),) + (1,) * (Y.ndim - 2))
+        k0 = np.stack([np.broadcast_to(np.asarray(g.get("penalty", 0.0), float), batch) for g in gains_list])
         lam = np.maximum(lam, k0 * fi.system.space.group.penalty_hessian_max(Y[..., : fi.nc]))
     return lam.reshape(len(gains_list), -1).max(axis=1), jet
 
@@ -251,13 +253,33 @@ AUTO_ADAPT_FRACTION = 0.25
 RESOLUTION_MEMBERS = 16
 
 
-def _subsample(y, k):
-    """At most ``k`` members of a batch ``(..., n)`` (flattened to ``(m, n)``), evenly spread."""
-    y = np.asarray(y, float)
-    flat = y.reshape(-1, y.shape[-1])
-    if flat.shape[0] <= k:
-        return flat
-    return flat[np.unique(np.linspace(0, flat.shape[0] - 1, k).astype(int))]
+def _chunk(s0, n_steps, N, save_every):
+    """``(length, sub_save)`` of the next segment so that saved indices stay multiples of ``save_every``."""
+    left = n_steps - s0
+    nxt = (s0 // save_every + 1) * save_every
+    if save_every <= N:
+        if s0 % save_every:  # first back onto a multiple of save_every
+            L = min(nxt - s0, left)
+            return L, L
+        L = save_every * max(1, N // save_every)
+        return min(L, left), save_every
+    L = min(N, nxt - s0, left)
+    return L, L
+
+
+def _segment(s0, n_steps, N, save_every):
+    """``(length, sub_save)`` of the next segment: :func:`_chunk` for a common stride ``N``.
+
+    ``N`` an array: the steps each member of an adaptive ensemble has left until
+    its own next check (:meth:`liefi.guard.Guard.segment_length`); the segment
+    ends at the first of them, and not past a saved index when it starts between two.
+    """
+    if np.ndim(N) == 0:
+        return _chunk(s0, n_steps, int(N), save_every)
+    L = min(int(np.min(N)), n_steps - s0)
+    if s0 % save_every:
+        L = min(L, (s0 // save_every + 1) * save_every - s0)
+    return L, (save_every if s0 % save_every == 0 and L >= save_every else L)
 
 
 class Guard:
@@ -291,6 +313,10 @@ class Guard:
         self.drift_warned = False
         self.ratio_set = None
         self.sched_t, self.sched_g = [0.0], []
+        self.resolutions = math.nan
+        #: the ensemble's shape; members of an ensemble are adapted (and checked) on their own schedule
+        self.batch = tuple(getattr(fi, "batch", ()))
+        self.mask = np.full(self.batch, self.adaptive)
 
     @property
     def active(self):
@@ -313,21 +339,22 @@ class Guard:
             # the accurate rate z* (liefi.gains) for this scheme, step and horizon; adapted along
             # the run (at that rate) only when it sits near the stability limit (never for a split
             # scheme: its feedback substep is stable at every rate)
-            z, acc = accurate_setting(fi, dt, self.sch.name, self.n_steps * dt, _subsample(y0, RESOLUTION_MEMBERS))
+            # every member of an ensemble gets its own rate and gains: those of its single run
+            z, acc = accurate_setting(fi, dt, self.sch.name, self.n_steps * dt, y0)
             if self._adaptive_default:
-                self.adaptive = z >= AUTO_ADAPT_FRACTION * self.beta
+                self.mask = np.broadcast_to(z >= AUTO_ADAPT_FRACTION * self.beta, self.batch)
+                self.adaptive = bool(np.any(self.mask))
             if self.adaptive:
                 self.rate = z
             rep.adaptive = self.adaptive
         rate = self.rate
-        if self.auto and not self.adaptive:
+        if self.auto and self.adaptive:
+            unit = unit_rate_gains(fi, y0)
+            run_fi = fi.with_gains(self._merge(acc, {k: v * rate / dt for k, v in unit.items()}, self.mask))
+        elif self.auto:
             run_fi = fi.with_gains(acc)
-        elif self.auto and self.adaptive:
-            run_fi = fi.with_gains({k: v * rate / dt for k, v in unit_rate_gains(fi, y0).items()})
         elif self.adaptive:
-            lam = float(np.max(stiffness(fi, y0).lam, initial=0.0))
-            s = min(1.0, rate / (dt * lam)) if lam > 0 and not self.split else 1.0
-            run_fi = fi.with_gains({k: v * s for k, v in fi.gains.items()})
+            run_fi = fi.with_gains(self._lowered(fi, y0))
         else:
             run_fi = fi
         rep.gains = dict(run_fi.gains)
@@ -348,12 +375,17 @@ class Guard:
                 # unforced dynamics can make the run meaningless
                 est = estimate(run_fi, dt, self.sch.explicit if self.split else self.sch, y0=y0)
                 rep.resolution = est.rate
+                if self.adaptive:  # each member's own (its schedule of checks depends on it)
+                    with np.errstate(all="ignore"):
+                        self.resolutions = dt * dynamics_rates(run_fi, y0)
                 if est.unresolvable:
                     raise ValueError("dt: " + est.resolution_message() + " Pass check_stability=False to run it anyway.")
                 if est.under_resolved:
                     self._warn("liefi: " + est.resolution_message())
                 rep.estimate = est
-            msg = first_integral_defect(run_fi, _subsample(y0, RESOLUTION_MEMBERS))
+            flat = np.asarray(y0, float).reshape(-1, run_fi.n)
+            pick = np.unique(np.linspace(0, flat.shape[0] - 1, min(flat.shape[0], RESOLUTION_MEMBERS)).astype(int))
+            msg = first_integral_defect(run_fi.members(pick), flat[pick])
             if msg:
                 self._warn(msg)
         if self.active:
@@ -361,8 +393,46 @@ class Guard:
             self.delta0, _ = drift(fi, y0, self.scales)
         return run_fi
 
-    def segment_length(self, n_steps):
-        """Steps between two checks (deterministic: results never depend on timing)."""
+    @staticmethod
+    def _merge(old, new, sel):
+        """``{k: new[k] where sel else old[k]}``: per-member gains (floats for one trajectory)."""
+        if np.ndim(sel) == 0:
+            return dict(new) if sel else dict(old)
+        return {k: np.where(sel, new[k], old[k]) for k in new}
+
+    def _lowered(self, base, y):
+        """Fixed gains lowered where ``dt lambda_max`` passes the rate (``adaptive=True``), member by member."""
+        lam = np.asarray(stiffness(base, y).lam, float)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s_ = np.where((lam > 0) & (not self.split), np.minimum(1.0, self.rate / (self.dt * lam)), 1.0)
+        s_ = float(s_) if s_.ndim == 0 else s_
+        return {k: v * s_ if np.ndim(s_) == 0 else np.asarray(v) * s_ for k, v in base.gains.items()}
+
+    def segment_length(self, n_steps, save_every=1):
+        """Steps between two checks (deterministic: results never depend on timing).
+
+        An adaptive ensemble: each member is checked (and its gains adapted) on
+        the schedule of its own single run; the segment runs to the next check
+        of any member (an array: the steps each adapted member has left).
+        """
+        N = self._segment_length(n_steps)
+        self.save_every, self.total = save_every, n_steps
+        if not (self.adaptive and self.batch):
+            return N
+        B = int(np.prod(self.batch, dtype=int))
+        self.N_i = np.full(B, N, dtype=np.int64)
+        cap = np.broadcast_to(self.N_cap, (B,)) if np.ndim(self.N_cap) else np.full(B, self.N_cap)
+        self.N_cap_i = np.asarray(cap, dtype=np.int64)
+        self.ratio_set_i = np.full(B, np.nan)
+        self.next_i = np.array([_chunk(0, n_steps, int(n), save_every)[0] for n in self.N_i])
+        return self._left(0)
+
+    def _left(self, s0):
+        """Steps until the next check of an adapted member (an array), or the non-adapted stride."""
+        m = np.asarray(self.mask).reshape(-1)
+        return self.next_i[m] - s0 if np.any(m) else np.array([self._segment_length(self.total - s0)])
+
+    def _segment_length(self, n_steps):
         if self.monitor_every is not None:
             N = self.monitor_every
         elif self.adaptive:
@@ -372,8 +442,10 @@ class Guard:
             # at most 100 checks on numpy, 20 compiled (the audit covers the states between them)
             N = max(200, n_steps // 100) if self.backend == "numpy" else max(20000, n_steps // 20)
         if self.adaptive and self.monitor_every is None:
-            r = self.report.resolution / self.dt if math.isfinite(self.report.resolution) else 1.0
-            self.N_cap = int(min(50000, max(10, 0.5 / (self.dt * max(r, 1e-2)))))
+            res = np.asarray(self.resolutions, float)  # dt x each member's fastest unforced rate
+            r = np.where(np.isfinite(res), res / self.dt, 1.0)
+            cap = np.minimum(50000, np.maximum(10, 0.5 / (self.dt * np.maximum(r, 1e-2)))).astype(np.int64)
+            self.N_cap = int(cap) if cap.ndim == 0 else cap.reshape(-1)
         return max(1, min(N, n_steps))
 
     # --- between segments ---------------------------------------------------------------
@@ -415,14 +487,14 @@ class Guard:
                 self.drift_warned = True
                 md = metric_defect(run_fi, y)
                 self._warn(("liefi: " + md) if md else _drift_warning(t_now, who, delta, dt, rep.resolution))
+        if self.adaptive and self.batch:
+            return self._between_members(run_fi, y, s0)
         if self.adaptive:
             base = self.fi
             if self.auto:
                 new = {k: v * self.rate / dt for k, v in unit_rate_gains(base, y).items()}
             else:
-                lam_b = float(np.max(stiffness(base, y).lam, initial=0.0))
-                s_ = min(1.0, self.rate / (dt * lam_b)) if lam_b > 0 and not self.split else 1.0
-                new = {k: v * s_ for k, v in base.gains.items()}
+                new = self._lowered(base, y)
             if self.monitor_every is None and self.ratio_set is not None:
                 if ratio > self.ratio_set * 1.05 or ratio < self.ratio_set / 1.05:
                     N = max(10, N // 2)
@@ -445,6 +517,40 @@ class Guard:
                 "adaptive=True to follow it, or scheme='imex-euler'."
             )
         return run_fi, N
+
+    def _between_members(self, run_fi, y, s0):
+        """The adaptation of an ensemble: the members whose own check falls at step ``s0`` (module docstring)."""
+        from .stability import unit_rate_gains
+
+        dt, beta, rep = self.dt, self.beta, self.report
+        t_now = s0 * dt
+        due = (self.next_i == s0) & np.asarray(self.mask).reshape(-1)
+        with np.errstate(all="ignore"):
+            lam = np.asarray(stiffness(run_fi, y).lam, float).reshape(-1)
+        ratio = dt * lam / beta if math.isfinite(beta) else np.zeros_like(lam)
+        if self.auto:
+            new = {k: v * self.rate / dt for k, v in unit_rate_gains(self.fi, y).items()}
+        else:
+            new = self._lowered(self.fi, y)
+        if self.monitor_every is None:
+            rs = self.ratio_set_i
+            with np.errstate(invalid="ignore"):
+                off = (ratio > rs * 1.05) | (ratio < rs / 1.05)
+                near = (rs / 1.02 <= ratio) & (ratio <= rs * 1.02)
+            self.N_i = np.where(due & off, np.maximum(10, self.N_i // 2),
+                                np.where(due & near, np.minimum(2 * self.N_i, self.N_cap_i), self.N_i))
+        gains = self._merge(run_fi.gains, new, due.reshape(self.batch))
+        run_fi = run_fi.with_gains(gains)
+        with np.errstate(all="ignore"):
+            lam2 = np.asarray(stiffness(run_fi, y).lam, float).reshape(-1)
+        self.ratio_set_i = np.where(due, dt * lam2 / beta if math.isfinite(beta) else 0.0, self.ratio_set_i)
+        for i in np.nonzero(due)[0]:
+            self.next_i[i] = s0 + _chunk(s0, self.total, int(self.N_i[i]), self.save_every)[0]
+        rep.gain_times.append(t_now)
+        rep.gain_history.append(dict(gains))
+        self.sched_t.append(t_now)
+        self.sched_g.append(dict(gains))
+        return run_fi, self._left(s0)
 
     # --- after ------------------------------------------------------------------------------
     def after(self, ts, Ys):

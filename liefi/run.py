@@ -174,20 +174,6 @@ def _segment_runner(sch, dt, backend, names):
     return run
 
 
-def _chunk(s0, n_steps, N, save_every):
-    """``(length, sub_save)`` of the next segment so that saved indices stay multiples of ``save_every``."""
-    left = n_steps - s0
-    nxt = (s0 // save_every + 1) * save_every
-    if save_every <= N:
-        if s0 % save_every:  # first back onto a multiple of save_every
-            L = min(nxt - s0, left)
-            return L, L
-        L = save_every * max(1, N // save_every)
-        return min(L, left), save_every
-    L = min(N, nxt - s0, left)
-    return L, L
-
-
 def _step_seconds(fi, y0, sch):
     """Measured seconds of one numpy step at ``y0`` (one timed field evaluation times the stages)."""
     t = time.perf_counter()
@@ -203,7 +189,7 @@ def exact_drops(fi, sch, y0, *, rtol=1e-12):
     untouched by the other invariants' feedback: every Runge--Kutta step keeps it
     to rounding), for an explicit tableau, and only where the invariant is on its
     target at every member of ``y0`` (relative ``rtol``): off it, its own
-    feedback is what brings it back.  ``O(1)`` evaluations (a few members).
+    feedback is what brings it back.  One vectorized evaluation over the batch.
     """
     if getattr(sch, "kind", None) not in ("explicit", "split") or not fi.invariant_names:
         return {}
@@ -211,12 +197,12 @@ def exact_drops(fi, sch, y0, *, rtol=1e-12):
     from .stability import drift_scales
 
     Y = np.asarray(y0, float).reshape(-1, fi.n)
-    Y = Y[np.unique(np.linspace(0, Y.shape[0] - 1, min(Y.shape[0], 16)).astype(int))]
+    flat = fi.for_batch(np.shape(y0)[:-1]).members()  # every member's own target
     with np.errstate(all="ignore"):
-        kept = exactly_kept(fi, sch.name, Y[0])
+        kept = exactly_kept(flat.members(0), sch.name, Y[0])
         if not kept:
             return {}
-        jet = fi.invariant_gradients(Y)
+        jet = flat.invariant_gradients(Y)
         scales = drift_scales(fi)
     out = {}
     for name in kept:
@@ -245,7 +231,7 @@ def run_feedback(fi, dt, t_final, scheme="euler", *, y0=None, save_every=None, c
     guard's :class:`~liefi.guard.RunReport`), ``plan`` (:class:`RunPlan`),
     ``cpu_seconds`` (integration) and ``overhead_seconds``.
     """
-    from .guard import Guard
+    from .guard import Guard, _segment
 
     start_all = time.process_time()
     dt, t_final, n_steps, _, check_every = steps_for(dt, t_final, check_every=check_every)
@@ -259,6 +245,7 @@ def run_feedback(fi, dt, t_final, scheme="euler", *, y0=None, save_every=None, c
             raise ValueError(f"y0: expected a state of {fi.n} numbers {fi.names}, got {np.shape(y0)}")
         if not np.all(np.isfinite(y0)):
             raise ValueError("y0: contains non-finite numbers")
+    fi = fi.for_batch(y0.shape[:-1])  # an integrator built on one state, run on a batch: common values
     sch = _fixed_step_scheme(scheme)
     drops = exact_drops(fi, sch, y0) if drop_exact else {}
     if drops:
@@ -279,7 +266,7 @@ def run_feedback(fi, dt, t_final, scheme="euler", *, y0=None, save_every=None, c
     ts = np.empty(pl.n_saved)
     out[..., 0], ts[0], k = y0, 0.0, 1
     if guard.active:
-        N = guard.segment_length(n_steps)
+        N = guard.segment_length(n_steps, save_every)
     else:
         N = n_steps if not pl.expected_seconds > PROGRESS_SECONDS else max(1, n_steps // 100)
     bar = Progress(n_steps, f"liefi {sch.name}", _want_progress(progress, pl.expected_seconds))
@@ -287,7 +274,7 @@ def run_feedback(fi, dt, t_final, scheme="euler", *, y0=None, save_every=None, c
     checked = (y0, 0.0)
     try:
         while s0 < n_steps:
-            L, sub = _chunk(s0, n_steps, N, save_every)
+            L, sub = _segment(s0, n_steps, N, save_every)
             # numpy writes the segment straight into the output when its start is a saved state
             direct = runner.state["backend"] == "numpy" and s0 % save_every == 0 and sub == save_every
             buf = out[..., k - 1 : k + L // sub + (1 if L % sub else 0)] if direct else None

@@ -57,6 +57,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .reduction import core as _core
+from .drift import drift, drift_scales, first_integral_defect  # noqa: F401 -- part of this module's API
 from .schemes import IntegrationError, positive_number
 from .schemes import positive_int as _positive_int  # noqa: F401
 from .schemes import registry as _registry
@@ -106,15 +107,25 @@ class StabilityError(IntegrationError):
 # --------------------------------------------------------------------------------
 
 
+def _fmt_gain(v):
+    """A gain as text; per-member gains (an array) as their range."""
+    if np.ndim(v) == 0:
+        return f"{float(v):.4g}"
+    lo, hi = float(np.min(v)), float(np.max(v))
+    return f"{lo:.4g}" if lo == hi else f"{lo:.4g}..{hi:.4g} (per member)"
+
+
 def _fmt_gains(gains):
-    vals = list(gains.values())
+    vals = [_fmt_gain(v) for v in gains.values()]
     if vals and all(v == vals[0] for v in vals):
-        return f"all {vals[0]:.4g}"
-    return ", ".join(f"{k}={v:.4g}" for k, v in gains.items())
+        return f"all {vals[0]}"
+    return ", ".join(f"{k}={v}" for k, v in zip(gains, vals))
 
 
 def _scaled(gains, factor):
-    return {k: float(v) * float(factor) for k, v in gains.items()}
+    """``{k: v * factor}``: a float for a common gain and factor, else an array (one per member)."""
+    out = {k: np.asarray(v, float) * np.asarray(factor, float) for k, v in gains.items()}
+    return {k: float(v) if v.ndim == 0 else v for k, v in out.items()}
 
 
 # --------------------------------------------------------------------------------
@@ -158,7 +169,7 @@ def optimal_rate(scheme):
 def _penalty_lam(fi, y):
     """Largest eigenvalue of ``k0 Hess P`` at ``y`` (``(...)``), 0 without a penalty."""
     y = np.asarray(y, float)
-    if not fi.use_penalty or fi.gains.get("penalty", 0.0) == 0.0:
+    if not fi.use_penalty or np.all(np.asarray(fi.gains.get("penalty", 0.0)) == 0.0):
         return np.zeros(y.shape[:-1])
     return fi.gains["penalty"] * fi.system.space.group.penalty_hessian_max(y[..., : fi.nc])
 
@@ -217,7 +228,7 @@ def stiffness(fi, y, *, exact=False) -> Stiffness:
     m = len(jet.names)
     lam_p = _penalty_lam(fi, y)
     if m:
-        W = jet.grad * np.sqrt(jet.gains)[:, None]
+        W = jet.grad * np.sqrt(jet.gains)[..., None]
         G = W @ np.swapaxes(W, -1, -2)
         w, vec = np.linalg.eigh(G)
         lam_z = w[..., -1]
@@ -318,6 +329,17 @@ def pilot(fi, y0, t_final, *, max_evals=2000, max_rate=0.5):
 
 def dynamics_eigenvalues(fi, y):
     """Eigenvalues of ``dX/dy`` (the unforced field) at the states ``y`` by central differences (flat array)."""
+    return _dynamics_eigenvalues(fi, y).ravel()
+
+
+def dynamics_rates(fi, y):
+    """Spectral radius of ``dX/dy`` at each state of ``y`` (shape ``y.shape[:-1]``; a float for one state)."""
+    r = np.max(np.abs(_dynamics_eigenvalues(fi, y)), axis=-1, initial=0.0)
+    return float(r) if r.ndim == 0 else r
+
+
+def _dynamics_eigenvalues(fi, y):
+    """Eigenvalues of ``dX/dy`` at the states ``y``: ``(..., n)``."""
     y = np.asarray(y, dtype=float)
     n = y.shape[-1]
     h = 1e-6 * np.maximum(1.0, np.abs(y))
@@ -327,7 +349,7 @@ def dynamics_eigenvalues(fi, y):
         F = fi.unforced_vector_field(pts)
         Jt = (F[..., :n, :] - F[..., n:, :]) / (2 * h[..., :, None])  # rows: d f / d y_k
         ev = np.linalg.eigvals(np.swapaxes(Jt, -1, -2))
-    return ev.ravel()
+    return ev
 
 
 def dynamics_rate(fi, y):
@@ -558,6 +580,9 @@ def estimate(fi, dt, scheme="euler", *, t_final=None, y0=None, max_evals=None, r
     """
     sch, beta = resolve_scheme(scheme)
     y0 = fi.y0 if y0 is None else np.asarray(y0, float)
+    if fi.batch:  # per-member gains and targets: the pilot's members take theirs along
+        fi = fi.members()
+        y0 = y0.reshape(-1, y0.shape[-1])
     if t_final is not None and max_evals is None:
         max_evals = _max_evals(t_final / dt, getattr(sch, "stages", 1))
     if t_final is not None and math.isfinite(beta):
@@ -569,6 +594,7 @@ def estimate(fi, dt, scheme="euler", *, t_final=None, y0=None, max_evals=None, r
             pick = np.unique(np.concatenate([[int(np.argmax(lam_b))],
                                              np.linspace(0, flat.shape[0] - 1, PILOT_MEMBERS - 1).astype(int)]))
             start = flat[pick]
+            fi = fi.members(pick)
         ts, Ys = pilot(fi, start, t_final, max_evals=max_evals)
         if len(ts) > 2:  # refine around the stiffest pilot step (a fixed 16 RK4 steps)
             with np.errstate(all="ignore"):
@@ -664,23 +690,26 @@ def unit_rate_gains(fi, y=None):
     """Gains with ``lambda_max(Hess V)(y) = 1``, every invariant weighted by ``1/|grad I_j(y)|^2``.
 
     The Jacobi scaling of the Gram matrix: each invariant alone would relax at
-    the same rate; the common factor makes the largest eigenvalue 1 (max over a
-    batch).  The penalty (Hessian eigenvalue 2 on the group) gets weight 1/2.
-    A vanishing gradient gets the weight of the largest one.
+    the same rate; the common factor makes the largest eigenvalue 1.  The
+    penalty (Hessian eigenvalue 2 on the group) gets weight 1/2.  A vanishing
+    gradient gets the weight of the largest one.  For a batch ``y`` (an
+    ensemble) each member gets its own (arrays of shape ``y.shape[:-1]``): the
+    gains a single run of that member gets.
     """
     y = fi.y0 if y is None else np.asarray(y, float)
+    batch = y.shape[:-1]
     jet = fi.invariant_gradients(y)
-    n2 = np.einsum("...mn,...mn->...m", jet.grad, jet.grad).reshape(-1, len(jet.names)).max(axis=0) if jet.names else np.zeros(0)
-    top = float(np.max(n2, initial=0.0))
-    floor = max(top * 1e-12, 1e-300)
-    w = {nm: 1.0 / max(float(v), floor) if top > 0 else 1.0 for nm, v in zip(jet.names, n2)}
+    n2 = np.einsum("...mn,...mn->...m", jet.grad, jet.grad)  # (..., m)
+    top = np.max(n2, axis=-1, initial=0.0)
+    floor = np.maximum(top * 1e-12, 1e-300)
+    w = {nm: np.where(top > 0, 1.0 / np.maximum(n2[..., j], floor), 1.0) for j, nm in enumerate(jet.names)}
     if fi.use_penalty:
-        w["penalty"] = 0.5
-    trial = fi.with_gains({k: w.get(k, 1.0) for k in fi.invariant_names})
-    lam = float(np.max(stiffness(trial, y).lam, initial=0.0))
-    if not (lam > 0 and math.isfinite(lam)):
-        return dict(trial.gains)
-    return _scaled(trial.gains, 1.0 / lam)
+        w["penalty"] = np.full(batch, 0.5)
+    w = {k: float(v) if np.ndim(v) == 0 else v for k, v in w.items()}
+    trial = fi.for_batch(batch).with_gains({k: w.get(k, 1.0) for k in fi.invariant_names})
+    lam = np.asarray(stiffness(trial, y).lam, float)
+    scale = np.where((lam > 0) & np.isfinite(lam), 1.0 / np.where(lam > 0, lam, 1.0), 1.0)
+    return _scaled(trial.gains, float(scale) if scale.ndim == 0 else scale)
 
 
 def auto_gains(fi, dt, scheme="euler", *, y=None, t_final=None):
@@ -696,103 +725,3 @@ def auto_gains(fi, dt, scheme="euler", *, y=None, t_final=None):
     if t_final is not None:
         lam = max(estimate(unit, dt, scheme, t_final=t_final, y0=y, resolution=False).lam, 1e-300)
     return _scaled(unit.gains, optimal_rate(scheme) / (dt * lam))
-
-
-# --------------------------------------------------------------------------------
-# drift of the invariants
-# --------------------------------------------------------------------------------
-
-
-def drift_scales(fi, y=None):
-    """The scale of each penalized invariant, for relative drifts (``{name: s}``).
-
-    ``J_i``: ``sqrt(2 E C_ii)``, the largest ``|<P, e_i>|`` at kinetic energy
-    ``E`` (so ``J_i / s`` is a cosine); energy: ``E = max(|h|, T, |U|)``; a user
-    invariant: ``max(|I_0|, sqrt(E))``; the penalty: 1 (for ``||R^T R - I||``).
-    """
-    y = fi.y0 if y is None else np.asarray(y, float)
-    _, z = fi.split(y)
-    t = _core.evaluate(fi.system, z)
-    n = fi.system.space.n
-    U = np.asarray(fi.system.potential(z[..., :n]), float)
-    T = np.abs(t.h - U)
-    E = float(max(np.max(np.abs(t.h)), np.max(T), np.max(np.abs(U)), 1e-12))
-    out = {}
-    if fi.use_constraints:
-        C = np.asarray(_core.gram_matrix(fi.system, z[..., :n]), float)
-        d = np.diagonal(C, axis1=-2, axis2=-1).reshape(-1, fi.system.K).max(axis=0)
-        for i in range(fi.system.K):
-            out[f"J_{i + 1}"] = math.sqrt(2 * E * max(float(d[i]), 1e-300))
-    if fi.use_energy:
-        out["energy"] = E
-    for u in fi.user:
-        out[u.name] = max(float(np.max(np.abs(np.asarray(fi.targets[u.name], float)))), math.sqrt(E), 1e-12)
-    if fi.use_penalty:
-        out["penalty"] = 1.0
-    return out
-
-
-def drift(fi, y, scales=None, jet=None):
-    """``(delta, name)``: the largest relative residual ``|I_j - I_j0| / s_j`` at ``y`` (max over a batch).
-
-    ``s_j`` is the larger of ``scales[name]`` (e.g. :func:`drift_scales` at the
-    start) and the scale at ``y`` itself (the kinetic and potential energies
-    exchange along a run: a start at rest must not make every later drift huge).
-    """
-    y = np.asarray(y, float)
-    if jet is None:
-        jet = fi.invariant_gradients(y)
-    with np.errstate(all="ignore"):
-        try:
-            cur = drift_scales(fi, y)
-        except Exception:  # noqa: BLE001 -- non-finite states: the start scales only
-            cur = {}
-    scales = {k: max((v for v in ((scales or {}).get(k, 0.0), cur.get(k, 0.0)) if np.isfinite(v)), default=0.0)
-              or 1.0 for k in set(cur) | set(scales or {})}
-    best, who = 0.0, ""
-    for j, nm in enumerate(jet.names):
-        v = float(np.max(np.abs(jet.residual[..., j]), initial=0.0)) / scales.get(nm, 1.0)
-        if not v <= best:  # also catches nan
-            best, who = v, nm
-    if fi.use_penalty:
-        P = fi.system.space.group.penalty(y[..., : fi.nc])
-        v = float(np.max(2 * np.sqrt(np.maximum(P, 0.0)), initial=0.0))
-        if not v <= best:
-            best, who = v, "penalty"
-    return best, who
-
-
-def first_integral_defect(fi, y, rtol=1e-6):
-    """A warning text if a penalized invariant is not conserved by the extended field at ``y``, else ``""``.
-
-    Assumption A1 of the theory: ``grad I_j . X = 0``.  A user invariant that is
-    not a first integral (e.g. ``L_z`` once the metric is not isotropic) makes
-    the feedback fight the dynamics: the run then drifts whatever the gains.
-
-    Evaluated on the constraint set (``y`` projected onto ``{J = 0}`` at fixed
-    ``x``, :func:`liefi.reduction.project`): a first integral of the constrained
-    motion (the knife edge's ``p_phi``) is one of the extended field only there
-    (off it its rate is ``O(J)``), so a state off the set would be a false alarm.
-    """
-    try:
-        with np.errstate(all="ignore"):
-            y = np.asarray(y, float)
-            if fi.system.K:
-                g, z = fi.split(y)
-                y = np.concatenate([g, _core.project(fi.system, z)], -1)
-            jet = fi.invariant_gradients(y)
-            X = fi.unforced_vector_field(y)
-            dI = np.einsum("...mn,...n->...m", jet.grad, X)
-            scale = np.linalg.norm(jet.grad, axis=-1) * np.linalg.norm(X, axis=-1)[..., None]
-            rel = np.abs(dI) / np.maximum(scale, 1e-300)
-            rel = rel.reshape(-1, len(jet.names)).max(axis=0) if jet.names else rel
-    except Exception:  # noqa: BLE001 -- a diagnostic only
-        return ""
-    bad = [(nm, float(r)) for nm, r in zip(jet.names, np.atleast_1d(rel)) if r > rtol]
-    if not bad:
-        return ""
-    what = ", ".join(f"{nm} (relative dI/dt = {r:.2g})" for nm, r in bad)
-    return (f"liefi: invariants: {what} not conserved by the extended field on the constraint set (at the "
-            "start): V is not a first "
-            "integral (assumption A1), so the feedback fights the dynamics and the run drifts whatever the "
-            "gains; check that the invariant belongs to this system.")

@@ -247,9 +247,9 @@ def test_compiled_split_ensemble_equals_numpy():
 
 
 @needs_numba
-def test_ensemble_equals_single_runs():
-    """A batch of trajectories (prange over trajectories) equals the numpy batch run,
-    per-trajectory targets included."""
+def test_compiled_ensemble_equals_numpy_batch():
+    """A batch of trajectories (prange over trajectories) equals the numpy batch run, per-member
+    targets included (each member against its own single run: tests/test_ensembles.py)."""
     sc = scenes.get("suslov")
     base = sc.integrator(None, configuration=True)
     rng = np.random.default_rng(1)
