@@ -38,6 +38,7 @@ from .stability import (
     drift,
     drift_scales,
     dynamics_rate,
+    data_defect,
     metric_defect,
     stiffness,
 )
@@ -178,10 +179,15 @@ def _advice(fi, y, t, dt, sch, beta, earlier=None):
     ``earlier = (y, t)``: a state checked before (used when the last finite one
     is already too large to evaluate).
     """
-    found = []
-    for yy, tt, lab in ((y, t, "At the last finite state"),) + (
+    states = ((y, t, "At the last finite state"),) + (
         (earlier + ("At the last checked state",),) if earlier is not None else ()
-    ):
+    )
+    for yy, tt, lab in states:  # the data first, where the run last was: no gain repairs a bad metric
+        md = data_defect(fi, yy)
+        if md:
+            return f"{lab} (t={tt:g}): {md}"
+    found = []
+    for yy, tt, lab in states:
         try:
             with np.errstate(all="ignore"):
                 st = stiffness(fi, yy)
@@ -202,9 +208,6 @@ def _advice(fi, y, t, dt, sch, beta, earlier=None):
     if len(found) == 2 and found[0][0] > 10 * found[1][0]:
         pick = found[1]
     lam, dom, y, t, label = pick
-    md = metric_defect(fi, y)
-    if md:  # the data, not the gains
-        return f"{label} (t={t:g}): {md}"
     name = getattr(sch, "name", str(sch))
     if math.isfinite(beta) and dt * lam > beta:
         safe = beta / lam

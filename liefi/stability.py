@@ -387,10 +387,40 @@ def metric_defect(fi, y, rtol=METRIC_DEGENERACY):
         return ""
     i = int(bad[0])
     what = "is not positive definite" if not w[i] > 0 else "degenerates (nearly singular)"
-    return (f"The metric {what} at x = {np.round(x[i], 6).tolist()} (smallest eigenvalue {float(w[i]):.3g}, "
+    eig = f"smallest eigenvalue {float(w[i]):.3g}" if math.isfinite(w[i]) else "eigenvalues not finite"
+    return (f"The metric {what} at x = [{', '.join(f'{v:.6g}' for v in x[i])}] ({eig}; smallest eigenvalue "
             f"{float(np.min(w0)):.3g} at the start): the motion runs into a degenerate metric, where the field "
             "and the stiffness grow like 1/eigenvalue; no choice of gains repairs that: check the metric's data "
             "there (or stop the run before it).")
+
+
+def data_defect(fi, y):
+    """A message if the system's data fail at a state of ``y`` (else ``""``): the metric loses
+    positive definiteness (:func:`metric_defect`), or a datum (metric, constraints, potential,
+    vector potential) returns complex values for the real shape point there."""
+    md = metric_defect(fi, y)
+    if md:
+        return md
+    from ._data import check_real
+
+    try:
+        n = fi.system.space.n
+        if not n:
+            return ""
+        x = np.asarray(y, float)[..., fi.nc : fi.nc + n].reshape(-1, n)
+        sys_ = fi.system
+        for datum in (sys_.metric, sys_.constraints, sys_.potential, sys_.vector_potential):
+            if datum is None or datum.constant:
+                continue
+            with np.errstate(all="ignore"):
+                check_real(datum(x), datum.name, x[0] if x.shape[0] == 1 else x)
+    except ValueError as exc:
+        return (f"{' '.join(str(exc).split())}: the system's data leave the real numbers at this state, which "
+                "no choice of gains or step repairs; check their formulas there (e.g. a square root or a "
+                "logarithm of a negative number, written for complex input).")
+    except Exception:  # noqa: BLE001 -- a diagnostic only
+        return ""
+    return ""
 
 
 @dataclass
