@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ._data import check_real
 from .schemes import IntegrationError
 from .schemes import split as _split
 from .stability import (
@@ -38,7 +39,6 @@ from .stability import (
     drift,
     drift_scales,
     dynamics_rate,
-    data_defect,
     metric_defect,
     stiffness,
 )
@@ -171,6 +171,33 @@ class RunReport:
     @property
     def final_gains(self):
         return self.gain_history[-1] if self.gain_history else self.gains
+
+
+def data_defect(fi, y):
+    """A message if the system's data fail at a state of ``y`` (else ``""``): the metric loses
+    positive definiteness (:func:`metric_defect`), or a datum (metric, constraints, potential,
+    vector potential) returns complex values for the real shape point there."""
+    md = metric_defect(fi, y)
+    if md:
+        return md
+    try:
+        n = fi.system.space.n
+        if not n:
+            return ""
+        x = np.asarray(y, float)[..., fi.nc : fi.nc + n].reshape(-1, n)
+        sys_ = fi.system
+        for datum in (sys_.metric, sys_.constraints, sys_.potential, sys_.vector_potential):
+            if datum is None or datum.constant:
+                continue
+            with np.errstate(all="ignore"):
+                check_real(datum(x), datum.name, x[0] if x.shape[0] == 1 else x)
+    except ValueError as exc:
+        return (f"{' '.join(str(exc).split())}: the system's data leave the real numbers at this state, which "
+                "no choice of gains or step repairs; check their formulas there (e.g. a square root or a "
+                "logarithm of a negative number, written for complex input).")
+    except Exception:  # noqa: BLE001 -- a diagnostic only
+        return ""
+    return ""
 
 
 def _advice(fi, y, t, dt, sch, beta, earlier=None):

@@ -394,35 +394,6 @@ def metric_defect(fi, y, rtol=METRIC_DEGENERACY):
             "there (or stop the run before it).")
 
 
-def data_defect(fi, y):
-    """A message if the system's data fail at a state of ``y`` (else ``""``): the metric loses
-    positive definiteness (:func:`metric_defect`), or a datum (metric, constraints, potential,
-    vector potential) returns complex values for the real shape point there."""
-    md = metric_defect(fi, y)
-    if md:
-        return md
-    from ._data import check_real
-
-    try:
-        n = fi.system.space.n
-        if not n:
-            return ""
-        x = np.asarray(y, float)[..., fi.nc : fi.nc + n].reshape(-1, n)
-        sys_ = fi.system
-        for datum in (sys_.metric, sys_.constraints, sys_.potential, sys_.vector_potential):
-            if datum is None or datum.constant:
-                continue
-            with np.errstate(all="ignore"):
-                check_real(datum(x), datum.name, x[0] if x.shape[0] == 1 else x)
-    except ValueError as exc:
-        return (f"{' '.join(str(exc).split())}: the system's data leave the real numbers at this state, which "
-                "no choice of gains or step repairs; check their formulas there (e.g. a square root or a "
-                "logarithm of a negative number, written for complex input).")
-    except Exception:  # noqa: BLE001 -- a diagnostic only
-        return ""
-    return ""
-
-
 @dataclass
 class StabilityEstimate:
     """The stability limit of one run, estimated before it (see :func:`estimate`).

@@ -54,7 +54,9 @@ def command(args, file=None):
     is ``null``.  In ``estimate``, ``"bound": null`` is a scheme with no real
     stability bound (a split ``imex-*`` scheme: stable on the whole negative real
     axis) and ``"dt_safe": null`` a step that the feedback's stiffness does not
-    limit; in ``map``, ``"bound"`` and ``"dt_estimate"`` read the same way.
+    limit; in ``map``, ``"bound"``, ``"dt_estimate"``, ``"dt_estimate0"`` and the
+    upper end of a ``"finite"`` or ``"accurate"`` interval read the same way (no
+    limit: none was found).
     """
     import os
     import sys
