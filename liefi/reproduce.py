@@ -26,7 +26,8 @@ The output folder is checked before any work (:func:`prepare_output`): liefi
 writes only into a new or empty folder or into one it owns (one holding its
 manifest); the files of an earlier reproduction listed in the manifest are
 removed first, so nothing stale is mixed in, and a file liefi did not write is
-never overwritten.
+never overwritten.  ``liefi bench`` uses the same mechanism (its manifest names
+the command): neither command writes into the other's folder.
 
 ``t_final_scale`` (``--t-final-scale``, for tests) multiplies every horizon,
 rounded to a whole number of steps.  A failing experiment is recorded (status
