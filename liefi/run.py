@@ -45,6 +45,8 @@ DEFAULT_SAVE_BYTES = 256 * 2**20
 PROGRESS_SECONDS = 3.0
 #: Refuse an explicit ``scipy:`` method expected to need more steps than this.
 IVP_MAX_STEPS = 1e6
+#: A run of more steps than this is refused before it starts (``liefi run`` and ``liefi bench``: ``--max-steps``).
+MAX_RUN_STEPS = 10**8
 
 
 def available_memory():
@@ -337,9 +339,6 @@ def run_feedback(fi, dt, t_final, scheme="euler", *, y0=None, save_every=None, c
 
 # ------------------------------------------------------------------------------------------
 # guards of the paths that do not go through the fixed-step loop
-#: A run of more steps than this is refused before it starts (``liefi run`` and ``liefi bench``: ``--max-steps``).
-MAX_RUN_STEPS = 10**8
-
 # ------------------------------------------------------------------------------------------
 
 
