@@ -25,6 +25,18 @@ def as_float_array(value, name):
         raise ValueError(f"{name}: expected an array of real numbers, got {value!r} ({exc})") from None
 
 
+def check_real(value, name, x):
+    """Raise a ``ValueError`` naming ``name`` if ``value``, computed at the real point(s) ``x``,
+    has a nonzero imaginary part: liefi's data must be real for real input (complex input is for
+    the complex-step derivative only)."""
+    val = np.asarray(value)
+    if np.iscomplexobj(val) and np.any(val.imag != 0):
+        raise ValueError(
+            f"{name}: returns complex values at real x = {np.asarray(x).tolist()} (largest imaginary part "
+            f"{np.max(np.abs(val.imag)):.3g}); it must be real for real x"
+        )
+
+
 #: Random points (besides the sample point) at which complex-step safety is checked.
 N_PROBES = 3
 
@@ -116,12 +128,7 @@ class DataFunction:
         """Raise a named error if the datum returns complex values (nonzero imaginary part) at real ``x``."""
         if self.constant:
             return
-        val = np.asarray(self.fun(np.asarray(x, dtype=float)))
-        if np.iscomplexobj(val) and np.any(val.imag != 0):
-            raise ValueError(
-                f"{self.name}: returns complex values at real x = {x} (largest imaginary part "
-                f"{np.max(np.abs(val.imag)):.3g}); it must be real for real x"
-            )
+        check_real(self.fun(np.asarray(x, dtype=float)), self.name, x)
 
     def check_differentiable(self, x):
         """Raise a named error if the derivative (complex-step or supplied) is wrong at ``x``.

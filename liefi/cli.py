@@ -31,13 +31,14 @@ matplotlib is imported only when a figure is written.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import re
 import sys
 
 from . import __version__
+from . import _json
 from . import scenes as _scenes
+from .run import MAX_RUN_STEPS, check_step_count
 from .schemes import IntegrationError
 from .schemes import registry as _schemes
 
@@ -184,7 +185,8 @@ def plot_path(path, scene, variant=None, *, suffix=""):
 
     A folder gets ``SCENE.png`` (``SCENE-VARIANT.png`` for another variant than the
     first) inside it; a name without a suffix gets ``.png``.  Raises
-    :class:`UsageError` (naming ``out``) when the file cannot be written, and an
+    :class:`UsageError` (naming ``out``) when the file cannot be written or its
+    suffix is not a format matplotlib writes (:func:`liefi.plotting.check_format`), and an
     ``ImportError`` with the install hint when matplotlib is missing.
     """
     import os
@@ -205,30 +207,26 @@ def plot_path(path, scene, variant=None, *, suffix=""):
         raise UsageError(f"out: the folder {folder!r} of {path!r} does not exist; create it or choose another --out")
     if os.path.isdir(path) or (os.path.exists(path) and not os.access(path, os.W_OK)) or not os.access(folder, os.W_OK):
         raise UsageError(f"out: cannot write {path!r} (not writable); choose another --out")
-    return path
+    try:
+        return plotting.check_format(path, "out")
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
 
 
 #: ``liefi run`` refuses more steps than this unless ``--max-steps`` says otherwise
-MAX_STEPS = 10**8
+MAX_STEPS = MAX_RUN_STEPS
 
 
 def check_steps(scene, args):
-    """Refuse, before any work, a run of more than ``--max-steps`` steps (default :data:`MAX_STEPS`).
-
-    The count ``t_final / dt`` is the whole estimate: at liefi's fastest (about a
-    microsecond a step, compiled) 1e8 steps take minutes, with numpy hours.  The
-    saved output is capped by the run itself (``--save-every`` overrides).
-    """
+    """Refuse, before any work, a run of more than ``--max-steps`` steps (default :data:`MAX_STEPS`):
+    :func:`liefi.run.check_step_count`, the check ``liefi bench`` makes too."""
     dt = scene.dt if args.dt is None else args.dt
     T = scene.t_final if args.t_final is None else args.t_final
-    n = T / dt
-    limit = args.max_steps if args.max_steps is not None else MAX_STEPS
-    if n > limit:
-        raise UsageError(
-            f"dt: --dt {dt:g} over --t-final {T:g} is {n:.3g} steps, more than the {limit:.3g} allowed "
-            f"(about {n * 1e-6 / 3600:.2g} h at a microsecond a step, compiled; far longer with numpy); "
-            "take a larger --dt or a shorter --t-final, or raise --max-steps"
-        )
+    try:
+        check_step_count(dt, T, args.max_steps,
+                         advice="take a larger --dt or a shorter --t-final, or raise --max-steps")
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
 
 
 def cmd_run(args):
@@ -271,7 +269,7 @@ def cmd_run(args):
         plotting.stack(scene.figures(result), path)
         out["plot"] = path
     if args.json:
-        print(json.dumps(out))
+        print(_json.dumps(out))
     else:
         report(result)
         if path:

@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ._data import check_real
 from .schemes import IntegrationError
 from .schemes import split as _split
 from .stability import (
@@ -174,16 +175,48 @@ class RunReport:
         return self.gain_history[-1] if self.gain_history else self.gains
 
 
+def data_defect(fi, y):
+    """A message if the system's data fail at a state of ``y`` (else ``""``): the metric loses
+    positive definiteness (:func:`metric_defect`), or a datum (metric, constraints, potential,
+    vector potential) returns complex values for the real shape point there."""
+    md = metric_defect(fi, y)
+    if md:
+        return md
+    try:
+        n = fi.system.space.n
+        if not n:
+            return ""
+        x = np.asarray(y, float)[..., fi.nc : fi.nc + n].reshape(-1, n)
+        sys_ = fi.system
+        for datum in (sys_.metric, sys_.constraints, sys_.potential, sys_.vector_potential):
+            if datum is None or datum.constant:
+                continue
+            with np.errstate(all="ignore"):
+                check_real(datum(x), datum.name, x[0] if x.shape[0] == 1 else x)
+    except ValueError as exc:
+        return (f"{' '.join(str(exc).split())}: the system's data leave the real numbers at this state, which "
+                "no choice of gains or step repairs; check their formulas there (e.g. a square root or a "
+                "logarithm of a negative number, written for complex input).")
+    except Exception:  # noqa: BLE001 -- a diagnostic only
+        return ""
+    return ""
+
+
 def _advice(fi, y, t, dt, sch, beta, earlier=None):
     """Text appended to a failure: ``dt lambda_max`` at the last finite state and what to change.
 
     ``earlier = (y, t)``: a state checked before (used when the last finite one
     is already too large to evaluate).
     """
-    found = []
-    for yy, tt, lab in ((y, t, "At the last finite state"),) + (
+    states = ((y, t, "At the last finite state"),) + (
         (earlier + ("At the last checked state",),) if earlier is not None else ()
-    ):
+    )
+    for yy, tt, lab in states:  # the data first, where the run last was: no gain repairs a bad metric
+        md = data_defect(fi, yy)
+        if md:
+            return f"{lab} (t={tt:g}): {md}"
+    found = []
+    for yy, tt, lab in states:
         try:
             with np.errstate(all="ignore"):
                 st = stiffness(fi, yy)
@@ -204,9 +237,6 @@ def _advice(fi, y, t, dt, sch, beta, earlier=None):
     if len(found) == 2 and found[0][0] > 10 * found[1][0]:
         pick = found[1]
     lam, dom, y, t, label = pick
-    md = metric_defect(fi, y)
-    if md:  # the data, not the gains
-        return f"{label} (t={t:g}): {md}"
     name = getattr(sch, "name", str(sch))
     if math.isfinite(beta) and dt * lam > beta:
         safe = beta / lam

@@ -110,6 +110,23 @@ def new_figure(width, height):
     return Figure(figsize=(width, height), layout="constrained", dpi=110)
 
 
+def check_format(path, name="out"):
+    """``path`` if matplotlib writes its suffix's format (``.png``, ``.pdf``, ``.svg`` ...), else a
+    ``ValueError`` naming ``name`` and the formats it can write: checked before any work, so a typo in
+    the suffix does not cost the run it was to draw."""
+    import os
+
+    require_matplotlib()
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    formats = FigureCanvasBase.get_supported_filetypes()
+    ext = os.path.splitext(path)[1][1:].lower()
+    if ext not in formats:
+        raise ValueError(f"{name}: cannot write a figure as {path!r}: the format {ext or '(none)'!r} is not one "
+                         f"matplotlib writes; choose a suffix among {', '.join(sorted(formats))}")
+    return path
+
+
 def save(fig, path):
     """Write ``fig`` to ``path`` (the format from its suffix, e.g. ``.png``); returns ``path``."""
     require_matplotlib()

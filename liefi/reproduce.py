@@ -17,7 +17,7 @@ What is written to ``out``:
   a variant other than a scene's first gets a ``-VARIANT`` suffix; a scene's
   generic figure is ``SCENE-VARIANT.png``;
 * ``summary.json`` (every run: settings, steps, CPU time, max errors, max drifts,
-  figures, status) and ``summary.md`` (the same as a markdown table), rewritten
+  figures, status; strict JSON, a number that is not finite written as ``null``) and ``summary.md`` (the same as a markdown table), rewritten
   after every scene, so an interrupted or killed reproduction leaves a
   consistent summary of what finished;
 * ``liefi-manifest.json``: the files liefi wrote there.
@@ -26,7 +26,8 @@ The output folder is checked before any work (:func:`prepare_output`): liefi
 writes only into a new or empty folder or into one it owns (one holding its
 manifest); the files of an earlier reproduction listed in the manifest are
 removed first, so nothing stale is mixed in, and a file liefi did not write is
-never overwritten.
+never overwritten.  ``liefi bench`` uses the same mechanism (its manifest names
+the command): neither command writes into the other's folder.
 
 ``t_final_scale`` (``--t-final-scale``, for tests) multiplies every horizon,
 rounded to a whole number of steps.  A failing experiment is recorded (status
@@ -45,6 +46,7 @@ import traceback
 import warnings
 
 from . import __version__
+from . import _json
 from ._progress import Progress
 from . import scenes as _scenes
 
@@ -89,10 +91,13 @@ class Output:
 
     The manifest is read and rewritten under an exclusive lock (``fcntl`` where
     available), so worker processes writing into the same folder keep it whole.
+    ``command`` (``"reproduce"``, ``"bench"``) is the command that owns the folder,
+    recorded in the manifest: one command never writes into another's folder.
     """
 
-    def __init__(self, path):
+    def __init__(self, path, command="reproduce"):
         self.path = os.path.abspath(path)
+        self.command = command
 
     def _atomic(self, name, write):
         final = os.path.join(self.path, name)
@@ -127,8 +132,8 @@ class Output:
                         raise OutputError(
                             f"out: {os.path.join(self.path, n)} exists and was not written by liefi; not overwriting it"
                         )
-            if new or reset:
-                data = {"written_by": f"liefi {__version__}", "command": "reproduce", "files": files + new}
+            if new or reset or not os.path.exists(os.path.join(self.path, MANIFEST)):
+                data = {"written_by": f"liefi {__version__}", "command": self.command, "files": files + new}
                 self._atomic(MANIFEST, lambda f: json.dump(data, f, indent=1))
             return files
         finally:
@@ -139,22 +144,31 @@ class Output:
 
         Raises :class:`OutputError` if a file of that name exists that liefi did not write.
         """
-        self._update(add=[name], refuse_foreign=True)
-        return os.path.join(self.path, name)
+        return self.claim_all([name])[0]
+
+    def claim_all(self, names):
+        """The paths of ``names``, all recorded in the manifest at once before any is written; raises
+        :class:`OutputError` (and claims none) if one of them exists that liefi did not write."""
+        self._update(add=list(names), refuse_foreign=True)
+        return [os.path.join(self.path, n) for n in names]
 
     def write_text(self, name, text):
         self.claim(name)
         return self._atomic(name, lambda f: f.write(text))
 
 
-def prepare_output(out):
-    """Check the output folder ``out`` before any work and take it over; returns an :class:`Output`.
+def prepare_output(out, command="reproduce", *, keep=False):
+    """Check the output folder ``out`` before any work and take it over for ``command``; returns an
+    :class:`Output`.  ``liefi reproduce`` and ``liefi bench`` share it.
 
     * missing: created (with its parents);
-    * empty, or holding liefi's manifest: used; the files the manifest lists (an
-      earlier reproduction's figures and summaries) are removed first;
-    * holding other files and no manifest, not a folder, or not writable:
-      :class:`OutputError` naming ``out`` and what to do.
+    * empty, or holding liefi's manifest of the same ``command``: used; the files the
+      manifest lists (an earlier reproduction's figures and summaries) are removed
+      first, unless ``keep`` (``liefi bench``: its results store is resumed; each
+      file it writes is claimed with :meth:`Output.claim`, which refuses a file liefi
+      did not write);
+    * holding another command's manifest, other files and no manifest, not a folder,
+      or not writable: :class:`OutputError` naming ``out`` and what to do.
     """
     path = os.path.abspath(out)
     if os.path.lexists(path) and not os.path.isdir(path):
@@ -168,11 +182,18 @@ def prepare_output(out):
     if MANIFEST in entries:
         try:
             with open(os.path.join(path, MANIFEST)) as f:
-                old = [str(n) for n in json.load(f).get("files", [])]
+                data = json.load(f)
+            old = [str(n) for n in data.get("files", [])]
+            owner = str(data.get("command", "reproduce"))
         except (OSError, ValueError, AttributeError) as exc:
             raise OutputError(
                 f"out: {os.path.join(path, MANIFEST)} is unreadable ({_one_line(exc)}); remove it or choose another --out"
             ) from None
+        if owner != command:
+            raise OutputError(
+                f"out: the folder {out!r} holds the output of `liefi {owner}` ({MANIFEST}); `liefi {command}` "
+                "does not write into it: choose another --out"
+            )
     elif entries:
         shown = ", ".join(sorted(entries)[:3]) + (", ..." if len(entries) > 3 else "")
         raise OutputError(
@@ -181,11 +202,13 @@ def prepare_output(out):
         )
     if not os.access(path, os.W_OK | os.X_OK):
         raise OutputError(f"out: the folder {out!r} is not writable; choose another --out")
-    output = Output(path)
+    output = Output(path, command)
     try:
-        output._update(reset=True)  # proves the folder writable before any work
+        output._update(reset=not keep)  # proves the folder writable before any work
     except OSError as exc:
         raise OutputError(f"out: cannot write into {out!r} ({exc.strerror or exc}); choose another --out") from None
+    if keep:
+        return output
     for name in old:  # an earlier reproduction: nothing stale stays beside the new figures
         p = os.path.join(path, os.path.basename(name))
         if os.path.isfile(p) or os.path.islink(p):
@@ -463,7 +486,7 @@ def _write_summary(output, names, state, scale):
         "figures": figures,
         "failures": failures,
     }
-    output.write_text("summary.json", json.dumps(summary, indent=1, default=_json_default))
+    output.write_text("summary.json", _json.dumps(summary, indent=1, default=_json_default))
     output.write_text("summary.md", markdown_table(summary) + "\n")
     return summary
 

@@ -45,6 +45,8 @@ DEFAULT_SAVE_BYTES = 256 * 2**20
 PROGRESS_SECONDS = 3.0
 #: Refuse an explicit ``scipy:`` method expected to need more steps than this.
 IVP_MAX_STEPS = 1e6
+#: A run of more steps than this is refused before it starts (``liefi run`` and ``liefi bench``: ``--max-steps``).
+MAX_RUN_STEPS = 10**8
 
 
 def available_memory():
@@ -325,6 +327,27 @@ def run_feedback(fi, dt, t_final, scheme="euler", *, y0=None, save_every=None, c
 # ------------------------------------------------------------------------------------------
 # guards of the paths that do not go through the fixed-step loop
 # ------------------------------------------------------------------------------------------
+
+
+def check_step_count(dt, t_final, max_steps=None, *, name="dt",
+                     advice="take a larger dt or a shorter t_final, or raise max_steps"):
+    """Refuse, before any work, a run of more than ``max_steps`` steps (default :data:`MAX_RUN_STEPS`).
+
+    The one check of a run's length that ``liefi run`` and ``liefi bench`` share.
+    The count ``t_final / dt`` is the whole estimate: at liefi's fastest (about a
+    microsecond a step, compiled) 1e8 steps take minutes, with numpy hours.
+    Returns the count; raises a ``ValueError`` starting with ``name`` and ending
+    with ``advice`` (the caller spells its own flags there).
+    """
+    n = float(t_final) / float(dt)
+    limit = MAX_RUN_STEPS if max_steps is None else max_steps
+    if n > limit:
+        raise ValueError(
+            f"{name}: dt {float(dt):g} over t_final {float(t_final):g} is {n:.3g} steps, more than the {limit:.3g} "
+            f"allowed (about {n * 1e-6 / 3600:.2g} h at a microsecond a step, compiled; far longer with numpy); "
+            + advice
+        )
+    return n
 
 
 def check_ivp(fi, scheme, t_final, *, max_steps=IVP_MAX_STEPS):

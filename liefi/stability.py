@@ -409,7 +409,8 @@ def metric_defect(fi, y, rtol=METRIC_DEGENERACY):
         return ""
     i = int(bad[0])
     what = "is not positive definite" if not w[i] > 0 else "degenerates (nearly singular)"
-    return (f"The metric {what} at x = {np.round(x[i], 6).tolist()} (smallest eigenvalue {float(w[i]):.3g}, "
+    eig = f"smallest eigenvalue {float(w[i]):.3g}" if math.isfinite(w[i]) else "eigenvalues not finite"
+    return (f"The metric {what} at x = [{', '.join(f'{v:.6g}' for v in x[i])}] ({eig}; smallest eigenvalue "
             f"{float(np.min(w0)):.3g} at the start): the motion runs into a degenerate metric, where the field "
             "and the stiffness grow like 1/eigenvalue; no choice of gains repairs that: check the metric's data "
             "there (or stop the run before it).")

@@ -76,6 +76,7 @@ import time
 import traceback as _traceback
 from concurrent.futures import FIRST_COMPLETED, Executor, wait
 
+from ._json import plain as _plain
 from ._progress import Progress
 
 __all__ = ["run_sweep", "open_executor", "TaskError", "SweepInterrupted", "ResultStore", "task_key"]
@@ -120,24 +121,6 @@ def _call(fn, task):
         return fn(task)
     except Exception as exc:  # noqa: BLE001 -- every failure is a value of the sweep
         return TaskError.from_exception(exc)
-
-
-def _plain(x):
-    """``x`` with numpy arrays and scalars as Python lists and numbers and every non-finite float as
-    ``None``: strict JSON, which SQLite's ``json_extract`` can read."""
-    import numpy as np
-
-    if isinstance(x, dict):
-        return {k: _plain(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_plain(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _plain(x.tolist())
-    if isinstance(x, np.generic):
-        x = x.item()
-    if isinstance(x, float) and (x != x or x in (float("inf"), float("-inf"))):
-        return None
-    return x
 
 
 def task_key(task):

@@ -83,7 +83,10 @@ def from_sympy(L, q, qd, constraints=(), names=None, *, scaling="unit", **kw):
     L : sympy expression
         The Lagrangian ``1/2 qd.M(q) qd + b(q).qd - U(q)``: quadratic in the
         velocities, with an optional part linear in them (a vector potential:
-        gyroscopic or magnetic terms) and a potential.
+        gyroscopic or magnetic terms) and a potential.  A sympy expression, not
+        a string: text is refused (turning it into an expression runs it as
+        Python code, and liefi runs no code it did not write); parse text you
+        trust yourself (``sympy.parsing.sympy_parser.parse_expr``) first.
     q, qd : list of sympy Symbol
         The coordinates and their velocities, in the same order
         (``sympy.physics.mechanics.dynamicsymbols`` ``q(t)``, ``q(t).diff(t)`` work too).
@@ -105,6 +108,8 @@ def from_sympy(L, q, qd, constraints=(), names=None, *, scaling="unit", **kw):
 
     Raises
     ------
+    TypeError
+        If ``L`` or a constraint is a string (see ``L``).
     NotQuadraticError
         If ``L`` is not polynomial of degree at most 2 in ``qd``.
     NonlinearConstraintError
@@ -129,8 +134,15 @@ def from_sympy(L, q, qd, constraints=(), names=None, *, scaling="unit", **kw):
     to_plain_q = dict(zip(q, X))
 
     def plain(expr, what):
-        try:
-            e = sympy.sympify(expr)
+        if isinstance(expr, (str, bytes)):
+            raise TypeError(
+                f"{what}: got a string ({expr!r}); from_sympy takes sympy expressions only, since turning "
+                "text into an expression runs it as Python code (sympify) and liefi runs no code it did not "
+                "write. Build the expression from sympy.symbols, or parse text you trust yourself "
+                "(sympy.parsing.sympy_parser.parse_expr) and pass the result"
+            )
+        try:  # strict: numbers and sympy objects only, never a conversion through text
+            e = sympy.sympify(expr, strict=True)
         except (sympy.SympifyError, TypeError) as exc:
             raise ValueError(f"{what}: not a sympy expression ({exc})") from None
         e = e.xreplace(to_plain).xreplace(to_plain_q)
@@ -160,6 +172,8 @@ def from_sympy(L, q, qd, constraints=(), names=None, *, scaling="unit", **kw):
     b = [sympy.diff(Lp, V[i]).xreplace(zero) for i in range(n)]
     U = -Lp.xreplace(zero)
 
+    if isinstance(constraints, (str, bytes)):
+        plain(constraints, "constraints")  # refused with the reason
     rows = []
     for k, c in enumerate(constraints):
         cp = plain(c, f"constraints[{k}]")

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._data import DataFunction, as_float_array
+from ._data import DataFunction, as_float_array, check_real
 from . import reduction as _red
 from .phase_space import PhaseSpace
 
@@ -251,6 +251,7 @@ class NonholonomicSystem:
                 probe = np.asarray(A(x0))
             except Exception as exc:  # noqa: BLE001 -- user code: say which datum failed
                 raise ValueError(f"A: calling it at x = {x0} failed: {exc!r}") from exc
+            check_real(probe, "A", x0)  # before any arithmetic on it: complex rows are not "non-finite"
             fun = A
             if probe.ndim == 1:
                 fun = lambda x, f=A: np.asarray(f(x))[..., None, :]  # noqa: E731

@@ -3,19 +3,26 @@
 Every run is appended to ``OUT/results.sqlite`` as it finishes (a rerun into
 the same ``--out`` resumes, skipping the runs already there);
 ``OUT/summary.json`` is rebuilt from that store after each scene and on
-Ctrl-C, so it always describes exactly what is in the store.
+Ctrl-C.  It, the CSV and the console summary describe exactly this
+invocation's task set (the store filtered to its tasks: runs of earlier
+invocations with other arguments are kept in the store, not summarized), and
+``complete`` says whether every task of this invocation has a stored result.
+
+``OUT`` is a folder ``liefi bench`` owns (``liefi-manifest.json``, the mechanism
+``liefi reproduce`` uses): a new or empty folder, or one an earlier ``liefi
+bench`` wrote; every file an invocation writes is claimed before any work, and
+one of that name that liefi did not write is never overwritten.
 """
 
 from __future__ import annotations
 
-import json
-import math
 import os
 import sys
 
+from .. import _json
 from .. import engine as _engine
 from .. import scenes as _scenes
-from ..sweep import ResultStore, SweepInterrupted, TaskError
+from ..sweep import ResultStore, SweepInterrupted, TaskError, task_key
 from .core import (FI_GAINS, FIXED_SCHEMES, IVP_METHODS, METHODS, STORE, applicable_methods, build_tasks,
                    error_row, summarize, summary, work_precision)
 from .validate import positive
@@ -43,6 +50,9 @@ def add_arguments(parser):
                         "the scheme registry (`liefi list`) or a solve_ivp method")
     parser.add_argument("--gains", default=None, metavar="K[,K]",
                         help="gains of the FI rows, 'scene' for the scene's own (default: scene,0.1,1,10)")
+    parser.add_argument("--max-steps", type=float, default=None, dest="max_steps", metavar="N",
+                        help="refuse runs of more than N steps (t_final / dt) before any work, as `liefi run` "
+                        "(default 1e8)")
     parser.add_argument("--progress", action=argparse_bool(), default=None,
                         help="progress on stderr (default: when stderr is a terminal)")
     return parser
@@ -105,31 +115,84 @@ def _gains(text):
     return tuple(out)
 
 
-def write_summary(out_dir, expected=None):
+def output_files(scene, long_horizon=False):
+    """The files ``liefi bench`` writes into ``--out`` for ``scene`` (claimed before any work)."""
+    names = [f"{scene}-work-precision.csv", f"{scene}-error.png", f"{scene}-drift.png"]
+    if long_horizon:
+        names += [f"{scene}-long-horizon.csv", f"{scene}-long-horizon.npz", f"{scene}-long-horizon.png"]
+    return names
+
+
+def write_summary(out_dir, tasks=None, arguments=None):
     """Rebuild ``out_dir/summary.json`` from ``out_dir/results.sqlite``: per scene, :func:`summarize`.
 
-    ``expected`` (``{scene: number of tasks}``) marks a scene ``complete`` or not.
-    Written to a temporary file and renamed, so a reader never sees half a file.
+    ``tasks`` (``{scene: list of task dicts}``, :func:`build_tasks`) is the task set of one
+    invocation: per scene, exactly the stored outcomes of these tasks are summarized (runs
+    of other invocations, with other arguments, stay in the store but not in the summary;
+    ``other_runs_in_store`` counts them), and ``complete`` says whether every one of them
+    has a stored result.  ``None``: every stored run, by scene (``complete`` is then
+    ``null``).  ``arguments`` (a dict) is recorded as given.  Strict JSON (a number that is
+    not finite is ``null``); written to a temporary file and renamed, so a reader never
+    sees half a file.  Returns the summary, or ``None`` if there is no store.
     """
     path = os.path.join(out_dir, STORE)
     if not os.path.exists(path):
         return None
-    by = {}
+    by, other = {}, 0
     with ResultStore(path) as store:
-        for task, value in store.rows():
-            row = error_row(task, value) if isinstance(value, TaskError) else value
-            if row.get("t_final") is None:
-                continue
-            by.setdefault(row["scene"], []).append(row)
-    expected = expected or {}
-    doc = {"criterion": "every invariant's max drift <= 1e-8 over [0, t_final]", "store": STORE,
-           "scenes": {name: summarize(rows, 1e-8, tasks=expected.get(name)) for name, rows in sorted(by.items())}}
+        stored = store.rows()
+        if tasks is None:
+            for task, value in stored:
+                row = error_row(task, value) if isinstance(value, TaskError) else value
+                if row.get("t_final") is None:
+                    continue
+                by.setdefault(row["scene"], []).append(row)
+        else:
+            keys = set()
+            for name, ts in tasks.items():
+                by[name] = []
+                for task in ts:
+                    keys.add(task_key(task))
+                    value = store.get(task, errors=True)
+                    if value is not None:
+                        by[name].append(error_row(task, value) if isinstance(value, TaskError) else value)
+            other = sum(task_key(task) not in keys for task, _ in stored)
+    doc = {"criterion": "every invariant's max drift <= 1e-8 over [0, t_final]", "store": STORE}
+    if arguments is not None:
+        doc["arguments"] = arguments
+    doc["scenes"] = {name: summarize(rows, 1e-8, tasks=None if tasks is None else len(tasks[name]))
+                     for name, rows in sorted(by.items())}
+    if tasks is not None:
+        doc["other_runs_in_store"] = other
     out = os.path.join(out_dir, "summary.json")
-    tmp = out + ".tmp"
+    tmp = os.path.join(out_dir, f".summary.json.tmp{os.getpid()}")
     with open(tmp, "w") as fh:
-        json.dump(doc, fh, indent=1, default=lambda x: None if isinstance(x, float) and not math.isfinite(x) else x)
+        fh.write(_json.dumps(doc, indent=1))
     os.replace(tmp, out)
-    return out
+    return doc
+
+
+def _arguments(args):
+    keys = ("scene", "t_final", "variant", "quick", "no_configuration", "methods", "schemes", "gains", "long_horizon")
+    return {k: getattr(args, k, None) for k in keys}
+
+
+def _check_steps(sc, tasks, args):
+    """Refuse, before any work, runs longer than ``--max-steps``: :func:`liefi.run.check_step_count`,
+    the check ``liefi run`` makes (on the grid's smallest step; the long horizon on the scene's
+    step, where the feedback integrator's long run is made -- its peers run at matched cost)."""
+    from ..run import check_step_count
+
+    limit = getattr(args, "max_steps", None)
+    dts = [t["dt"] for t in tasks if t["dt"] is not None]
+    if dts:
+        check_step_count(min(dts), tasks[0]["t_final"], limit, name="t-final",
+                         advice=f"dt is the grid's smallest step for {sc.name}; take a shorter --t-final, "
+                         "or raise --max-steps")
+    if getattr(args, "long_horizon", None):
+        check_step_count(sc.dt, args.long_horizon, limit, name="long-horizon",
+                         advice=f"dt is {sc.name}'s step, the feedback integrator's long run; take a shorter "
+                         "--long-horizon, or raise --max-steps")
 
 
 def run_from_args(args, log=None):
@@ -138,7 +201,13 @@ def run_from_args(args, log=None):
     0: every task finished (some runs may have diverged: they are data); 1: some
     task raised or lost its worker (reported, every other result kept); 130:
     interrupted (what finished is in the store and ``summary.json``).
+
+    Before any work: every argument, the length of every run (``--max-steps``,
+    as ``liefi run``) and the output folder (:func:`liefi.reproduce.prepare_output`:
+    a new or empty folder or one ``liefi bench`` owns; every file this invocation
+    writes is claimed, and a file of that name that liefi did not write is refused).
     """
+    from ..reproduce import OutputError, prepare_output
     from ..sweep import open_executor
 
     log = log or (lambda m: print(m, file=sys.stderr, flush=True))
@@ -148,42 +217,54 @@ def run_from_args(args, log=None):
         positive("--t-final", args.t_final)
     if args.long_horizon is not None:
         positive("--long-horizon", args.long_horizon)
+    if getattr(args, "max_steps", None) is not None:
+        positive("--max-steps", args.max_steps)
     names = _scenes.names() if args.scene == "all" else [args.scene]
     methods = _list(getattr(args, "methods", None), METHODS, "methods")
     schemes, ivp = _schemes(getattr(args, "schemes", None))
     gains = _gains(getattr(args, "gains", None))
-    os.makedirs(args.out, exist_ok=True)  # outputs checked before any work
+    plan = []  # (scene, build_tasks keywords, tasks): this invocation's task set
+    for name in names:
+        try:
+            sc = _scenes.get(name)
+        except ImportError as exc:  # with 'all': a scene whose module is missing
+            if args.scene != "all":
+                raise
+            log(f"{name}: skipped ({exc})")
+            continue
+        use = None if methods is None else [m for m in methods if m in applicable_methods(sc)]
+        kw = dict(variant=args.variant, quick=args.quick, configuration=not args.no_configuration,
+                  methods=use, schemes=schemes, ivp_methods=ivp, gains=gains)
+        tasks = build_tasks(sc, sc.t_final if args.t_final is None else args.t_final, **kw)
+        _check_steps(sc, tasks, args)
+        plan.append((sc, kw, tasks))
+    try:  # outputs checked before any work
+        output = prepare_output(args.out, "bench", keep=True)
+        output.claim_all([STORE, "summary.json"]
+                         + [f for sc, _, _ in plan for f in output_files(sc.name, bool(args.long_horizon))])
+    except OutputError as exc:
+        raise ValueError(str(exc)) from None
     ResultStore(os.path.join(args.out, STORE)).close()
     if not _engine.available():
         log(f"liefi bench: numba is not available ({_engine.NUMBA_ERROR}); the generated code runs as plain "
             "Python, orders of magnitude slower. Install it with `pip install liefi[fast]`.")
-    expected, errors = {}, 0
+    expected, errors = {sc.name: tasks for sc, _, tasks in plan}, 0
+    arguments = _arguments(args)
     try:
         with open_executor(args.scheduler) as ex:
-            for name in names:
-                try:
-                    sc = _scenes.get(name)
-                except ImportError as exc:  # with 'all': a scene whose module is missing
-                    if args.scene != "all":
-                        raise
-                    log(f"{name}: skipped ({exc})")
-                    continue
-                use = None if methods is None else [m for m in methods if m in applicable_methods(sc)]
-                kw = dict(variant=args.variant, quick=args.quick, configuration=not args.no_configuration,
-                          methods=use, schemes=schemes, ivp_methods=ivp, gains=gains)
-                expected[name] = len(build_tasks(sc, sc.t_final if args.t_final is None else args.t_final, **kw))
+            for sc, kw, _ in plan:
                 rows = work_precision(sc, args.t_final, args.out, ex, log=log,
                                       progress=getattr(args, "progress", None), **kw)
                 errors += sum(r["status"] == "error" for r in rows)
-                write_summary(args.out, expected)
-                print(f"{name} (t_final = {rows[0]['t_final']:g}):")
+                write_summary(args.out, expected, arguments)
+                print(f"{sc.name} (t_final = {rows[0]['t_final']:g}):")
                 print("  " + summary(rows).replace("\n", "\n  "), flush=True)
                 if args.long_horizon:
                     from .horizon import long_horizon
 
                     long_horizon(rows, args.out, ex, t_final=args.long_horizon, log=log)
     except KeyboardInterrupt as exc:
-        write_summary(args.out, expected)
+        write_summary(args.out, expected, arguments)
         done = f"{exc.done} runs of this scene finished, " if isinstance(exc, SweepInterrupted) else ""
         print(f"liefi bench: interrupted; {done}everything finished is kept in "
               f"{os.path.join(args.out, STORE)} and summarized in {os.path.join(args.out, 'summary.json')}",

@@ -175,9 +175,9 @@ def _integrator(task):
 
 
 def _steps(t_final, dt, n_save):
-    n = int(round(t_final / dt))
-    if abs(n * dt - t_final) > 1e-9 * t_final:
-        raise ValueError(f"t_final: {t_final} is not a whole number of steps dt={dt}")
+    from ..schemes import steps_for  # the one validator of a fixed-step run's arguments
+
+    n = steps_for(dt, t_final)[2]
     return n, max(1, n // n_save)
 
 
@@ -565,8 +565,10 @@ def summarize(rows, drift=1e-8, tasks=None):
     gains; ``FI-tuned``: chosen from ``dt``), ``cpu_seconds``, ``max_drift`` and
     ``max_error``.  Only runs with ``status = "ok"`` count; ``runs``,
     ``failed`` (diverged or solver failures), ``not_applicable`` and ``errors``
-    (raised, worker died) count the rest, and ``complete`` says whether every task of the grid
-    (``tasks``; ``None`` when not given) finished.
+    (raised, worker died) count the rest.  ``rows`` are the stored outcomes of the grid's
+    tasks, at most one per task; ``complete`` says whether every one of the ``tasks`` (their
+    number; ``None`` when not given) has a stored result: a finished run, whatever its
+    status, not a task that raised or lost its worker (a rerun retries those).
     """
     best = cheapest(rows, drift=drift)
     fi = cheapest(rows, drift=drift, methods=FI_METHODS)
@@ -578,7 +580,7 @@ def summarize(rows, drift=1e-8, tasks=None):
         "t_final": rows[0]["t_final"] if rows else None,
         "runs": len(rows),
         "tasks": None if tasks is None else int(tasks),
-        "complete": None if tasks is None else len(rows) >= tasks,
+        "complete": None if tasks is None else len(rows) - sum(r["status"] == "error" for r in rows) == tasks,
         "failed": sum(r["status"] in ("diverged", "failed") for r in rows),
         "not_applicable": sum(r["status"] == "not-applicable" for r in rows),
         "errors": sum(r["status"] == "error" for r in rows),

@@ -36,7 +36,10 @@ def add_arguments(parser):
     parser.add_argument("--plot", dest="out", help=argparse.SUPPRESS)  # deprecated spelling of --out
     parser.add_argument("--estimate", action="store_true",
                         help="only the pre-run estimate at the scene's settings (no sweep)")
-    parser.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    parser.add_argument("--json", action="store_true",
+                        help="print strict JSON instead of a table; a number that is not finite is null: "
+                             "\"bound\": null is a scheme with no real stability bound (stable on the whole "
+                             "negative real axis), \"dt_safe\": null no step limit from the feedback's stiffness")
     return parser
 
 
@@ -46,14 +49,27 @@ def command(args, file=None):
     Prints the estimate at the scene's settings and, unless ``--estimate``, the
     measured map (a table, or JSON with ``--json``); ``--out`` writes the figure.
     Errors in the arguments raise ``ValueError`` naming the argument.
+
+    The JSON is strict (:func:`liefi._json.dumps`): a number that is not finite
+    is ``null``.  In ``estimate``, ``"bound": null`` is a scheme with no real
+    stability bound (a split ``imex-*`` scheme: stable on the whole negative real
+    axis) and ``"dt_safe": null`` a step that the feedback's stiffness does not
+    limit; in ``map``, ``"bound"``, ``"dt_estimate"``, ``"dt_estimate0"`` and the
+    upper end of a ``"finite"`` or ``"accurate"`` interval read the same way (no
+    limit: none was found).
     """
-    import json
+    import os
     import sys
 
     from .. import scenes as _scenes
+    from .._json import dumps
 
     out = file or sys.stdout
     sc = _scenes.get(args.scene)
+    if args.out and not args.estimate and not os.path.isdir(args.out):  # the figure's format, before any work
+        from ..plotting import check_format
+
+        check_format(args.out, "out")
     fi = sc.integrator(sc.variant(args.variant))
     T = float(args.t_final) if args.t_final is not None else float(sc.t_final)
     est = estimate(fi, sc.dt, args.scheme, t_final=T)
@@ -85,7 +101,7 @@ def command(args, file=None):
             plot_stability_map(smap, args.out)
             result["plot"] = args.out
     if args.json:
-        out.write(json.dumps(result, indent=2, default=lambda o: None if o is None else float(o)) + "\n")
+        out.write(dumps(result, indent=2, default=float) + "\n")
         return 0
     out.write(f"{sc.name}: at the scene's settings (dt = {sc.dt:g}, gains {sc.gains}, t in [0, {T:g}]):\n  "
               + est.message() + "\n")
