@@ -7,7 +7,8 @@ interleaved runs (process time).  "calls of fun" counts every evaluation of the
 field, the finite differences' included (scipy's ``nfev`` leaves those out);
 ``njev`` and ``nlu`` are scipy's counts of Jacobians and LU factorizations.
 
-    python benchmarks/ivp_jacobian.py [--t-final 10] [--repeat 3] [--methods Radau,BDF]
+    python benchmarks/ivp_jacobian.py [--t-final 10] [--repeat 3] [--methods Radau,BDF] [--rtol 1e-3 --atol 1e-6]
+                                      [--gains 10]
 """
 
 from __future__ import annotations
@@ -26,8 +27,8 @@ import liefi  # noqa: E402
 from liefi.groups import SE2  # noqa: E402
 
 
-def readme_integrator():
-    """The README's system and integrator (the data of ``examples/user_system.py``)."""
+def readme_integrator(gains=10.0):
+    """The README's system and integrator (the data of ``examples/user_system.py``; its gains 10)."""
 
     def metric(x):
         c = np.cos(x[..., 0]); one = np.ones_like(c); zero = 0 * c  # noqa: E702
@@ -45,7 +46,7 @@ def readme_integrator():
         liefi.TrivialPrincipalBundle(SE2(), 1, names=("psi",)), metric, A)
     z0 = racer.project(np.array([0.3, 1.0, 0.5, 0.0, -0.2]))
     y0 = np.concatenate([SE2().identity_config(), z0])
-    return liefi.FeedbackIntegrator(racer, y0, gains=10.0)
+    return liefi.FeedbackIntegrator(racer, y0, gains=gains)
 
 
 def main(argv=None):
@@ -55,8 +56,9 @@ def main(argv=None):
     ap.add_argument("--methods", default="Radau,BDF")
     ap.add_argument("--rtol", type=float, default=1e-3)
     ap.add_argument("--atol", type=float, default=1e-6)
+    ap.add_argument("--gains", type=float, default=10.0)
     a = ap.parse_args(argv)
-    fi = readme_integrator()
+    fi = readme_integrator(a.gains)
     fi.jac(0.0, fi.y0)  # generate the Jacobian once, outside the timings
     T = a.t_final
     rows = []
@@ -83,7 +85,7 @@ def main(argv=None):
                          r.njev, r.nlu, r.t.size - 1, best[key]))
         rows.append((method, "ratio", "", "", "", "", "", "", best["fd"] / best["jac"]))
         print(f"# {method}: final states differ by {diff:.2e}", file=sys.stderr)
-    print(f"README system, t in [0, {T:g}], rtol={a.rtol:g}, atol={a.atol:g}, best of {a.repeat}\n")
+    print(f"README system, gains {a.gains:g}, t in [0, {T:g}], rtol={a.rtol:g}, atol={a.atol:g}, best of {a.repeat}\n")
     print("| method | Jacobian | status | calls of fun | nfev | njev | nlu | steps | CPU [s] |")
     print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     for m, k, st, calls, nfev, njev, nlu, steps, sec in rows:

@@ -49,6 +49,11 @@ def slopes(fi, scheme_kind, Y):
 class DenseOutput:
     """The cubic Hermite interpolant of a run's saved states: ``sol(t)`` as scipy's ``OdeSolution``.
 
+    Calling it with a scalar ``t`` gives the state ``(..., n)``; with an array
+    of times ``(m,)`` it gives ``(..., n, m)``.  Times outside
+    ``[t_min, t_max]`` are refused (a cubic extrapolated past the run is not
+    the run).  Order 3: see the module docstring.
+
     Parameters
     ----------
     ts : ndarray (n_t,)
@@ -57,11 +62,6 @@ class DenseOutput:
         Saved states.
     F : ndarray (..., n, n_t)
         The field at them (:func:`slopes`).
-
-    Calling it with a scalar ``t`` gives the state ``(..., n)``; with an array
-    of times ``(m,)`` it gives ``(..., n, m)``.  Times outside
-    ``[t_min, t_max]`` are refused (a cubic extrapolated past the run is not
-    the run).  Order 3: see the module docstring.
     """
 
     order = 3
