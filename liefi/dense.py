@@ -34,9 +34,10 @@ import math
 
 import numpy as np
 
-#: Steps per segment of a run that has terminal events: the run goes past a
-#: terminal event by at most this many steps before it is seen and the run stops.
-EVENT_SEGMENT_STEPS = 1024
+#: Steps per segment of a run that has terminal events, numpy and compiled: the run
+#: goes past a terminal event by at most this many steps before it is seen and the
+#: run stops (a compiled segment costs a call into the kernel, a numpy one nothing).
+EVENT_SEGMENT_STEPS = {"numpy": 64, "compiled": 1024}
 
 
 def slopes(fi, scheme_kind, Y):
@@ -160,8 +161,6 @@ class EventTracker:
 
     def advance(self, ts, Y):
         """New saved times ``ts`` (``(m,)``) and states ``Y`` (``(n, m)``) after the last ones."""
-        from scipy.optimize import brentq
-
         for j in range(ts.size):
             t1, y1 = float(ts[j]), Y[..., j]
             g1 = [_value(ev, i, t1, y1) for i, ev in enumerate(self.events)]
@@ -170,10 +169,12 @@ class EventTracker:
                 up, down = a <= 0 <= b, a >= 0 >= b
                 d = self.direction[i]
                 if (up and d > 0) or (down and d < 0) or ((up or down) and d == 0):
-                    if a == 0 and b == 0:
-                        continue  # identically zero over the interval: no crossing to locate
+                    if (a == 0 and b == 0) or (a == 0 and self.t_events[i] and self.t_events[i][-1] == self.t_last):
+                        continue  # zero over the interval, or a zero at the last state already recorded
                     found.append(i)
             if found:
+                from scipy.optimize import brentq
+
                 t0, y0 = self.t_last, self.y_last
                 pair = np.stack([y0, y1], -1)
                 dense = DenseOutput(np.array([t0, t1]), pair, slopes(self.fi, self.kind, pair))
@@ -192,7 +193,7 @@ class EventTracker:
                     hits.append((root, i))
                 hits.sort()
                 for root, i in hits:
-                    ys = dense(root)
+                    ys = y1 if root == t1 else y0 if root == t0 else dense(root)  # a saved state exactly
                     self.t_events[i].append(root)
                     self.y_events[i].append(ys)
                     self.count[i] += 1

@@ -675,19 +675,10 @@ class FeedbackIntegrator:
         ``run(dt, t_final, scheme)`` still works and warns
         (:class:`DeprecationWarning`).
 
-        ``t_eval``: times (sorted, in ``t_span``) at which to return the state,
-        instead of the saved steps; ``dense_output=True``: ``solution.sol(t)``
-        gives the state at any ``t`` in ``t_span``.  Both read the cubic Hermite
-        interpolant of the saved states and the field at them
-        (:class:`liefi.dense.DenseOutput`, order 3: error ``O(h^4)`` between
-        states ``h = save_every * dt`` apart, plus the scheme's own error).
-        ``events``: a callable ``event(t, y)`` or a list of them, with the
-        attributes ``terminal`` (bool or a count) and ``direction`` as in
-        ``solve_ivp``; a sign change between two saved states is located by root
-        finding on the interpolant, recorded in ``t_events`` / ``y_events``, and a
-        terminal one ends the run there (``status=1``).  Events need a single
-        trajectory (``y0`` of shape ``(n,)``); ``t_eval`` and ``dense_output``
-        also work on a batch.
+        ``t_eval``, ``dense_output`` and ``events`` as in ``solve_ivp``, on the
+        cubic Hermite interpolant of the saved states (:mod:`liefi.dense`:
+        order 3, root finding for events, ``terminal`` ends the run with
+        ``status=1``); events need a single trajectory.
 
         ``save_every``: keep every this many steps; default ``None``:
         every step while the output stays under 256 MiB, else capped there.

@@ -18,7 +18,12 @@ scheme of the registry (:mod:`liefi.schemes.registry`), it
    plain line otherwise; quiet when stderr is not a terminal);
 5. reports ``cpu_seconds`` (the integration loops alone) and
    ``overhead_seconds`` (estimate, guard, kernel loading and compiling)
-   separately on the :class:`~liefi.schemes.Solution`.
+   separately on the :class:`~liefi.schemes.Solution`;
+6. in the shape of ``solve_ivp``: over ``t_span`` (``t_final`` or
+   ``(t0, t_final)``), watching ``events`` after every segment (a terminal one
+   ends the run), with ``t_eval`` and ``dense_output`` read from the cubic
+   Hermite interpolant of :mod:`liefi.dense`.  :func:`legacy_call` understands
+   the old ``run(dt, t_final, scheme)``.
 
 :func:`check_ivp` is the guard of the adaptive ``scipy:METHOD`` path and
 :func:`check_result_drift` the drift guard of schemes run outside this loop
@@ -351,7 +356,8 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
     else:
         N = n_steps if not pl.expected_seconds > PROGRESS_SECONDS else max(1, n_steps // 100)
     tracker = _dense.EventTracker(evs, run_fi, sch.kind) if evs else None
-    cap = _dense.EVENT_SEGMENT_STEPS if tracker and any(tracker.stop_after) else n_steps
+    terminal = bool(tracker) and any(tracker.stop_after)
+    next_guard = N
     if tracker:
         tracker.start(t_start, y0)
     desc = f"liefi {sch.name}" + (f" t in [{t_start:g}, {t_end:g}]" if t_start else "")
@@ -361,7 +367,8 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
     status, message = 0, None
     try:
         while s0 < n_steps:
-            L, sub = _chunk(s0, n_steps, min(N, cap), save_every)
+            cap = _dense.EVENT_SEGMENT_STEPS["numpy" if runner.state["backend"] == "numpy" else "compiled"]
+            L, sub = _chunk(s0, n_steps, min(N, cap) if terminal else N, save_every)
             # numpy writes the segment straight into the output when its start is a saved state
             direct = runner.state["backend"] == "numpy" and s0 % save_every == 0 and sub == save_every
             buf = out[..., k - 1 : k + L // sub + (1 if L % sub else 0)] if direct else None
@@ -403,9 +410,12 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
                     bar.update(s0)
             if s0 >= n_steps:
                 break
-            if guard.active:
+            if guard.active and (not terminal or s0 >= next_guard):  # short event segments: the guard's own pace
                 run_fi, N = guard.between(run_fi, y, s0, N)
+                next_guard = s0 + N
                 checked = (y, t_start + s0 * dt)
+                if tracker:
+                    tracker.fi = run_fi  # the interpolant follows the gains in effect
         guard.after(ts[:k], np.moveaxis(out[..., :k], -1, 0))
     except (IntegrationError, StabilityError) as exc:
         if errors == "raise":

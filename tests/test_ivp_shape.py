@@ -306,3 +306,10 @@ def test_jac_refuses_a_bad_state(knife):
     _, fi = knife
     with pytest.raises(ValueError, match="^y: expected a state of 6 numbers"):
         fi.jac(0.0, np.zeros(4))
+
+
+def test_a_zero_on_a_saved_state_is_one_event(knife):
+    _, fi = knife
+    sol = fi.run(1.0, dt=0.05, scheme="rk4", events=lambda t, y: t - 0.5)  # 0.5 = 10 * 0.05 exactly
+    assert sol.t_events[0].tolist() == [0.5]
+    np.testing.assert_array_equal(sol.y_events[0][0], sol.y[:, 10])
