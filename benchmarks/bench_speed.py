@@ -86,14 +86,15 @@ def single(name, configuration, n_steps, repeat, rng):
     t_np, _ = _best(lambda: integrate(fi.vector_field, fi.y0, dt, n_np, "euler", save_every=n_np), 1)
     # liefi compiled: the first call traces, generates and compiles (or loads numba's on-disk cache)
     w = time.perf_counter()
-    fi.run(dt, dt, "euler", backend="numba", check_stability=False)
+    fi.run(dt, dt=dt, scheme="euler", backend="numba", check_stability=False)
     setup = time.perf_counter() - w
     cf = engine.compile_feedback(fi)
     compile_s = sum(cf.compile_seconds.values())
     # the user-facing loop: FeedbackIntegrator.run with its default stability guard (segments + monitor)
-    t_liefi, sol = _best(lambda: fi.run(dt, n_steps * dt, "euler", save_every=n_steps, backend="numba"), repeat)
+    t_liefi, sol = _best(lambda: fi.run(n_steps * dt, dt=dt, scheme="euler", save_every=n_steps, backend="numba"),
+                         repeat)
     # without the stability guard (its fixed per-run costs remain: see the printed note)
-    t_bare, _ = _best(lambda: fi.run(dt, n_steps * dt, "euler", save_every=n_steps, backend="numba",
+    t_bare, _ = _best(lambda: fi.run(n_steps * dt, dt=dt, scheme="euler", save_every=n_steps, backend="numba",
                                      check_stability=False), repeat)
     # the engine alone: liefi.engine's loop, what FeedbackIntegrator.run calls
     p = engine.parameters(fi)
@@ -106,8 +107,8 @@ def single(name, configuration, n_steps, repeat, rng):
     yl = sol.y[..., -1]
     final = float(np.max(np.abs(yl - yh)) / max(1.0, np.max(np.abs(yh))))
     # compiled vs numpy on the same 2000 steps
-    a = fi.run(dt, n_np * dt, "euler", save_every=100)
-    b = fi.run(dt, n_np * dt, "euler", save_every=100, backend="numba")
+    a = fi.run(n_np * dt, dt=dt, scheme="euler", save_every=100)
+    b = fi.run(n_np * dt, dt=dt, scheme="euler", save_every=100, backend="numba")
     return {
         "scene": name,
         "configuration": configuration,
@@ -139,13 +140,13 @@ def ensemble(B, n_steps, repeat, rng):
     Y0[:, 9:] = sc.system.project(base.y0[9:] + 0.2 * rng.normal(size=(B, 3)))
     fi = FeedbackIntegrator(sc.system, Y0, gains=sc.gains)
     dt = sc.dt
-    fi.run(dt, dt, "euler", backend="numba", check_stability=False)  # compile
+    fi.run(dt, dt=dt, scheme="euler", backend="numba", check_stability=False)  # compile
     out = {"trajectories": B, "steps": n_steps}
     for threads in (numba.config.NUMBA_NUM_THREADS, 1):
         numba.set_num_threads(threads)
         best_wall, best_cpu = np.inf, np.inf
         for _ in range(repeat):
-            s = fi.run(dt, n_steps * dt, "euler", save_every=n_steps, backend="numba", check_stability=False)
+            s = fi.run(n_steps * dt, dt=dt, scheme="euler", save_every=n_steps, backend="numba", check_stability=False)
             best_wall = min(best_wall, s.wall_seconds)
             best_cpu = min(best_cpu, s.cpu_seconds)
         out[f"threads_{threads}"] = {
@@ -163,7 +164,7 @@ def ensemble(B, n_steps, repeat, rng):
     # the same ensemble through the run module's default path (liefi.run.run_feedback, the guard on:
     # plan, pre-run estimate, kernel loading, segments checked by the guard, audit of the saved states)
     c = time.process_time()
-    s = fi.run(dt, n_steps * dt, "euler", save_every=n_steps, backend="numba")
+    s = fi.run(n_steps * dt, dt=dt, scheme="euler", save_every=n_steps, backend="numba")
     out["default_run_cpu_seconds"] = time.process_time() - c
     out["default_run_loop_wall_seconds"] = getattr(s, "wall_seconds", float("nan"))
     out["default_run_overhead_seconds"] = getattr(s, "overhead_seconds", float("nan"))
@@ -172,10 +173,10 @@ def ensemble(B, n_steps, repeat, rng):
     best = np.inf
     for _ in range(repeat):
         c = time.process_time()
-        fi.run(dt, n_steps * dt, "euler", save_every=n_steps, backend="numba")
+        fi.run(n_steps * dt, dt=dt, scheme="euler", save_every=n_steps, backend="numba")
         d = time.process_time() - c
         c = time.process_time()
-        fi.run(dt, n_steps * dt, "euler", save_every=n_steps, backend="numba", check_stability=False)
+        fi.run(n_steps * dt, dt=dt, scheme="euler", save_every=n_steps, backend="numba", check_stability=False)
         best = min(best, d / (time.process_time() - c))
     out["default_over_loop"] = best
     return out
@@ -188,10 +189,10 @@ def suslov_t1000():
     out = {}
     for cfg in (False, True):
         fi = sc.integrator(None, configuration=cfg)
-        fi.run(sc.dt, sc.dt, "euler", backend="numba")
+        fi.run(sc.dt, dt=sc.dt, scheme="euler", backend="numba")
         key = "with_R" if cfg else "Pi_only"
-        out[key] = fi.run(sc.dt, 1000.0, "euler", save_every=50, backend="numba").cpu_seconds
-        out[key + "_no_guard"] = fi.run(sc.dt, 1000.0, "euler", save_every=50, backend="numba",
+        out[key] = fi.run(1000.0, dt=sc.dt, scheme="euler", save_every=50, backend="numba").cpu_seconds
+        out[key + "_no_guard"] = fi.run(1000.0, dt=sc.dt, scheme="euler", save_every=50, backend="numba",
                                         check_stability=False).cpu_seconds
     return out
 

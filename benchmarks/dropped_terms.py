@@ -20,7 +20,7 @@ def per_step(fi, backend, n, drop, repeats=3):
     for _ in range(repeats):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            sol = fi.run(1e-3, n * 1e-3, "rk4", backend=backend, drop_exact=drop, save_every=n)
+            sol = fi.run(n * 1e-3, dt=1e-3, scheme="rk4", backend=backend, drop_exact=drop, save_every=n)
         best = min(best, sol.cpu_seconds / n)
     return best, sol
 

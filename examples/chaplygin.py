@@ -41,7 +41,7 @@ def main(t_final=10.0, dt=1e-3, gains=100.0, scheme="euler"):
     fi = liefi.FeedbackIntegrator(system, y0, invariants=("constraints", "energy"), gains=gains)
     print("state:", fi.names, " gains:", fi.gains)
     n_steps = int(round(t_final / dt))
-    sol = fi.run(dt, t_final, scheme, save_every=max(1, n_steps // 10000))
+    sol = fi.run(t_final, dt=dt, scheme=scheme, save_every=max(1, n_steps // 10000))
 
     theta = np.unwrap(np.arctan2(sol["R21"], sol["R11"]))
     ref = exact.chaplygin(sol.t, m, I, a, 0.0, Pi0)

@@ -28,7 +28,7 @@ def main(t_final=20.0):
 
     y0 = np.concatenate([SO3().identity_config(), M0])                  # attitude R and momentum M
     fi = liefi.FeedbackIntegrator(body, y0, gains=10.0)
-    sol = fi.run(dt=2e-3, t_final=t_final, scheme="rk4", save_every=50)
+    sol = fi.run(t_final, dt=2e-3, scheme="rk4", save_every=50)
     v = fi.invariant_values(sol.y.T)
     print(f"max |J| = {np.abs(v['J_1']).max():.1e}, energy drift = {np.ptp(v['h']):.1e}, "
           f"max ||R^T R - I|| = {2 * np.sqrt(v['penalty'].max()):.1e}")

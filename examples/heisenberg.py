@@ -58,7 +58,7 @@ def main(t_final=10.0, dt=1e-3, gains=10.0, q0=(1.0, 0.5, 0.0), p0=(0.3, 0.4, -0
     system = liefi.NonholonomicSystem(space, np.eye(3), constraint)
     z0 = np.concatenate([q0, p0])
     fi = liefi.FeedbackIntegrator(system, z0, invariants=("constraints", "energy", L_z), gains=gains)
-    sol = fi.run(dt, t_final, "euler", save_every=max(1, int(round(t_final / dt)) // 2000))
+    sol = fi.run(t_final, dt=dt, scheme="euler", save_every=max(1, int(round(t_final / dt)) // 2000))
 
     ref = exact.heisenberg(sol.t, q0, p0)
     max_error = {k: float(np.max(np.abs(sol[k] - ref[k]))) for k in system.state_names}

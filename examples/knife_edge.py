@@ -48,7 +48,7 @@ def main(t_final=200.0, dt=1e-3, gains=1000.0, scheme="euler"):
     z0 = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.5])  # (x, y, phi, p_x, p_y, p_phi)
     fi = liefi.FeedbackIntegrator(system, z0, invariants=("constraints", "energy", "p_phi"), gains=gains)
     n_steps = int(round(t_final / dt))
-    sol = fi.run(dt, t_final, scheme, save_every=max(1, n_steps // 10000))
+    sol = fi.run(t_final, dt=dt, scheme=scheme, save_every=max(1, n_steps // 10000))
 
     ref = exact.knife_edge(sol.t, m=m, J=J, g=g, alpha=alpha, p_phi0=0.5)
     max_error = {k: float(np.max(np.abs(sol[k] - ref[k]))) for k in ("x", "y", "phi")}

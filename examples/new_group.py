@@ -38,7 +38,7 @@ def main(t_final=2.0):
     system = liefi.NonholonomicSystem(liefi.TrivialPrincipalBundle(G * S1(), 1, names=("s",)), metric, constraints)
     z0 = system.project(np.array([0.2, 0.5, -0.3, 0.4, 0.1]))
     fi = liefi.FeedbackIntegrator(system, np.concatenate([(G * S1()).identity_config(), z0]), gains=10.0)
-    sol = fi.run(1e-3, t_final, "rk4")
+    sol = fi.run(t_final, dt=1e-3, scheme="rk4")
     v = fi.invariant_values(sol.y.T)
     print(f"max |J| = {np.abs(v['J_1']).max():.1e}, h~ drift = {np.ptp(v['h~']):.1e}")
     return v

@@ -56,7 +56,7 @@ def main(t_final=10.0, dt=1e-3, gains=100.0, scheme="euler"):
 
     fi = liefi.FeedbackIntegrator(system, y0, invariants=("constraints", "energy"), gains=gains)
     n_steps = int(round(t_final / dt))
-    sol = fi.run(dt, t_final, scheme, save_every=max(1, n_steps // 2000))
+    sol = fi.run(t_final, dt=dt, scheme=scheme, save_every=max(1, n_steps // 2000))
 
     ref = solve_ivp(lambda t, y: full_vector_field(system, y, kind="constrained"), (0.0, t_final), y0,
                     method="DOP853", rtol=1e-12, atol=1e-12, t_eval=sol.t)

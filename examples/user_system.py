@@ -27,7 +27,7 @@ def main(t_final=10.0):
 
     y0 = np.concatenate([SE2().identity_config(), z0])             # (R, t, z): the group element too
     fi = liefi.FeedbackIntegrator(racer, y0, gains=10.0)           # V penalizes ||R^T R - I||, J_1, J_2, h~
-    sol = fi.run(dt=1e-3, t_final=t_final, scheme="rk4", save_every=100)
+    sol = fi.run(t_final, dt=1e-3, scheme="rk4", save_every=100)
     v = fi.invariant_values(sol.y.T)
     print(f"max |J_i| = {max(abs(v['J_1']).max(), abs(v['J_2']).max()):.1e}, "
           f"energy drift = {np.ptp(v['h']):.1e}, max ||R^T R - I|| = {2 * np.sqrt(v['penalty'].max()):.1e}")

@@ -47,7 +47,7 @@ def main(t_final=10.0, dt=1e-3, scheme="euler"):
     fi = liefi.FeedbackIntegrator(system, y0_off, invariants=system.space.momentum_names, gains=k,
                                   field="projected", targets=target)
     T = min(t_final, 1.0)
-    sol = fi.run(dt, T, "euler")
+    sol = fi.run(T, dt=dt, scheme="euler")
     dev = np.abs(sol.y[nc:, -1] - y0[nc:])
     print(f"  off the constraint set (gains {k:g}): |Pi(T) - Pi_0| at T={T:g}: {dev.max():.3e}"
           f" (predicted {0.3 * (1 - k * dt) ** round(T / dt):.3e})")

@@ -7,3 +7,12 @@ from . import groups, reduction
 __version__ = "0.1.0"
 from .feedback import FeedbackIntegrator, Invariant
 from .schemes import SCHEMES, ExplicitRungeKutta, IntegrationError, Solution, integrate
+
+
+def __getattr__(name):
+    # liefi.plot (figures of a run; matplotlib only when drawing) is loaded on first use
+    if name == "plot":
+        import importlib
+
+        return importlib.import_module(".plot", __name__)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -641,19 +641,48 @@ class FeedbackIntegrator:
             return self.vector_field(y.T).T
         return self.vector_field(y)
 
+    def jac(self, t, y):
+        """``jac(t, y)`` for ``solve_ivp``'s implicit methods: ``d fun / d y`` at ``y`` (``(n,)`` -> ``(n, n)``).
+
+        Exact to rounding: the field traced and differentiated symbolically
+        (:func:`liefi.engine.jacobian.field_jacobian`), so ``Radau``, ``BDF`` and
+        ``LSODA`` need no finite differences (``docs/getting-started.md`` has the
+        counts).  A system whose data cannot be traced gets a ``ValueError``.
+        """
+        from .engine.jacobian import field_jacobian
+
+        return field_jacobian(self, y)
+
     # --- running ------------------------------------------------------------------
-    def run(self, dt, t_final, scheme="euler", *, y0=None, save_every=None, check_every=1, backend="numpy",
-            check_stability=True, adaptive=None, monitor_every=None, progress=None, drop_exact=True):
-        """Integrate from ``y0`` (default: the one given at construction) to ``t_final``.
+    def run(self, t_span=None, *args, dt=None, scheme=None, t_eval=None, events=None, dense_output=False, y0=None,
+            save_every=None, check_every=1, backend="numpy", check_stability=True, adaptive=None, monitor_every=None,
+            progress=None, drop_exact=True, errors="raise", t_final=None):
+        """Integrate from ``y0`` (default: the one given at construction) over ``t_span``, as ``solve_ivp``.
 
-        The loop is :func:`liefi.run.run_feedback`.  Returns a
-        :class:`~liefi.schemes.Solution` (with ``cpu_seconds``, the integration,
-        ``overhead_seconds``, the rest, and ``plan``: steps, saved memory,
-        expected time); raises :class:`~liefi.schemes.IntegrationError` naming
-        the time and components if the run produces non-finite numbers.
+        ``fi.run(t_span, dt=..., scheme=...)``: ``t_span`` is the final time
+        (the run starts at 0) or a pair ``(t0, t_final)``.  The loop is
+        :func:`liefi.run.run_feedback`.  Returns a
+        :class:`~liefi.schemes.Solution` in the layout of scipy's ``OdeResult``
+        (``t``, ``y``, ``success``, ``status``, ``message``, ``nfev``,
+        ``t_events``, ``y_events``, ``sol``; with ``cpu_seconds``, the
+        integration, ``overhead_seconds``, the rest, and ``plan``: steps, saved
+        memory, expected time); raises :class:`~liefi.schemes.IntegrationError`
+        naming the time and components if the run produces non-finite numbers
+        (``errors="return"``: returns the run up to there with ``success=False``,
+        ``status=-1`` and the error as ``message``).
 
-        ``dt`` must divide ``t_final`` (the message gives the nearest one that
-        does).  ``save_every``: keep every this many steps; default ``None``:
+        ``dt`` (required today; a step chosen from a tolerance will make it
+        optional) must divide ``t_final - t0`` (the message gives the nearest
+        one that does).  ``scheme``: default ``"euler"``.  The old form
+        ``run(dt, t_final, scheme)`` still works and warns
+        (:class:`DeprecationWarning`).
+
+        ``t_eval``, ``dense_output`` and ``events`` as in ``solve_ivp``, on the
+        cubic Hermite interpolant of the saved states (:mod:`liefi.dense`:
+        order 3, root finding for events, ``terminal`` ends the run with
+        ``status=1``); events need a single trajectory.
+
+        ``save_every``: keep every this many steps; default ``None``:
         every step while the output stays under 256 MiB, else capped there.
         ``progress``: progress on stderr (default: for runs expected to take
         more than a few seconds, when stderr is a terminal).
@@ -696,10 +725,18 @@ class FeedbackIntegrator:
         scene's ``RunResult`` and ``liefi run --json``); the invariant is still
         monitored.  ``drop_exact=False`` keeps every term.
         """
-        from .run import run_feedback
+        import warnings
 
+        from .run import deprecation_message, legacy_call, run_feedback
+
+        t_span, dt, scheme, old = legacy_call(t_span, args, dt=dt, t_final=t_final, scheme=scheme)
+        if old:
+            warnings.warn(deprecation_message(t_span, dt, scheme), DeprecationWarning, stacklevel=2)
+        if t_span is None:
+            raise TypeError("run: missing t_span, the final time or (t0, t_final); e.g. fi.run(10.0, dt=1e-3)")
         return run_feedback(
-            self, dt, t_final, scheme, y0=y0, save_every=save_every, check_every=check_every,
-            backend=backend, check_stability=check_stability, adaptive=adaptive, monitor_every=monitor_every,
-            progress=progress, drop_exact=drop_exact,
+            self, t_span, dt=dt, scheme=scheme, t_eval=t_eval, events=events, dense_output=dense_output,
+            errors=errors, y0=y0, save_every=save_every, check_every=check_every, backend=backend,
+            check_stability=check_stability, adaptive=adaptive, monitor_every=monitor_every, progress=progress,
+            drop_exact=drop_exact,
         )

@@ -72,7 +72,7 @@ def _guard_verdict(ratio_seen_beyond, rel, delta0):
     return None
 
 
-def _audit(fi, ts, Ys, dt, beta, sch, scales, delta0, schedule, max_points=2000):
+def _audit(fi, ts, Ys, dt, beta, sch, scales, delta0, schedule, max_points=2000, t0=0.0):
     """After a run: the guard's rule on (up to ``max_points`` of) the saved states.
 
     Between two checks a run may have gone unstable and settled into O(1)
@@ -114,14 +114,14 @@ def _audit(fi, ts, Ys, dt, beta, sch, scales, delta0, schedule, max_points=2000)
             if md:  # the data, not the gains
                 raise StabilityError(f"the run became meaningless at t={t_bad:g}: the drift of {nm} reached "
                                      f"{float(rel[i]):.3g} x its scale. {md} No result is returned.",
-                                     t_bad, int(round(t_bad / dt)), Ys[idx[i]], [nm])
+                                     t_bad, int(round((t_bad - t0) / dt)), Ys[idx[i]], [nm])
             raise StabilityError(
                 f"the run became meaningless at t={t_bad:g}: the drift of {nm} reached {float(rel[i]):.3g} x "
                 f"its scale after dt*lambda_max exceeded the stability bound {beta:.4g} of {sch.name} (at t ~ "
                 f"{t_over:g}; largest dt*lambda_max seen {float(np.max(ratio)) * beta:.4g}, largest safe dt there "
                 f"{dt / float(np.max(ratio)):.4g}): reduce dt or the gains, or use gains='auto', adaptive=True "
                 "or scheme='imex-euler'. No result is returned.",
-                t_bad, int(round(t_bad / dt)), Ys[idx[i]], [nm],
+                t_bad, int(round((t_bad - t0) / dt)), Ys[idx[i]], [nm],
             )
         if v == "warn" and warn is None:
             warn = (float(tt[i]), str(who[i]), float(rel[i]))
@@ -263,12 +263,12 @@ def _advice(fi, y, t, dt, sch, beta, earlier=None):
     )
 
 
-def _relabel(exc, dt, sch, extra):
-    """Rebuild an IntegrationError (absolute ``t``, ``step``) with our advice appended."""
+def _relabel(exc, dt, sch, extra, t0=0.0):
+    """Rebuild an IntegrationError (absolute ``t``, ``step`` from the start ``t0``) with our advice appended."""
     comps = list(exc.components or [])
     msg = (
         f"integration with {getattr(sch, 'name', sch)} (dt={dt:g}) produced non-finite values at step "
-        f"{exc.step} (t={exc.step * dt:g}) in components {comps}; the last finite state is at t={exc.t:g}. {extra}"
+        f"{exc.step} (t={t0 + exc.step * dt:g}) in components {comps}; the last finite state is at t={exc.t:g}. {extra}"
     )
     return IntegrationError(msg, exc.t, exc.step, exc.y, comps)
 
@@ -319,12 +319,14 @@ class Guard:
     scheme (explicit or split); ``beta`` its real stability bound.
     """
 
-    def __init__(self, fi, scheme, dt, n_steps, *, backend, check_stability, adaptive, monitor_every, stacklevel):
+    def __init__(self, fi, scheme, dt, n_steps, *, backend, check_stability, adaptive, monitor_every, stacklevel,
+                 t0=0.0):
         self.fi = fi
         self.sch = scheme
         self.beta = float(scheme.real_stability_bound)
         self.split = scheme.kind == "split"
         self.dt = dt
+        self.t0 = float(t0)  # the run starts at t0: step s is at t0 + s dt
         self.n_steps = n_steps
         self.backend = backend
         self.check_stability = bool(check_stability)
@@ -342,7 +344,7 @@ class Guard:
         self.warned_in_run = False
         self.drift_warned = False
         self.ratio_set = None
-        self.sched_t, self.sched_g = [0.0], []
+        self.sched_t, self.sched_g = [self.t0], []
         self.resolutions = math.nan
         #: the ensemble's shape; members of an ensemble are adapted (and checked) on their own schedule
         self.batch = tuple(getattr(fi, "batch", ()))
@@ -485,7 +487,7 @@ class Guard:
 
         rep, dt, beta, sch = self.report, self.dt, self.beta, self.sch
         rep.monitors += 1
-        t_now = s0 * dt
+        t_now = self.t0 + s0 * dt
         with np.errstate(all="ignore"):
             jet = run_fi.invariant_gradients(y)
             lam = float(np.max(stiffness(run_fi, y).lam, initial=0.0))
@@ -590,7 +592,7 @@ class Guard:
         per = int(np.prod(Ys.shape[1:-1], dtype=int)) if Ys.ndim > 2 else 1
         pts = max(2, min(2000 if self.backend == "numpy" else 500, AUDIT_STATES // max(per, 1)))
         w = _audit(self.fi, np.asarray(ts), Ys, self.dt, self.beta, self.sch, self.scales, self.delta0,
-                   (self.sched_t, self.sched_g), max_points=pts)
+                   (self.sched_t, self.sched_g), max_points=pts, t0=self.t0)
         if w is not None and not self.drift_warned:
             self._warn(_drift_warning(w[0], w[1], w[2], self.dt, self.report.resolution))
 
@@ -602,4 +604,4 @@ class Guard:
             extra = (f"The split scheme {self.sch.name} solves (I + dt K W A W^T) mu = K r through the Gram matrix of "
                      f"the invariants' gradients each step; non-finite numbers there mean the explicit part on X "
                      f"blew up (reduce dt) or the gains overflow (dt*gain past ~1e300). " + extra)
-        return _relabel(exc, self.dt, self.sch, extra)
+        return _relabel(exc, self.dt, self.sch, extra, self.t0)

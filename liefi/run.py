@@ -18,7 +18,12 @@ scheme of the registry (:mod:`liefi.schemes.registry`), it
    plain line otherwise; quiet when stderr is not a terminal);
 5. reports ``cpu_seconds`` (the integration loops alone) and
    ``overhead_seconds`` (estimate, guard, kernel loading and compiling)
-   separately on the :class:`~liefi.schemes.Solution`.
+   separately on the :class:`~liefi.schemes.Solution`;
+6. in the shape of ``solve_ivp``: over ``t_span`` (``t_final`` or
+   ``(t0, t_final)``), watching ``events`` after every segment (a terminal one
+   ends the run), with ``t_eval`` and ``dense_output`` read from the cubic
+   Hermite interpolant of :mod:`liefi.dense`.  :func:`legacy_call` understands
+   the old ``run(dt, t_final, scheme)``.
 
 :func:`check_ivp` is the guard of the adaptive ``scipy:METHOD`` path and
 :func:`check_result_drift` the drift guard of schemes run outside this loop
@@ -141,10 +146,10 @@ def _fixed_step_scheme(scheme):
     return sch
 
 
-def _segment_runner(sch, dt, backend, names):
+def _segment_runner(sch, dt, backend, names, t_start=0.0):
     """``run(fi_cur, y, n, s0, save_every, check_every) -> Solution`` on the requested backend.
 
-    Times are absolute; an :class:`~liefi.schemes.IntegrationError` is re-raised
+    Times are absolute (step ``s`` is at ``t_start + s dt``); an :class:`~liefi.schemes.IntegrationError` is re-raised
     with the absolute time of the last finite state and the absolute step.
     """
     state = {"backend": backend}
@@ -153,7 +158,7 @@ def _segment_runner(sch, dt, backend, names):
         raise ValueError(f"backend: expected 'numpy', 'numba' or 'auto', got {backend!r}")
 
     def run(fi_cur, y, n, s0, save_every, check_every, out=None):
-        t0 = s0 * dt
+        t0 = t_start + s0 * dt
         if state["backend"] != "numpy":
             from .engine import run_feedback
 
@@ -216,10 +221,61 @@ def exact_drops(fi, sch, y0, *, rtol=1e-12):
     return out
 
 
-def run_feedback(fi, dt, t_final, scheme="euler", *, y0=None, save_every=None, check_every=1, backend="numpy",
-                 check_stability=True, adaptive=None, monitor_every=None, progress=None, max_saved_bytes=None,
-                 drop_exact=True, stacklevel=3) -> Solution:
-    """Integrate the feedback integrator ``fi`` from ``y0`` to ``t_final`` with a fixed step (module docstring).
+#: The message of a run without ``dt=`` (until a step is chosen from a tolerance).
+DT_MISSING = (
+    "dt: pass the step as dt=..., e.g. fi.run(10.0, dt=1e-3, scheme='rk4') (t_span = 10.0 or (t0, t_final)); "
+    "liefi's fixed-step schemes need it"
+)
+
+
+def legacy_call(t_span, args, *, dt, t_final, scheme):
+    """``(t_span, dt, scheme, deprecated)`` of a call of :meth:`liefi.FeedbackIntegrator.run`.
+
+    The ``solve_ivp`` shape is ``run(t_span, *, dt=..., scheme=...)``.  The old
+    forms ``run(dt, t_final[, scheme])`` (two leading positional numbers) and
+    ``run(dt=..., t_final=...)`` are still understood; ``deprecated`` is then
+    True and the caller warns (:class:`DeprecationWarning`) with the new form.
+    """
+    if len(args) > 2:
+        raise TypeError(f"run: takes t_span positionally and the rest by keyword, got {1 + len(args)} "
+                        "positional arguments; write run(t_span, dt=..., scheme=...)")
+
+    def number(v):
+        return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
+
+    if args:
+        if not (number(t_span) and number(args[0])):
+            raise TypeError(f"run: takes one positional argument, t_span (a final time or (t0, t_final)), got "
+                            f"{(t_span,) + tuple(args)!r}; pass dt= and scheme= by keyword")
+        if dt is not None or t_final is not None:
+            raise TypeError("run: the old form run(dt, t_final) cannot be mixed with dt= or t_final=; "
+                            "write run(t_final, dt=..., scheme=...)")
+        if len(args) == 2:
+            if scheme is not None:
+                raise TypeError("run: scheme given twice (positionally and as scheme=)")
+            scheme = args[1]
+        return args[0], t_span, scheme, True
+    if t_final is not None:
+        if dt is not None and t_span is not None:
+            raise TypeError("run: give t_span (or the old t_final=), not both")
+        if dt is None:  # run(dt, t_final=T)
+            dt, t_span = t_span, None
+        return t_final, dt, scheme, True
+    return t_span, dt, scheme, False
+
+
+def deprecation_message(t_span, dt, scheme):
+    """The :class:`DeprecationWarning` of the old call forms, naming the new one."""
+    sch = "" if scheme is None else f", scheme={scheme!r}"
+    return (f"FeedbackIntegrator.run(dt, t_final, scheme) is deprecated; use the solve_ivp shape "
+            f"run(t_span, dt=..., scheme=...), here run({t_span!r}, dt={dt!r}{sch}) "
+            "(t_span = t_final, or (t0, t_final))")
+
+
+def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, dense_output=False, errors="raise",
+                 y0=None, save_every=None, check_every=1, backend="numpy", check_stability=True, adaptive=None,
+                 monitor_every=None, progress=None, max_saved_bytes=None, drop_exact=True, stacklevel=3) -> Solution:
+    """Integrate the feedback integrator ``fi`` over ``t_span`` with a fixed step (module docstring).
 
     The parameters are those of :meth:`liefi.FeedbackIntegrator.run`;
     ``progress``: ``None`` (automatic), True or False; ``max_saved_bytes``: the
@@ -227,16 +283,29 @@ def run_feedback(fi, dt, t_final, scheme="euler", *, y0=None, save_every=None, c
     ``save_every=None``, half the available memory with an explicit stride).
     ``drop_exact`` (default True): leave out of ``V`` the invariants the scheme
     keeps exactly (:func:`exact_drops`); ``solution.dropped`` lists them
-    (``{"name", "reason"}``).
+    (``{"name", "reason"}``).  ``t_eval``, ``events`` and ``dense_output`` as
+    ``solve_ivp``'s, on the cubic Hermite interpolant of :mod:`liefi.dense`.
+    ``errors``: ``"raise"`` (default) or ``"return"``: a failed run returns the
+    states up to the failure with ``success=False``, ``status=-1``.
 
     Returns the :class:`~liefi.schemes.Solution` with ``stability`` (the
     guard's :class:`~liefi.guard.RunReport`), ``plan`` (:class:`RunPlan`),
     ``cpu_seconds`` (integration) and ``overhead_seconds``.
     """
+    from . import dense as _dense
     from .guard import Guard, _segment
+    from .schemes.core import MESSAGE_EVENT
+    from .stability import StabilityError
 
     start_all = time.process_time()
-    dt, t_final, n_steps, _, check_every = steps_for(dt, t_final, check_every=check_every)
+    t_start, t_end = _dense.parse_span(t_span)
+    if dt is None:
+        raise ValueError(DT_MISSING)
+    if errors not in ("raise", "return"):
+        raise ValueError(f"errors: expected 'raise' or 'return', got {errors!r}")
+    dt, t_end, n_steps, _, check_every = steps_for(dt, t_end, check_every=check_every, t0=t_start)
+    t_eval = _dense.check_t_eval(t_eval, t_start, t_end)
+    evs = _dense.check_events(events)
     if monitor_every is not None:
         monitor_every = positive_int(monitor_every, "monitor_every")
     if y0 is None:
@@ -247,17 +316,21 @@ def run_feedback(fi, dt, t_final, scheme="euler", *, y0=None, save_every=None, c
             raise ValueError(f"y0: expected a state of {fi.n} numbers {fi.names}, got {np.shape(y0)}")
         if not np.all(np.isfinite(y0)):
             raise ValueError("y0: contains non-finite numbers")
+    if evs and y0.ndim > 1:
+        raise ValueError(f"events: only for a single trajectory (y0 of shape ({fi.n},)), got a batch of shape "
+                         f"{y0.shape}; run the members one by one to locate their events")
     fi = fi.for_batch(y0.shape[:-1])  # an integrator built on one state, run on a batch: common values
-    sch = _fixed_step_scheme(scheme)
+    sch = _fixed_step_scheme(scheme if scheme is not None else "euler")
+    user_fi = fi
     drops = exact_drops(fi, sch, y0) if drop_exact else {}
     if drops:
         fi = fi.without(drops)
     pl = plan(y0, n_steps, save_every, max_bytes=max_saved_bytes)
     save_every = pl.save_every
     names = fi.names
-    runner = _segment_runner(sch, dt, backend, names)
+    runner = _segment_runner(sch, dt, backend, names, t_start)
     guard = Guard(fi, sch, dt, n_steps, backend=backend, check_stability=check_stability, adaptive=adaptive,
-                  monitor_every=monitor_every, stacklevel=stacklevel + 1)
+                  monitor_every=monitor_every, stacklevel=stacklevel + 1, t0=t_start)
     run_fi = guard.before(y0)
     if runner.state["backend"] == "numpy":
         pl.seconds_per_step = _step_seconds(run_fi, y0, sch)
@@ -266,17 +339,25 @@ def run_feedback(fi, dt, t_final, scheme="euler", *, y0=None, save_every=None, c
     # --- segments -------------------------------------------------------------------------
     out = np.empty(y0.shape + (pl.n_saved,))
     ts = np.empty(pl.n_saved)
-    out[..., 0], ts[0], k = y0, 0.0, 1
+    out[..., 0], ts[0], k = y0, t_start, 1
     if guard.active:
         N = guard.segment_length(n_steps, save_every)
     else:
         N = n_steps if not pl.expected_seconds > PROGRESS_SECONDS else max(1, n_steps // 100)
-    bar = Progress(n_steps, f"liefi {sch.name}", _want_progress(progress, pl.expected_seconds))
+    tracker = _dense.EventTracker(evs, run_fi, sch.kind) if evs else None
+    terminal = bool(tracker) and any(tracker.stop_after)
+    next_guard = N
+    if tracker:
+        tracker.start(t_start, y0)
+    desc = f"liefi {sch.name}" + (f" t in [{t_start:g}, {t_end:g}]" if t_start else "")
+    bar = Progress(n_steps, desc, _want_progress(progress, pl.expected_seconds))
     y, s0, rhs, cpu, last = y0, 0, 0, 0.0, None
-    checked = (y0, 0.0)
+    checked = (y0, t_start)
+    status, message = 0, None
     try:
         while s0 < n_steps:
-            L, sub = _segment(s0, n_steps, N, save_every)
+            cap = _dense.EVENT_SEGMENT_STEPS["numpy" if runner.state["backend"] == "numpy" else "compiled"]
+            L, sub = _segment(s0, n_steps, np.minimum(N, cap) if terminal else N, save_every)
             # numpy writes the segment straight into the output when its start is a saved state
             direct = runner.state["backend"] == "numpy" and s0 % save_every == 0 and sub == save_every
             buf = out[..., k - 1 : k + L // sub + (1 if L % sub else 0)] if direct else None
@@ -287,32 +368,70 @@ def run_feedback(fi, dt, t_final, scheme="euler", *, y0=None, save_every=None, c
             last = seg
             rhs += seg.rhs_evaluations
             cpu += seg.cpu_seconds
-            gidx = s0 + np.round((seg.t - s0 * dt) / dt).astype(int)
+            gidx = s0 + np.round((seg.t - (t_start + s0 * dt)) / dt).astype(int)
             keep = np.nonzero((gidx % save_every == 0) | (gidx == n_steps))[0]
             keep = keep[keep >= 1]
             m = keep.size
-            ts[k : k + m] = dt * gidx[keep].astype(float)
+            ts[k : k + m] = t_start + dt * gidx[keep].astype(float)
+            if m and gidx[keep[-1]] == n_steps:
+                ts[k + m - 1] = t_end
             if not direct:
                 out[..., k : k + m] = seg.y[..., keep]
-            k += m
+            k_prev, k = k, k + m
             y = seg.y[..., -1]
             s0 += L
             bar.update(L)
+            if tracker:
+                hit = tracker.advance(ts[k_prev:k], out[..., k_prev:k])
+                if hit is not None:  # a terminal event: the run ends there
+                    t_ev, y_ev, j = hit
+                    k = k_prev + j
+                    if t_ev > ts[k - 1]:
+                        ts[k], out[..., k] = t_ev, y_ev
+                        k += 1
+                    status, message = 1, MESSAGE_EVENT
+                    break
             if not math.isfinite(pl.expected_seconds) and s0 < n_steps:  # compiled: measured now
                 pl.seconds_per_step = seg.cpu_seconds / L
                 pl.expected_seconds = pl.seconds_per_step * n_steps
                 if _want_progress(progress, pl.expected_seconds) and not bar.enabled:
-                    bar = Progress(n_steps, f"liefi {sch.name}", True)
+                    bar = Progress(n_steps, desc, True)
                     bar.update(s0)
             if s0 >= n_steps:
                 break
-            if guard.active:
+            if guard.active and (not terminal or s0 >= next_guard):  # short event segments: the guard's own pace
                 run_fi, N = guard.between(run_fi, y, s0, N)
-                checked = (y, s0 * dt)
+                next_guard = s0 + N
+                checked = (y, t_start + s0 * dt)
+                if tracker:
+                    tracker.fi = run_fi  # the interpolant follows the gains in effect
+        guard.after(ts[:k], np.moveaxis(out[..., :k], -1, 0))
+    except (IntegrationError, StabilityError) as exc:
+        if errors == "raise":
+            raise
+        status, message = -1, str(exc)
+        y_bad = np.asarray(getattr(exc, "y", None), dtype=float)
+        if y_bad.shape == y0.shape and math.isfinite(exc.t) and exc.t > ts[k - 1] and k < ts.size:
+            ts[k], out[..., k] = exc.t, y_bad
+            k += 1
     finally:
         bar.close()
-    guard.after(ts[:k], np.moveaxis(out[..., :k], -1, 0))
     sol = Solution(ts[:k], out[..., :k], sch.name, dt, n_steps, rhs, cpu, tuple(names))
+    if status:
+        sol.status, sol.success, sol.message = status, status >= 0, message
+    sol.integrator = user_fi
+    if tracker:
+        sol.t_events, sol.y_events = tracker.results()
+        sol.rhs_evaluations += tracker.nodes
+    if dense_output or t_eval is not None:
+        F = _dense.slopes(run_fi, sch.kind, sol.y)
+        sol.rhs_evaluations += sol.t.size
+        interp = _dense.DenseOutput(sol.t, sol.y, F)
+        if dense_output:
+            sol.sol = interp
+        if t_eval is not None:
+            te = t_eval[t_eval <= sol.t[-1]] if status else t_eval
+            sol.t, sol.y = te, interp(te)
     for attr in ("backend", "wall_seconds"):
         if last is not None and hasattr(last, attr):
             setattr(sol, attr, getattr(last, attr))

@@ -570,7 +570,7 @@ def _max_evals(n_steps, stages):
 
 
 def estimate(fi, dt, scheme="euler", *, t_final=None, y0=None, max_evals=None, resolution=True) -> StabilityEstimate:
-    """Estimate the stability limit of ``fi.run(dt, t_final, scheme)`` before running it.
+    """Estimate the stability limit of ``fi.run(t_final, dt=dt, scheme=scheme)`` before running it.
 
     ``lambda_max`` is evaluated at ``y0`` and along :func:`pilot` (up to
     ``t_final``, within ``max_evals`` evaluations of ``X``; default a few

@@ -28,7 +28,7 @@ def test_auto_on_rk4_is_the_accurate_gains_fixed():
     dt, T = 1e-2, 20.0
     z, acc = accurate_setting(fi, dt, "rk4", T)
     assert 0 < z < 0.1  # far from the stability limit of RK4 (2.785)
-    sol = fi.run(dt, T, "rk4")
+    sol = fi.run(T, dt=dt, scheme="rk4")
     assert not sol.stability.adaptive and sol.stability.gain_history == []
     assert sol.stability.gains == pytest.approx(acc, rel=1e-12)
     # the stiffness of the feedback at the start is z*/dt (unit-rate gains scaled)
@@ -78,7 +78,7 @@ def test_auto_is_unit_invariant(scheme):
     y2[9:] *= s
     fi2 = liefi.FeedbackIntegrator(sys2, y2, gains="auto")
     dt, T = 1e-2, 20.0
-    a, b = fi1.run(dt, T, scheme), fi2.run(dt, T, scheme)
+    a, b = fi1.run(T, dt=dt, scheme=scheme), fi2.run(T, dt=dt, scheme=scheme)
     assert any(v > 0 for v in a.stability.gains.values())
     # grad_P' h' = m'^-1 P' = m^-1 P and grad J' = e: the gradients and so the gains do not change; the
     # residuals (h, J) scale like the momenta, and so does the feedback term
@@ -116,10 +116,10 @@ def test_cli_auto_not_dominated(name, capsys):
 def test_vertical_disk_drops_every_momentum_and_says_why():
     sc = scenes.get("vertical-disk")
     fi = sc.integrator()
-    sol = fi.run(1e-3, 1.0, "rk4")
+    sol = fi.run(1.0, dt=1e-3, scheme="rk4")
     assert [d["name"] for d in sol.dropped] == ["Pi_theta", "Pi_x", "Pi_y", "Pi_psi"]
     assert all("kept exactly by rk4" in d["reason"] for d in sol.dropped)
-    full = fi.run(1e-3, 1.0, "rk4", drop_exact=False)
+    full = fi.run(1.0, dt=1e-3, scheme="rk4", drop_exact=False)
     assert full.dropped == []
     # the dropped terms vanished identically: the same trajectory to rounding
     assert np.max(np.abs(sol.y - full.y)) < 1e-13 * max(1.0, np.max(np.abs(full.y)))
@@ -170,7 +170,7 @@ def test_without_rejects_unknown_names():
 def test_first_integral_check_silent_off_the_set_and_fires_for_a_false_invariant():
     sc = scenes.get("nonreversible-knife-edge")
     fi = sc.integrator()
-    y1 = fi.run(1e-2, 3.0, "rk4").y[:, -1]
+    y1 = fi.run(3.0, dt=1e-2, scheme="rk4").y[:, -1]
     y = y1.copy()
     y[fi.names.index("p_y")] += 1e-3  # off the constraint set: J_1 != 0
     jet = fi.invariant_gradients(y)
@@ -179,11 +179,12 @@ def test_first_integral_check_silent_off_the_set_and_fires_for_a_false_invariant
     assert first_integral_defect(fi, y) == ""
     with warnings.catch_warnings():
         warnings.simplefilter("error", LiefiStabilityWarning)
-        liefi.FeedbackIntegrator(sc.system, y, invariants=("constraints", "energy", "p_phi")).run(1e-2, 1.0, "rk4")
+        liefi.FeedbackIntegrator(sc.system, y, invariants=("constraints", "energy", "p_phi")).run(
+            1.0, dt=1e-2, scheme="rk4")
     bad = liefi.FeedbackIntegrator(sc.system, y1, invariants=("constraints", "energy", "x"))
     assert "x (relative dI/dt" in first_integral_defect(bad, y)
     with pytest.warns(LiefiStabilityWarning, match="x .*not conserved"):
-        bad.run(1e-2, 0.1, "rk4")
+        bad.run(0.1, dt=1e-2, scheme="rk4")
 
 
 def test_scene_run_does_not_warn():

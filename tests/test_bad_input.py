@@ -156,7 +156,7 @@ def test_bad_start(knife):
         FeedbackIntegrator(sys_, ["x"] * 6)
     fi = knife.integrator()
     with pytest.raises(ValueError, match="y0: expected a state of 6 numbers"):
-        fi.run(1e-3, 0.01, y0=np.zeros(3))
+        fi.run(0.01, dt=1e-3, y0=np.zeros(3))
 
 
 def test_start_off_the_constraint_set_where_the_scene_needs_it_on():
@@ -170,7 +170,7 @@ def test_start_off_the_constraint_set_where_the_scene_needs_it_on():
 def test_non_positive_or_non_finite_step(knife, dt):
     fi = knife.integrator()
     with pytest.raises(ValueError, match="^dt: "):
-        fi.run(dt, 0.01)
+        fi.run(0.01, dt=dt)
 
 
 @pytest.mark.parametrize("T", [0.0, -1.0, np.nan, "a"])
@@ -194,7 +194,7 @@ def test_unknown_variant_and_scheme(knife):
     with pytest.raises(ValueError, match="^scheme: "):
         knife.run(scheme="scipy:Nope", t_final=0.01)
     with pytest.raises(ValueError, match="^backend: "):
-        knife.integrator().run(1e-3, 0.01, backend="cuda")
+        knife.integrator().run(0.01, dt=1e-3, backend="cuda")
 
 
 @pytest.mark.parametrize("opt", ["save_every", "check_every", "monitor_every"])
@@ -202,7 +202,7 @@ def test_unknown_variant_and_scheme(knife):
 def test_bad_run_counts(knife, opt, value):
     fi = knife.integrator()
     with pytest.raises(ValueError, match=f"^{opt}: "):
-        fi.run(1e-3, 0.01, **{opt: value})
+        fi.run(0.01, dt=1e-3, **{opt: value})
 
 
 # --- fuzz: constructors ---------------------------------------------------------------------------
@@ -356,7 +356,7 @@ def test_fuzz_integrator_options(data):
             warnings.simplefilter("ignore", LiefiStabilityWarning)
             warnings.simplefilter("ignore", RuntimeWarning)
             fi = FeedbackIntegrator(sc.system, y0, **kw)
-            fi.run(run.pop("dt", 1e-3), 0.01, **run)
+            fi.run(0.01, dt=run.pop("dt", 1e-3), **run)
     except (ValueError, TypeError) as exc:
         assert names_parameter(exc, list(kw) + list(run) + ["y0", "dt", "t_final"]), f"{kw} {run}: {exc!r}"
     except liefi.IntegrationError as exc:

@@ -45,12 +45,12 @@ def _ensemble_and_singles(sc, fi, Y, scheme, gains, backend, dt, T, targets=None
     def make(y, g, t):
         return liefi.FeedbackIntegrator(sc.system, y, gains=g, targets=t, configuration=fi.configuration)
 
-    ens = _quiet(make(Y, gains, targets).run, dt, T, scheme, backend=backend, **kw)
+    ens = _quiet(make(Y, gains, targets).run, T, dt=dt, scheme=scheme, backend=backend, **kw)
     singles = []
     for i in range(len(Y)):
         gi = {k: v[i] for k, v in gains.items()} if isinstance(gains, dict) else gains
         ti = {k: v[i] for k, v in targets.items()} if targets else None
-        singles.append(_quiet(make(Y[i], gi, ti).run, dt, T, scheme, backend=backend, **kw))
+        singles.append(_quiet(make(Y[i], gi, ti).run, T, dt=dt, scheme=scheme, backend=backend, **kw))
     return ens, singles
 
 
@@ -109,7 +109,7 @@ def test_per_member_values_are_checked(suslov3):
         liefi.FeedbackIntegrator(sc.system, Y, targets={"energy": [1.0, np.nan, 1.0]}, **kw)
     ens = liefi.FeedbackIntegrator(sc.system, Y, **kw)
     with pytest.raises(ValueError, match="y0: this integrator holds the targets and gains of an ensemble"):
-        ens.run(1e-3, 0.01, y0=Y[:2])
+        ens.run(0.01, dt=1e-3, y0=Y[:2])
 
 
 # --- the split schemes' accurate rate ------------------------------------------------------------------
@@ -120,7 +120,7 @@ def test_split_auto_gains_keep_the_invariants_to_rounding():
     Suslov's J_1 and energy stay at rounding (1/u^(1/4) leaves ~1e-8)."""
     sc = scenes.get("suslov")
     fi = sc.integrator(gains="auto")
-    sol = _quiet(fi.run, 1e-2, 20.0, "imex-euler", save_every=100)
+    sol = _quiet(fi.run, 20.0, dt=1e-2, scheme="imex-euler", save_every=100)
     vals = fi.invariant_values(sol.y.T)
     assert np.max(np.abs(vals["J_1"][5:])) < 1e-12
     assert np.max(np.abs(vals["energy"][5:] - fi.targets["energy"])) < 1e-12
@@ -182,7 +182,7 @@ def test_the_second_orthogonal_block_is_penalized_and_monitored(group):
     fi = liefi.FeedbackIntegrator(sys_, np.concatenate([g, [0.1, 0.2, 0.3, 0.4]]), invariants=["energy"])
     assert fi.invariant_values(fi.y0)["penalty"] == pytest.approx(group.penalty(g), rel=1e-12)
     assert liefi.stability.drift(fi, fi.y0)[1] == "penalty"
-    sol = _quiet(fi.run, 1e-2, 1.0, "heun")
+    sol = _quiet(fi.run, 1.0, dt=1e-2, scheme="heun")
     assert group.penalty(sol.y[: group.config_dim, -1]) < 0.5 * group.penalty(g)  # the feedback repairs it
 
 
@@ -199,7 +199,7 @@ def test_not_dropped_off_target_on_a_field_where_it_is_a_first_integral():
     off = liefi.FeedbackIntegrator(sc.system, fi.y0, invariants=fi.user, targets={"Pi_x": fi.targets["Pi_x"] + 0.1},
                                    configuration=fi.configuration, field=fi.field)
     assert "Pi_x" in exactly_kept(off, "rk4")  # the condition under test is the target, nothing else
-    sol = _quiet(off.run, 1e-3, 0.1, "rk4")
+    sol = _quiet(off.run, 0.1, dt=1e-3, scheme="rk4")
     dropped = [d["name"] for d in sol.dropped]
     assert "Pi_x" not in dropped and "Pi_y" in dropped
     r0 = 0.1

@@ -98,7 +98,7 @@ def test_exactly_kept_means_kept_by_the_feedback_field():
         fi = sc.integrator(gains=gains)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            sol = fi.run(1e-2, 2.0, "heun", check_stability=False)
+            sol = fi.run(2.0, dt=1e-2, scheme="heun", check_stability=False)
         vals = fi.invariant_values(sol.y.T)
         return float(np.max(np.abs(vals[which])))
 

@@ -270,7 +270,7 @@ def test_a_metric_that_turns_indefinite_during_a_run_is_named():
     y0 = sys_.project(np.array([0.0, 0.0, 0.3, 3.0, 0.0, 0.5]))
     fi = liefi.FeedbackIntegrator(sys_, y0, gains=1.0)
     with pytest.raises(liefi.IntegrationError) as info:
-        fi.run(1e-2, 5.0, scheme="euler", check_stability=False)
+        fi.run(5.0, dt=1e-2, scheme="euler", check_stability=False)
     msg = str(info.value)
     t_last = info.value.t
     assert t_last > 1.0  # it turned indefinite during the run, not at the start

@@ -31,7 +31,7 @@ def _rk4_reference(T, h):
     fi = SC.integrator()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        sol = fi.with_gains(0.0).run(h, T, "rk4", check_stability=False)
+        sol = fi.with_gains(0.0).run(T, dt=h, scheme="rk4", check_stability=False)
     return sol.y[:, -1]
 
 

@@ -26,17 +26,17 @@ def suslov():
 def test_dt_not_dividing_t_final_names_the_nearest_dt(suslov):
     fi = suslov.integrator()
     with pytest.raises(ValueError, match=r"dt: 0.003 does not divide t_final = 10.*nearest step.*dt = 0\.0030003.*\(3333 steps\)"):
-        fi.run(0.003, 10.0)
+        fi.run(10.0, dt=0.003)
     assert steps_for(0.25, 10.0)[2] == 40
 
 
-@pytest.mark.parametrize("kw, word", [({"dt": True}, "dt"), ({"dt": -1}, "dt"), ({"t_final": np.nan}, "t_final"),
+@pytest.mark.parametrize("kw, word", [({"dt": True}, "dt"), ({"dt": -1}, "dt"), ({"t_final": np.nan}, "t_span"),
                                       ({"save_every": 0}, "save_every"), ({"check_every": 1.5}, "check_every"),
                                       ({"save_every": True}, "save_every")])
 def test_run_arguments_are_validated_once(suslov, kw, word):
     args = {"dt": 1e-3, "t_final": 0.01, **kw}
     with pytest.raises(ValueError, match=f"^{word}: "):
-        suslov.integrator().run(args.pop("dt"), args.pop("t_final"), **args)
+        suslov.integrator().run(args.pop("t_final"), dt=args.pop("dt"), **args)
 
 
 # --- saving, plan, progress, overhead -------------------------------------------------------------
@@ -47,24 +47,24 @@ def test_saving_is_capped_by_default_and_refused_past_memory(suslov, monkeypatch
 
     fi = suslov.integrator()
     monkeypatch.setattr(R, "DEFAULT_SAVE_BYTES", 8 * fi.n * 101)  # room for 101 states
-    sol = fi.run(1e-3, 1.0)
+    sol = fi.run(1.0, dt=1e-3)
     assert sol.plan.save_every == 10 and sol.t.size == 101 and sol.t[-1] == pytest.approx(1.0)
     assert sol.plan.saved_bytes <= R.DEFAULT_SAVE_BYTES
     monkeypatch.setattr(R, "available_memory", lambda: 2 * 8 * fi.n * 50)
     with pytest.raises(ValueError, match="save_every: saving every 1 step.*take save_every >= 21"):
-        fi.run(1e-3, 1.0, save_every=1)
+        fi.run(1.0, dt=1e-3, save_every=1)
 
 
 def test_run_reports_cpu_and_overhead_apart(suslov):
-    sol = suslov.integrator().run(1e-3, 0.5)
+    sol = suslov.integrator().run(0.5, dt=1e-3)
     assert sol.cpu_seconds > 0 and sol.overhead_seconds >= 0
     assert sol.plan.n_steps == 500 and np.isfinite(sol.plan.expected_seconds)
 
 
 def test_progress_on_stderr_when_asked(suslov, capsys):
-    suslov.integrator().run(1e-3, 0.5, progress=True, check_stability=False)
+    suslov.integrator().run(0.5, dt=1e-3, progress=True, check_stability=False)
     assert "500" in capsys.readouterr().err
-    suslov.integrator().run(1e-3, 0.5)  # short, not a TTY: quiet
+    suslov.integrator().run(0.5, dt=1e-3)  # short, not a TTY: quiet
     assert capsys.readouterr().err == ""
 
 
@@ -80,7 +80,7 @@ def test_ensemble_guard_cost_does_not_grow_with_the_batch(suslov, monkeypatch):
     monkeypatch.setattr(S, "pilot", spy)
     fi = suslov.integrator()
     y0 = np.repeat(fi.y0[None], 500, axis=0)
-    fi.run(1e-3, 0.2, y0=y0)
+    fi.run(0.2, dt=1e-3, y0=y0)
     assert seen and all(np.prod(s[:-1]) <= S.PILOT_MEMBERS for s in seen)
 
 
@@ -109,7 +109,7 @@ def test_imex_at_a_gain_past_one_over_eps_is_the_projection():
     fi = FeedbackIntegrator(sysm, np.array([0.0, 1.0]), invariants=(inv,), gains=1e18)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        sol = fi.run(1e-1, 1.0, "imex-euler")
+        sol = fi.run(1.0, dt=1e-1, scheme="imex-euler")
     assert np.all(np.isfinite(sol.y))
     assert np.max(np.abs(sol.y[0] + sol.y[1] - 1.0)) < 1e-14
 
@@ -178,7 +178,7 @@ def test_blow_up_from_an_indefinite_metric_is_not_blamed_on_the_gains():
     with pytest.raises((IntegrationError, ValueError)) as exc:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            fi.run(1e-3, 5.0)
+            fi.run(5.0, dt=1e-3)
     assert "metric" in str(exc.value)
 
 
@@ -193,7 +193,7 @@ def test_progress_falls_back_to_a_plain_line_without_tqdm(suslov, capsys, monkey
         return real(name, *a, **kw)
 
     monkeypatch.setattr(builtins, "__import__", no_tqdm)
-    suslov.integrator().run(1e-3, 0.5, progress=True, check_stability=False)
+    suslov.integrator().run(0.5, dt=1e-3, progress=True, check_stability=False)
     err = capsys.readouterr().err
     assert "500/500 steps" in err
 

@@ -174,8 +174,8 @@ def test_chaplygin_so2_penalty_gradient_contracts_and_printed_sign_diverges():
     y0[:4] *= 1.001  # R = 1.001 I: ||R^T R - I|| = 2.83e-3
     fi = s.integrator(y0=y0)
     orth = lambda y: 2 * np.sqrt(fi.system.space.group.penalty(y[..., :6]))  # noqa: E731
-    o = orth(np.moveaxis(fi.run(1e-3, 0.2).y, -1, 0))
-    o_ref = orth(np.moveaxis(s.integrator().run(1e-3, 0.2).y, -1, 0))  # from R = I
+    o = orth(np.moveaxis(fi.run(0.2, dt=1e-3).y, -1, 0))
+    o_ref = orth(np.moveaxis(s.integrator().run(0.2, dt=1e-3).y, -1, 0))  # from R = I
     # the offset decays like exp(-2 k0 t) = e^-40 down to Euler's own O(dt) floor (~7e-6)
     assert o[0] > 2e-3 and abs(o[-1] - o_ref[-1]) < 1e-10 and o_ref[-1] < C_DRIFT * DT
 
@@ -232,7 +232,7 @@ def test_vertical_disk_further_converges_off_the_constraint_set():
     k, dt, n = 10.0, 1e-3, 500
     fi = liefi.FeedbackIntegrator(sys, off, invariants=sys.space.momentum_names, gains=k,
                                   field="projected", targets=target)
-    sol = fi.run(dt, n * dt)
+    sol = fi.run(n * dt, dt=dt)
     np.testing.assert_allclose(sol.y[nc:, -1] - y0[nc:], (off - y0)[nc:] * (1 - k * dt) ** n, atol=1e-14)
 
 

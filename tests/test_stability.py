@@ -146,7 +146,7 @@ def test_knife_edge_with_ten_percent_more_gain_warns_with_safe_dt_and_gain():
 def test_run_ten_times_past_the_limit_is_refused():
     fi = scenes.get("suslov").integrator(gains=1e5)
     with pytest.raises(ValueError, match="check_stability=False"):
-        fi.run(1e-3, 0.01)
+        fi.run(0.01, dt=1e-3)
 
 
 def test_run_past_the_limit_stops_instead_of_returning_drift():
@@ -155,14 +155,14 @@ def test_run_past_the_limit_stops_instead_of_returning_drift():
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", S.LiefiStabilityWarning)
         with pytest.raises(S.StabilityError, match="drift of .* after dt\\*lambda_max exceeded") as info:
-            fi.run(0.009, 0.009 * 1000)
+            fi.run(0.009 * 1000, dt=0.009)
     assert isinstance(info.value, IntegrationError) and info.value.t > 0
 
 
 def test_non_finite_failure_reports_stiffness_and_safe_dt():
     fi = scenes.get("suslov").integrator(gains=100.0)
     with pytest.raises(IntegrationError, match=r"dt\*lambda_max = .* exceeds .*Largest safe dt there: 0.007"):
-        fi.run(0.012, 0.012 * 500, check_stability=False)
+        fi.run(0.012 * 500, dt=0.012, check_stability=False)
 
 
 def test_in_run_warning_when_the_stiffness_grows_past_the_pilot():
@@ -179,15 +179,15 @@ def test_in_run_warning_when_the_stiffness_grows_past_the_pilot():
 @pytest.mark.parametrize("save_every", [1, 7, 150, 333, 1000])
 def test_segmented_run_with_the_guard_is_bit_identical_to_the_plain_run(save_every):
     fi = scenes.get("suslov").integrator()
-    a = fi.run(1e-3, 1.2, save_every=save_every, monitor_every=97)
-    b = fi.run(1e-3, 1.2, save_every=save_every, check_stability=False)
+    a = fi.run(1.2, dt=1e-3, save_every=save_every, monitor_every=97)
+    b = fi.run(1.2, dt=1e-3, save_every=save_every, check_stability=False)
     assert np.array_equal(a.t, b.t) and np.array_equal(a.y, b.y)
     assert a.t[-1] == pytest.approx(1.2) and a.stability.monitors > 0
 
 
 def test_adaptive_with_fixed_gains_only_lowers_them():
     fi = scenes.get("knife-edge").integrator(gains=1000.0)
-    sol = fi.run(1e-3, 0.5, adaptive=True)
+    sol = fi.run(0.5, dt=1e-3, adaptive=True)
     rep = sol.stability
     assert all(v <= 1000.0 + 1e-9 for g in [rep.gains] + rep.gain_history for v in g.values())
     assert rep.max_ratio <= 0.55  # dt lambda_max held at Euler's optimum 1 (ratio 1/2)

@@ -67,7 +67,7 @@ def runs(request):
     for gains in (0.0, 10.0):
         fi = liefi.FeedbackIntegrator(system, y0, gains=gains)
         if gains:  # the README's way
-            sol = fi.run(dt=DT, t_final=T_FINAL, scheme="rk4", save_every=25)
+            sol = fi.run(T_FINAL, dt=DT, scheme="rk4", save_every=25)
         else:  # the plain driver on the same field
             sol = liefi.integrate(fi.vector_field, y0, DT, int(round(T_FINAL / DT)), "rk4", save_every=25, names=fi.names)
         out[gains] = (fi, sol)

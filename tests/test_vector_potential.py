@@ -178,7 +178,7 @@ def test_feedback_integrator_keeps_the_affine_constraint_set():
     sys_ = NonholonomicSystem(LieGroupPhaseSpace(SO3()), I, e, vector_potential=l)
     z0 = sys_.project(rng.normal(size=3))
     fi = FeedbackIntegrator(sys_, z0, gains=5.0, configuration=False)
-    sol = fi.run(dt=1e-2, t_final=5.0, scheme="rk4")
+    sol = fi.run(5.0, dt=1e-2, scheme="rk4")
     v = fi.invariant_values(sol.y.T)
     assert np.abs(v["J_1"]).max() < 1e-8
     assert np.ptp(v["h~"]) < 1e-8 * abs(v["h~"][0])

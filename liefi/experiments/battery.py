@@ -187,7 +187,7 @@ def _battery_run_case(sc, case, quick, backend):
     try:
         with warnings.catch_warnings(record=True) as w:
             warnings.simplefilter("always", LiefiStabilityWarning)
-            sol = fi.run(dt, T, scheme, y0=y_start if off is not None else None,
+            sol = fi.run(T, dt=dt, scheme=scheme, y0=y_start if off is not None else None,
                          save_every=max(1, n // 4000), backend=bk)
             caught = [str(x.message) for x in w if issubclass(x.category, LiefiStabilityWarning)]
     except StabilityError as exc:

@@ -135,7 +135,7 @@ def _classify(fi, dt, T, scheme, scales, backend):
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            sol = fi.run(dt, n * dt, scheme, save_every=max(1, n // 2000), backend=backend,
+            sol = fi.run(n * dt, dt=dt, scheme=scheme, save_every=max(1, n // 2000), backend=backend,
                          check_stability=False, adaptive=False)
     except IntegrationError:
         return False, math.inf

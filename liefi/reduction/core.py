@@ -86,9 +86,10 @@ def is_traced(a) -> bool:
 
 
 def as_real(a):
-    """``a`` as a float array, or unchanged when it is traced (object dtype)."""
+    """``a`` as a float array, or unchanged when it is traced (object dtype) or complex (a complex step
+    through liefi's functions, which :func:`evaluate` allows where the data do not depend on ``x``)."""
     a = np.asarray(a)
-    return a if a.dtype == object else a.astype(float, copy=False)
+    return a if a.dtype == object or np.iscomplexobj(a) else a.astype(float, copy=False)
 
 
 @dataclass(frozen=True)

@@ -439,7 +439,7 @@ class Scene:
             t, Y, names, steps, nfev = sol.t, sol.y, fi.names, int(sol.t.size), int(sol.nfev)
         else:
             sol = fi.run(
-                dt, T, scheme, save_every=save_every, check_stability=check_stability, adaptive=adaptive,
+                T, dt=dt, scheme=scheme, save_every=save_every, check_stability=check_stability, adaptive=adaptive,
                 backend=backend,
             )
             dropped = list(getattr(sol, "dropped", []))

@@ -39,9 +39,15 @@ class IntegrationError(FloatingPointError):
         return (type(self), (str(self), self.t, self.step, self.y, self.components), self.__dict__)
 
 
+#: ``Solution.message`` of a run that reached the end of its interval (``status`` 0), as scipy words it.
+MESSAGE_DONE = "The solver successfully reached the end of the integration interval."
+#: ``Solution.message`` of a run stopped by a terminal event (``status`` 1).
+MESSAGE_EVENT = "A termination event occurred."
+
+
 @dataclass
 class Solution:
-    """Result of :func:`integrate`, in scipy's layout: time on the last axis.
+    """Result of a fixed-step run, in the layout of scipy's ``OdeResult``: time on the last axis.
 
     Attributes
     ----------
@@ -51,8 +57,28 @@ class Solution:
     dt : float
     steps : int
     rhs_evaluations : int
+        Evaluations of the field per trajectory (also :attr:`nfev`).
     cpu_seconds : float
         Process time of the stepping loop.
+    names : tuple of str
+        The components' names (``Solution[name]``).
+    success : bool
+        False only for a run that failed with ``errors="return"``
+        (:meth:`liefi.FeedbackIntegrator.run`); by default a failure raises.
+    status : int
+        ``0``: the end of the interval was reached; ``1``: a terminal event
+        stopped the run; ``-1``: the run failed (``errors="return"``).
+    message : str
+        What ``status`` means, or the failure's message.
+    t_events, y_events : list of ndarray, or None
+        With ``events=``: per event, the times ``(n_k,)`` and states ``(n_k, n)``
+        where it occurred (as ``solve_ivp``).
+    sol : DenseOutput or None
+        With ``dense_output=True``: ``sol(t)`` the state at any ``t`` in the
+        run's interval (:class:`liefi.dense.DenseOutput`).
+    integrator : FeedbackIntegrator or None
+        The integrator that made the run, when known: :meth:`to_xarray` and
+        :mod:`liefi.plot` read the invariants from it.
     """
 
     t: np.ndarray
@@ -63,6 +89,18 @@ class Solution:
     rhs_evaluations: int
     cpu_seconds: float
     names: tuple = field(default=())
+    success: bool = True
+    status: int = 0
+    message: str = MESSAGE_DONE
+    t_events: list = None
+    y_events: list = None
+    sol: object = None
+    integrator: object = field(default=None, repr=False, compare=False)
+
+    @property
+    def nfev(self):
+        """Evaluations of the field per trajectory, as ``OdeResult.nfev`` (:attr:`rhs_evaluations`)."""
+        return self.rhs_evaluations
 
     def __getitem__(self, name):
         """The trajectory of the component called ``name``, shape ``(..., n_t)``."""
@@ -70,6 +108,32 @@ class Solution:
             return self.y[..., self.names.index(name), :]
         except ValueError:
             raise KeyError(f"{name!r}: not a component; components are {self.names}") from None
+
+    def to_dataframe(self, *, invariants=False):
+        """The run as a ``pandas.DataFrame``: one column per component, indexed by time.
+
+        A batch (``y`` of shape ``(..., n, n_t)``) gets a two-level index
+        ``(member, t)``, ``member`` the flat index of the batch.  ``invariants=True``
+        adds the monitored invariants (:meth:`liefi.FeedbackIntegrator.invariant_values`)
+        as columns; it needs :attr:`integrator`.  Needs pandas (``pip install liefi[export]``).
+        """
+        from ..export import to_dataframe
+
+        return to_dataframe(self, invariants=invariants)
+
+    def to_xarray(self, *, invariants=True):
+        """The run as an ``xarray.Dataset``: one variable per component over the coordinate ``t``.
+
+        A batch gets a leading dimension ``member``.  With :attr:`integrator`
+        known (a run of :meth:`liefi.FeedbackIntegrator.run`) and ``invariants``
+        (default True), the monitored invariants are variables too, with their
+        targets as attributes.  The dataset round-trips through netCDF
+        (``ds.to_netcdf(path, engine="scipy")``).  Needs xarray
+        (``pip install liefi[export]``).
+        """
+        from ..export import to_xarray
+
+        return to_xarray(self, invariants=invariants)
 
 
 def _number(x, name, what):
@@ -106,34 +170,51 @@ def positive_int(x, name):
 MAX_STEPS = 1e10
 
 
-def steps_for(dt, t_final, *, save_every=1, check_every=1):
+def steps_for(dt, t_final, *, save_every=1, check_every=1, t0=0.0):
     """The one validator of a fixed-step run's arguments: ``(dt, t_final, n_steps, save_every, check_every)``.
 
     ``dt`` and ``t_final`` positive finite numbers, ``t_final / dt`` a whole
     number of steps (to ``1e-9`` relative; otherwise the message gives the
     nearest ``dt`` that divides ``t_final``), at most :data:`MAX_STEPS` steps;
-    ``save_every`` and ``check_every`` positive integers.
+    ``save_every`` and ``check_every`` positive integers.  With a start ``t0``
+    (finite; ``t_final`` then any finite time after it) the span
+    ``t_final - t0`` is what ``dt`` must divide.
     """
     dt = positive_number(dt, "dt", "the step must be a positive finite number")
-    t_final = positive_number(t_final, "t_final", "must be a positive finite time")
+    if t0 == 0.0:
+        t_final = positive_number(t_final, "t_final", "must be a positive finite time")
+        length, what = t_final, f"t_final = {t_final!r}"
+    else:
+        t_final = _number(t_final - t0 if _finite(t_final) else t_final, "t_span",
+                          f"the final time must be a finite number after the start t0 = {t0!r}") + t0
+        t_final = float(t_final)
+        length = t_final - t0
+        what = f"the span t_final - t0 = {length!r} (t0 = {t0!r})"
     save_every = positive_int(save_every, "save_every")
     check_every = positive_int(check_every, "check_every")
-    ratio = t_final / dt
+    ratio = length / dt
     if ratio > MAX_STEPS:
         raise ValueError(
-            f"dt: {dt!r} with t_final = {t_final!r} means {ratio:.3g} steps (more than {MAX_STEPS:.0e}); "
+            f"dt: {dt!r} with {what} means {ratio:.3g} steps (more than {MAX_STEPS:.0e}); "
             "take a larger dt or a shorter t_final"
         )
     n_steps = int(round(ratio))
-    if n_steps < 1 or abs(n_steps * dt - t_final) > 1e-9 * t_final:
+    if n_steps < 1 or abs(n_steps * dt - length) > 1e-9 * length:
         n = max(1, n_steps)
-        up, down = t_final / n, t_final / (n + 1)
+        up, down = length / n, length / (n + 1)
         near = up if abs(up - dt) <= abs(down - dt) else down
         raise ValueError(
-            f"dt: {dt!r} does not divide t_final = {t_final!r} ({ratio:.6g} steps); the nearest step that "
-            f"divides it is dt = {near:.12g} ({int(round(t_final / near))} steps)"
+            f"dt: {dt!r} does not divide {what} ({ratio:.6g} steps); the nearest step that "
+            f"divides it is dt = {near:.12g} ({int(round(length / near))} steps)"
         )
     return dt, t_final, n_steps, save_every, check_every
+
+
+def _finite(x):
+    try:
+        return not isinstance(x, (bool, np.bool_, str, bytes)) and math.isfinite(float(x))
+    except (TypeError, ValueError):
+        return False
 
 
 def run_arguments(scheme, dt, n_steps, save_every):

@@ -58,7 +58,7 @@ accurate rate is ``1/sqrt(u)`` -- the substep is then one Gauss--Newton step
 onto the invariant set, and the invariants stay at rounding for the price of
 the tableau on ``X`` plus one gradient evaluation.
 
-Use them by name: ``FeedbackIntegrator.run(dt, T, scheme="imex-euler")``,
+Use them by name: ``FeedbackIntegrator.run(T, dt=dt, scheme="imex-euler")``,
 ``Scene.run(scheme="imex-rk4")``; the registry lists them
 (``liefi.schemes.names("split")``, from :data:`SPLIT_SCHEMES`).  For an
 adaptive implicit solver use ``Scene.run(scheme="scipy:Radau")`` (or ``BDF``),
