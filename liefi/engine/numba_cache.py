@@ -205,7 +205,9 @@ _WARNED = set()
 
 def _attach(disp):
     """Give the dispatcher ``disp`` a :class:`TrustedCache` (or leave it without a disk cache, after a warning)."""
-    py_func = disp.py_func
+    py_func = getattr(disp, "py_func", None)
+    if py_func is None:  # NUMBA_DISABLE_JIT: the plain function, nothing to cache
+        return disp
     path = py_func.__globals__.get("__file__")
     if not SUPPORTED:
         if "numba" not in _WARNED:
