@@ -229,6 +229,8 @@ def test_signing_key_is_private_and_replaced_when_not(kernel_env):
 _SIGINT_IN_CALLBACK = textwrap.dedent('''
     import os, signal, sys
     from numba.core import codegen
+    if not hasattr(getattr(codegen, "JITCodeLibrary", None), "_object_compiled_hook"):
+        sys.exit(99)  # another numba: no such hook to send the signal from
     hook = codegen.JITCodeLibrary._object_compiled_hook.__func__
     sent = []
     def notify(cls, ll_module, buf):
@@ -249,6 +251,8 @@ def test_ctrl_c_inside_a_compiler_callback_is_not_dropped(tmp_path):
     'Exception ignored ... KeyboardInterrupt' and exit 0."""
     r = subprocess.run([sys.executable, "-c", _SIGINT_IN_CALLBACK], cwd=ROOT, env=_env(tmp_path),
                        capture_output=True, text=True, timeout=300)
+    if r.returncode == 99:
+        pytest.skip("this numba has no object-code hook to send the signal from")
     assert r.returncode == 130, (r.returncode, r.stderr[-2000:])
     assert "Exception ignored" not in r.stderr
     assert r.stderr.strip().splitlines()[-1].startswith("liefi: interrupted")

@@ -103,6 +103,10 @@ def default_cache_dir():
     relative or blank value is ignored, with a :class:`KernelCacheWarning`
     (once per value and process) naming the variable.  An empty value is unset.
     """
+    base = os.environ.get("XDG_CACHE_HOME", "")
+    if not os.path.isabs(base):  # the XDG specification: a relative value is invalid and ignored
+        base = os.path.join(os.path.expanduser("~"), ".cache")
+    default = os.path.join(os.path.normpath(base), "liefi", "kernels")
     d = os.environ.get("LIEFI_CACHE_DIR", "")
     if d:
         full = os.path.expanduser(d)
@@ -110,17 +114,15 @@ def default_cache_dir():
             return os.path.normpath(full)
         if d not in _BAD_VALUES:
             _BAD_VALUES.add(d)
-            why = "is blank" if not d.strip() else "is not an absolute path (it would depend on the working directory)"
+            what = ("LIEFI_CACHE_DIR is set to blanks only" if not d.strip() else
+                    f"LIEFI_CACHE_DIR={d!r} is not an absolute path (it would depend on the working directory)")
             warnings.warn(
-                f"liefi: LIEFI_CACHE_DIR={d!r} {why}; it is ignored and the default kernel cache is used. "
+                f"liefi: {what}; it is ignored and kernels are cached in {default}. "
                 "Set LIEFI_CACHE_DIR to an absolute path, or unset it.",
                 KernelCacheWarning,
                 stacklevel=5,
             )
-    base = os.environ.get("XDG_CACHE_HOME", "")
-    if not os.path.isabs(base):  # the XDG specification: a relative value is invalid and ignored
-        base = os.path.join(os.path.expanduser("~"), ".cache")
-    return os.path.join(os.path.normpath(base), "liefi", "kernels")
+    return default
 
 
 def check_private(path):
