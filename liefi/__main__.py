@@ -2,6 +2,10 @@
 
 import sys
 
-from .cli import main
+try:
+    from .cli import main
+except KeyboardInterrupt:  # Ctrl-C while liefi (numpy, scipy, ...) is still being imported: one line, 130
+    print("liefi: interrupted", file=sys.stderr)
+    sys.exit(130)
 
 sys.exit(main())

@@ -5,7 +5,8 @@ The numpy path (:meth:`liefi.FeedbackIntegrator.vector_field` ->
 microseconds per call whatever the system.  The engine runs *those same
 functions* once on arrays of symbols (:mod:`liefi.engine.trace`), prints the
 recorded graph as straight-line code (:mod:`liefi.engine.codegen`), loads it
-through a private, self-healing cache (:mod:`liefi.engine.cache`) and runs the
+through a private, self-healing cache (:mod:`liefi.engine.cache`; numba's
+cache files signed and checked before they are loaded, :mod:`liefi.engine.numba_cache`) and runs the
 whole fixed-step loop compiled by numba (:mod:`liefi.engine.runners`).  There
 is no second copy of any formula: a change to the core changes both backends
 (``tests/test_compiled.py`` checks this).  The kernels themselves are in
@@ -16,13 +17,16 @@ only the order of a few floating-point sums differs.  Without numba the
 generated code still runs as plain Python (``engine="python"``, slow: for
 debugging and tests); ``FeedbackIntegrator.run(backend="numba"/"auto")`` then
 warns (:class:`CompilationWarning`) and runs the numpy path, as it does for an
-untraceable datum or group method and for any cache or compile failure.
+untraceable datum or group method and for a kernel that fails to load or
+compile.  A kernel cache that cannot be used or written (unsafe, read-only, a
+full disk) is not such a failure: the kernel is compiled in memory.
 
 Modules
 -------
 trace    -- :class:`Sym` scalars, tracing sessions, symbolic derivatives, :class:`TracedData`
 codegen  -- straight-line source of a graph; the stepping, projection and DLA loops
 cache    -- the private kernel directory, loading, healing corrupt entries
+numba_cache -- numba's cache files of the kernels: in that directory only, signed and checked
 runners  -- :class:`CompiledField` and :class:`CompiledDLA`: running the loaded kernels
 kernels  -- what is traced (the feedback, constrained and DLA kernels) and the ``run`` hook
 """

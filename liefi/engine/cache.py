@@ -1,9 +1,9 @@
 """Loading generated kernels: a private, self-healing on-disk cache (or none).
 
-Numba caches what it compiles next to the source file (``__pycache__``), so a
-second process loads a kernel instead of compiling it.  Those cache files are
-pickles: whoever can write into the cache directory can make liefi run their
-code.  Hence:
+Numba caches what it compiles in files next to the source (``__pycache__``),
+so a second process loads a kernel instead of compiling it.  Those cache files
+are pickles, and unpickling runs code: whoever can put a file where liefi's
+kernels are cached can make liefi run their code.  Hence:
 
 * **Private.**  The directory (``$LIEFI_CACHE_DIR``, default
   ``$XDG_CACHE_HOME/liefi/kernels`` or ``~/.cache/liefi/kernels``) is created
@@ -14,12 +14,24 @@ code.  Hence:
   for this process (removed at exit), or, if that fails too, are compiled in
   memory without a disk cache.  A :class:`KernelCacheWarning` says which.
   There is no predictable shared fallback (such as ``$TMPDIR/liefi-kernels-<uid>``).
+* **The variable.**  ``LIEFI_CACHE_DIR`` must be an absolute path (``~`` is
+  expanded).  A relative value would name a different folder in every working
+  directory, and blanks would name a folder of spaces: such a value is ignored,
+  with a :class:`KernelCacheWarning` naming it, and the default is used
+  (:func:`default_cache_dir`).  An empty value means unset.  A relative
+  ``XDG_CACHE_HOME`` is ignored, as the XDG specification asks.
 * **Never runs what it did not write.**  A module is executed from the text
-  liefi generated, never read back from disk; the file on disk (which numba's
-  cache is keyed on) is rewritten whenever it differs from that text, and the
-  numba cache files of a rewritten module are removed.
-* **Self-healing.**  A numba cache entry that fails to load (truncated,
-  corrupt) is removed and the kernel compiled afresh (:func:`heal`).
+  liefi generated, never read back from disk; the file on disk is rewritten
+  whenever it differs from that text, and the numba cache files of a rewritten
+  module are removed.  numba's cache files of liefi's kernels are kept in
+  ``<directory>/__pycache__`` whatever ``NUMBA_CACHE_DIR`` says, and each is
+  signed with a key only this user can read (:func:`signing_key`); a file
+  whose signature does not match is never unpickled, but removed (with a
+  warning) and the kernel compiled afresh.  See :mod:`liefi.engine.numba_cache`
+  for the details and the reasons.
+* **Self-healing.**  A numba cache entry that fails to load is removed and the
+  kernel compiled afresh (:func:`heal`).  A cache that cannot be written (full
+  disk) leaves the kernel compiled in memory, never the run on numpy.
 
 Nothing here knows what a kernel computes.
 """
@@ -29,6 +41,7 @@ from __future__ import annotations
 import atexit
 import hashlib
 import os
+import secrets
 import shutil
 import stat
 import sys
@@ -80,13 +93,36 @@ def _uid():
     return os.getuid() if hasattr(os, "getuid") else None
 
 
+_BAD_VALUES: set = set()
+
+
 def default_cache_dir():
-    """``$LIEFI_CACHE_DIR``, else ``$XDG_CACHE_HOME/liefi/kernels``, else ``~/.cache/liefi/kernels``."""
-    d = os.environ.get("LIEFI_CACHE_DIR")
+    """``$LIEFI_CACHE_DIR``, else ``$XDG_CACHE_HOME/liefi/kernels``, else ``~/.cache/liefi/kernels``.
+
+    ``LIEFI_CACHE_DIR`` must be an absolute path after ``~`` is expanded; a
+    relative or blank value is ignored, with a :class:`KernelCacheWarning`
+    (once per value and process) naming the variable.  An empty value is unset.
+    """
+    base = os.environ.get("XDG_CACHE_HOME", "")
+    if not os.path.isabs(base):  # the XDG specification: a relative value is invalid and ignored
+        base = os.path.join(os.path.expanduser("~"), ".cache")
+    default = os.path.join(os.path.normpath(base), "liefi", "kernels")
+    d = os.environ.get("LIEFI_CACHE_DIR", "")
     if d:
-        return os.path.abspath(d)
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return os.path.join(os.path.abspath(base), "liefi", "kernels")
+        full = os.path.expanduser(d)
+        if os.path.isabs(full):
+            return os.path.normpath(full)
+        if d not in _BAD_VALUES:
+            _BAD_VALUES.add(d)
+            what = ("LIEFI_CACHE_DIR is set to blanks only" if not d.strip() else
+                    f"LIEFI_CACHE_DIR={d!r} is not an absolute path (it would depend on the working directory)")
+            warnings.warn(
+                f"liefi: {what}; it is ignored and kernels are cached in {default}. "
+                "Set LIEFI_CACHE_DIR to an absolute path, or unset it.",
+                KernelCacheWarning,
+                stacklevel=5,
+            )
+    return default
 
 
 def check_private(path):
@@ -159,6 +195,103 @@ def kernel_dir():
         )
         _DIRS[want] = got
         return got
+
+
+#: the file (in the kernel directory) holding the key that signs numba's cache files
+KEY_NAME = "cache-signing.key"
+_KEY_SIZE = 32
+_KEYS: dict = {}
+
+
+def _read_key(path):
+    """The key in ``path``; ``None`` if missing; raises ``ValueError`` (the reason) if it is not private or valid."""
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0))
+    except FileNotFoundError:
+        return None
+    except OSError as exc:
+        raise ValueError(f"cannot be opened ({exc.strerror or exc})") from None
+    try:
+        st = os.fstat(fd)
+        uid = _uid()
+        if not stat.S_ISREG(st.st_mode):
+            raise ValueError("is not a regular file")
+        if uid is not None and st.st_uid != uid:
+            raise ValueError(f"is owned by another user (uid {st.st_uid})")
+        if st.st_mode & 0o077:
+            raise ValueError(f"is readable or writable by group or others (mode {stat.S_IMODE(st.st_mode):04o})")
+        data = os.read(fd, _KEY_SIZE + 1)
+    finally:
+        os.close(fd)
+    if len(data) != _KEY_SIZE:
+        raise ValueError(f"has {len(data)} bytes, not {_KEY_SIZE}")
+    return data
+
+
+def _new_key(directory, path):
+    """Create the key file ``path`` (mode 0600) unless another process just did; return the key in it."""
+    fd, tmp = tempfile.mkstemp(dir=directory, prefix=".key", suffix=".tmp")  # mode 0600
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(secrets.token_bytes(_KEY_SIZE))
+            fh.flush()
+            os.fsync(fh.fileno())
+        try:
+            os.link(tmp, path)  # never replaces a key another process made meanwhile
+        except FileExistsError:
+            pass
+    finally:
+        os.remove(tmp)
+    return _read_key(path)
+
+
+def signing_key(directory):
+    """The secret key that signs numba's cache files in the kernel directory ``directory``, or ``None``.
+
+    32 random bytes in ``directory/cache-signing.key`` (:data:`KEY_NAME`), mode
+    ``0600``, made on first use.  A key file that is not private (a link, another
+    owner, readable by others) or not 32 bytes is replaced, and the numba cache
+    files signed with it are removed: they can no longer be trusted.  ``None``
+    (after a :class:`KernelCacheWarning`) when no key can be made: kernels are
+    then compiled in memory.  Read once per process and directory.
+    """
+    with _DIR_LOCK:
+        if directory in _KEYS:
+            return _KEYS[directory]
+        path = os.path.join(directory, KEY_NAME)
+        key = None
+        try:
+            try:
+                key = _read_key(path)
+            except ValueError as why:
+                warnings.warn(f"liefi: the kernel cache key {path} {why}; a new key is made and the cached "
+                              "kernels signed with the old one are removed (they are compiled again)",
+                              KernelCacheWarning, stacklevel=4)
+                os.remove(path)
+                _purge_all(directory)
+            if key is None:
+                key = _new_key(directory, path)
+        except (OSError, ValueError) as exc:
+            warnings.warn(f"liefi: no key to sign the kernel cache in {directory} ({exc}); kernels are compiled "
+                          "in memory (no disk cache)", KernelCacheWarning, stacklevel=4)
+            key = None
+        _KEYS[directory] = key
+        return key
+
+
+def _purge_all(directory):
+    """Remove every numba cache file (``.nbi``, ``.nbc``) in ``directory/__pycache__``."""
+    pc = os.path.join(directory, "__pycache__")
+    try:
+        entries = os.listdir(pc)
+    except OSError:
+        return
+    for f in entries:
+        if f.endswith((".nbi", ".nbc")):
+            try:
+                os.remove(os.path.join(pc, f))
+            except OSError:
+                pass
 
 
 # ======================================================================================
@@ -292,3 +425,5 @@ def clear_memory():
         _MODULES.clear()
     with _DIR_LOCK:
         _DIRS.clear()
+        _KEYS.clear()
+        _BAD_VALUES.clear()

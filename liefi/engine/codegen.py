@@ -74,7 +74,8 @@ import numpy as np
 {imports}
 CACHE = {cache}
 '''
-_NUMBA_IMPORTS = "from numba import njit, prange\n"
+# liefi's njit: numba's, with its on-disk cache signed and kept in the private kernel directory
+_NUMBA_IMPORTS = f"from numba import prange\nfrom {__package__}.numba_cache import njit\n"
 _PYTHON_IMPORTS = '''\
 def njit(*args, **kwargs):
     if args and callable(args[0]):

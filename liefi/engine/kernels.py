@@ -298,8 +298,9 @@ def run_feedback(fi, dt, n_steps, scheme, y0, save_every, check_every, backend):
 
     ``backend``: ``"numba"`` (asked for explicitly) or ``"auto"``; in both cases a
     missing numba, an untraceable datum or group method, and any failure to build,
-    cache, load or compile the kernel (a read-only or unsafe cache directory
-    included) give the warning (once per system and reason) and ``None``.  Errors
+    load or compile the kernel give the warning (once per system and reason) and
+    ``None``.  (A read-only, unsafe or full cache directory is not one: the kernel
+    is then compiled in memory, :mod:`liefi.engine.cache`.)  Errors
     of the run itself (:class:`~liefi.schemes.IntegrationError`) propagate.
 
     The returned :class:`~liefi.schemes.Solution` has ``cpu_seconds`` of the loop

@@ -3,14 +3,22 @@
 A kernel's functions compile (or load from numba's on-disk cache) on their
 first call; that call goes through :meth:`CompiledField._first_call`, which
 times it and heals a cache entry that fails to load (:func:`liefi.engine.cache.heal`)
-by compiling afresh once.  The time paid to trace, load and compile is kept
+by compiling afresh once.  Ctrl-C (``SIGINT``) during that call is held until
+the compile returns and then raised (:func:`interrupts_held`): numba's
+compiler calls back into Python from LLVM, and a ``KeyboardInterrupt`` raised
+in such a callback is printed ("Exception ignored ...") and dropped -- the run
+then went on and exited 0 -- or leaves LLVM's state half-built.  A second
+Ctrl-C raises at once.  The time paid to trace, load and compile is kept
 apart from the run's ``cpu_seconds``: each :class:`~liefi.schemes.Solution`
 carries ``overhead_seconds``, the part of it not reported by an earlier run.
 """
 
 from __future__ import annotations
 
+import signal
+import threading
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -23,18 +31,60 @@ class KernelLoadError(RuntimeError):
     """A generated kernel failed to compile or load even after its cache entry was rebuilt."""
 
 
+@contextmanager
+def interrupts_held():
+    """Hold ``SIGINT`` (Ctrl-C) inside the block and raise ``KeyboardInterrupt`` when it ends.
+
+    Yields a list that holds the signals received.  The first Ctrl-C is
+    recorded, not raised where it lands (it could land in a callback from
+    compiled code, where Python drops it); a second one raises at once.  Either
+    way a ``KeyboardInterrupt`` leaves the block -- also when the block raised
+    something else meanwhile.  Only in the main thread and with Python's own
+    handler installed; elsewhere the block runs unchanged.
+    """
+    if threading.current_thread() is not threading.main_thread() \
+            or signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+        yield []
+        return
+    got = []
+
+    def hold(signum, frame):
+        got.append(signum)
+        if len(got) > 1:
+            raise KeyboardInterrupt
+
+    signal.signal(signal.SIGINT, hold)
+    try:
+        yield got
+    except BaseException as exc:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        if got and not isinstance(exc, KeyboardInterrupt):
+            raise KeyboardInterrupt from exc
+        raise
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    if got:
+        raise KeyboardInterrupt
+
+
 class _Overhead:
     """Bookkeeping of the one-off costs (trace, load, first-call compile) of a kernel."""
 
     def _first_call(self, key, fname, *args):
-        """Call ``module.fname(*args)`` for the first time: compile (or load), timed; heal once on failure."""
+        """Call ``module.fname(*args)`` for the first time: compile (or load), timed; heal once on failure.
+
+        Ctrl-C meanwhile raises ``KeyboardInterrupt`` when the compile returns (:func:`interrupts_held`).
+        """
         if key in self.compile_seconds:
             return getattr(self.module, fname)(*args)
+        with interrupts_held() as interrupted:
+            return self._compile_call(key, fname, interrupted, *args)
+
+    def _compile_call(self, key, fname, interrupted, *args):
         t = time.perf_counter()
         try:
             r = getattr(self.module, fname)(*args)
         except Exception as exc:  # noqa: BLE001 -- a kernel that does not load: rebuild it once
-            if self.kernel.engine != "numba":
+            if self.kernel.engine != "numba" or interrupted:
                 raise
             try:
                 _cache.heal(self.kernel)
