@@ -367,7 +367,7 @@ def metric_defect(fi, y, rtol=METRIC_DEGENERACY):
     fails from the system's data, not from its gains.
     """
     try:
-        n = fi.system.space.n
+        n = fi.system.space.data_dim
         if not n:
             return ""
 
@@ -713,7 +713,7 @@ def drift_scales(fi, y=None):
     y = fi.y0 if y is None else np.asarray(y, float)
     _, z = fi.split(y)
     t = _core.evaluate(fi.system, z)
-    n = fi.system.space.n
+    n = fi.system.space.data_dim
     U = np.asarray(fi.system.potential(z[..., :n]), float)
     T = np.abs(t.h - U)
     E = float(max(np.max(np.abs(t.h)), np.max(T), np.max(np.abs(U)), 1e-12))
