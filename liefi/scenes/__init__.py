@@ -24,6 +24,7 @@ REGISTRY = {
     "nonreversible-knife-edge": "nonreversible_knife_edge",
     "rigid-body": "rigid_body",
     "heavy-top": "heavy_top",
+    "chaplygin-ball": "chaplygin_ball",
 }
 
 
