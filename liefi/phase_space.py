@@ -33,16 +33,16 @@ bracket of the semidirect product plus the canonical one,
           - \\langle g_\\mu \\cdot \\Gamma, f_\\Gamma \\rangle
           + f_x \\cdot g_{p_x} - g_x \\cdot f_{p_x}
 
-(Marsden & Ratiu, Sec. 14.7, the heavy top: ``-Pi.(f_Pi x g_Pi) - Gamma.(f_Pi x
+(Marsden & Ratiu, *Introduction to Mechanics and Symmetry*, the heavy top: ``-Pi.(f_Pi x g_Pi) - Gamma.(f_Pi x
 g_Gamma - g_Pi x f_Gamma)``).  Its Hamiltonian field is ``Gamma' = -h_mu .
 Gamma`` (``= Gamma x Omega`` on ``SO(3)``, which is what ``Gamma = g^{-1} . a_0``
 does along ``g' = g h_mu``) and ``mu' = ad*_{h_mu} mu + Gamma diamond h_Gamma``
 (``Pi x Omega + Gamma x h_Gamma``).  Everything else is unchanged, because the
 data simply take ``Gamma`` beside ``x``: the leading ``n + k`` numbers of ``z``
 (``data_dim``) are the point at which the data are evaluated and differentiated,
-the trailing ``D`` the momentum.  The functions of ``Gamma`` alone that commute
-with everything -- ``|Gamma|^2`` for an orthogonal block, ``<mu, Gamma>`` on
-``so(3) x| R^3`` -- are Casimirs.
+the trailing ``D`` the momentum.  Casimirs (functions that commute with
+everything): ``|Gamma|^2`` when ``G`` acts by rotations, and ``<mu, Gamma>`` on
+``so(3) x| R^3``.
 """
 
 from __future__ import annotations

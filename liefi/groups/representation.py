@@ -15,7 +15,7 @@ representation ``rho`` of ``G`` on ``V``; its derivative ``xi . v = L(xi) v``
 
 so on ``SO(3)`` acting on ``R^3``: ``xi . v = xi x v``, ``Gamma' = Gamma x Omega``
 and ``Gamma diamond w = Gamma x w`` (Marsden & Ratiu, *Introduction to Mechanics
-and Symmetry*, 2nd ed., Sec. 14.7; Holm, Marsden & Ratiu, *The Euler--Poincare
+and Symmetry*, 2nd ed., the heavy top; Holm, Marsden & Ratiu, *The Euler--Poincare
 equations and semidirect products*, Adv. Math. 137 (1998)).
 
 The representations here are the ones a matrix group carries for free: its matrix

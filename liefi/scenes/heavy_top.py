@@ -12,8 +12,8 @@ liefi derives the Euler--Poisson equations
 .. math:: \dot\Pi = \Pi \times \Omega + M g\, \Gamma \times \chi, \qquad
           \dot\Gamma = \Gamma \times \Omega, \qquad \Omega = I^{-1} \Pi
 
-from the bracket (Marsden & Ratiu, *Introduction to Mechanics and Symmetry*,
-Sec. 15.8; Holm, Marsden & Ratiu 1998).  Holonomic (``K = 0``): the extended
+from the bracket (Marsden & Ratiu, *Introduction to Mechanics and Symmetry*;
+Holm, Marsden & Ratiu 1998).  Holonomic (``K = 0``): the extended
 field is the top's own.  First integrals: the energy ``E``, the Casimirs
 ``<Pi, Gamma>`` (the vertical angular momentum) and ``|Gamma|^2``, and for
 the symmetric top ``Pi_3`` (Lagrange's integral).  ``V`` penalizes all four.
