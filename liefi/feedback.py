@@ -87,7 +87,7 @@ def _gram_is_constant(system, z):
     """Whether the Gram matrix ``C(x)`` has zero ``x``-derivative at ``z`` (exactly, by complex step)."""
     if system.constant or system.orthonormalized or not system.K:
         return True
-    x = np.asarray(z, float)[..., : system.space.n]
+    x = np.asarray(z, float)[..., : system.space.data_dim]
 
     def gram(xx):
         E = system.constraints(xx)

@@ -183,7 +183,7 @@ def data_defect(fi, y):
     if md:
         return md
     try:
-        n = fi.system.space.n
+        n = fi.system.space.data_dim
         if not n:
             return ""
         x = np.asarray(y, float)[..., fi.nc : fi.nc + n].reshape(-1, n)

@@ -389,7 +389,7 @@ def metric_defect(fi, y, rtol=METRIC_DEGENERACY):
     fails from the system's data, not from its gains.
     """
     try:
-        n = fi.system.space.n
+        n = fi.system.space.data_dim
         if not n:
             return ""
 

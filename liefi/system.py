@@ -15,6 +15,13 @@ A system is a phase space (:mod:`liefi.phase_space`) and three data:
   ``J_i = <P - A(x), e_i(x)> = 0`` (a gauge shift ``A = grad S``, a gyrostat's
   rotor momentum ``A = l``, a charged particle's ``q A``).
 
+With an advected vector (a phase space built with ``advected=`` and ``a0``,
+:mod:`liefi.phase_space`) every callable datum takes ``(x, Gamma)`` instead of
+``x``, ``Gamma = g^{-1} . a_0`` (e.g. ``potential=lambda x, Gamma: m g l
+Gamma @ chi`` for a heavy top; ``x`` has ``n = 0`` columns on a Lie group), and
+analytic derivatives are taken in ``(x, Gamma)`` together (axis of length
+``n + k``).
+
 Everything else -- ``H~``, ``lambda``, ``lambda~``, the constrained, extended
 and reduced vector fields, the reconstruction -- is derived in
 :mod:`liefi.reduction`.  Each datum is a constant array or a batch-first
@@ -112,7 +119,17 @@ class NonholonomicSystem:
             check=check,
         )
         self.space = space
-        n, D = space.n, space.D
+        # The data are functions of the data point y = (x, Gamma) (n + k numbers): of
+        # the shape x alone without an advected vector; with one, the user writes
+        # f(x, Gamma) and liefi sees f(y), so x- and Gamma-derivatives come from the
+        # same complex step (or the same traced derivative in the compiled engine).
+        n, D = space.data_dim, space.D
+        if space.k:
+            metric, constraints, potential, vector_potential = (
+                _at_data_point(f, space.n) for f in (metric, constraints, potential, vector_potential))
+            metric_derivative, constraints_derivative, potential_gradient, vector_potential_derivative = (
+                _at_data_point(f, space.n) for f in (
+                    metric_derivative, constraints_derivative, potential_gradient, vector_potential_derivative))
         if n == 0:
             for name, val in (
                 ("metric", metric), ("constraints", constraints), ("potential", potential),
@@ -122,13 +139,17 @@ class NonholonomicSystem:
                     raise ValueError(
                         f"{name}: a system on a Lie group has no shape variables, so its "
                         "data must be constant arrays (a G-invariant Hamiltonian has constant "
-                        "locked inertia and no potential)"
+                        "locked inertia and no potential; data that depend on the attitude "
+                        "through Gamma = g^-1 . a0 need advected= on the phase space)"
                     )
+        if sample is None and space.k:
+            sample = np.concatenate([np.zeros(space.n), space.a0])  # x = 0 at the identity
         if sample is not None:
             sample = as_float_array(sample, "sample")
             if sample.shape != (n,) or not np.all(np.isfinite(sample)):
+                what = "a data point (x, Gamma)" if space.k else "a shape point (x)"
                 raise ValueError(
-                    f"sample: expected a shape point of {n} finite numbers (x), got {sample.tolist()!r}"
+                    f"sample: expected {what} of {n} finite numbers, got {sample.tolist()!r}"
                 )
         if constraints is None:
             constraints = np.zeros((0, D))
@@ -244,8 +265,12 @@ class NonholonomicSystem:
                             "the scaling is chosen with scaling=")
         if not isinstance(space, PhaseSpace):
             raise TypeError(f"space: expected a liefi PhaseSpace, got {space!r}")
-        n, D = space.n, space.D
+        n, D = space.data_dim, space.D
+        if space.k:  # rows and metric of (x, Gamma): seen as functions of y = (x, Gamma)
+            A, metric = _at_data_point(A, space.n), _at_data_point(metric, space.n)
         x0 = np.zeros(n) if kw.get("sample") is None else np.asarray(kw["sample"], float)
+        if kw.get("sample") is None and space.k:
+            x0 = np.concatenate([np.zeros(space.n), space.a0])
         if callable(A):
             try:
                 probe = np.asarray(A(x0))
@@ -275,6 +300,7 @@ class NonholonomicSystem:
                 e = e / np.sqrt(np.sum(a * e, -1))[..., None]
             return e
 
+        rows.liefi_data_point = True  # already a function of y = (x, Gamma)
         constraints = rows if (fun is not None or callable(metric)) else rows(x0)
         return cls(space, metric, constraints, potential, orthonormalize=scaling == "orthonormal", **kw)
 
@@ -305,10 +331,10 @@ class NonholonomicSystem:
             raise ValueError(f"S: expected a finite ({D}, {D}) matrix, got shape {S.shape}")
         m, dm = self._arguments["metric"], self._arguments["metric_derivative"]
         if callable(m):
-            metric = lambda x, f=m: S @ np.asarray(f(x)) @ S.T  # noqa: E731
+            metric = lambda *x, f=m: S @ np.asarray(f(*x)) @ S.T  # noqa: E731 -- (x) or (x, Gamma)
         else:
             metric = S @ as_float_array(m, "metric") @ S.T
-        deriv = None if dm is None else (lambda x, f=dm: S @ np.asarray(f(x)) @ S.T)
+        deriv = None if dm is None else (lambda *x, f=dm: S @ np.asarray(f(*x)) @ S.T)
         return self.replace(metric=metric, metric_derivative=deriv, **changes)
 
     @property
@@ -320,10 +346,11 @@ class NonholonomicSystem:
 
     # --- validation -----------------------------------------------------------
     def check(self, x):
-        """Check the data at the shape point(s) ``x``; raise a named ``ValueError`` if wrong."""
+        """Check the data at the data point(s) ``x`` (``(x, Gamma)`` with an advected vector); raise a named ``ValueError`` if wrong."""
         x = np.asarray(x, dtype=float)
-        if x.shape[-1:] != (self.space.n,):
-            raise ValueError(f"x: expected shape (..., {self.space.n}), got {x.shape}")
+        if x.shape[-1:] != (self.space.data_dim,):
+            what = "data points (x, Gamma)" if self.space.k else "shape points"
+            raise ValueError(f"x: expected {what} of shape (..., {self.space.data_dim}), got {x.shape}")
         if not np.all(np.isfinite(x)):
             raise ValueError("x: contains non-finite numbers")
         m = np.asarray(self.metric(x), float)
@@ -357,7 +384,7 @@ class NonholonomicSystem:
                 raise ValueError(f"vector_potential: non-finite values at x = {x}")
         for datum in data:
             datum.check_real(x)
-        if self.space.n:
+        if self.space.data_dim:
             for datum in data:
                 datum.check_differentiable(x)
 
@@ -403,7 +430,8 @@ class NonholonomicSystem:
 
         ``known`` maps ``D - K`` momentum names (``space.momentum_names``) to values;
         the other ``K`` components are solved from the ``K`` linear constraints
-        ``E(x) (P - A(x)) = 0``.  Returns ``z = (x, P)`` with ``J(z) = 0``.
+        ``E(x) (P - A(x)) = 0``.  Returns ``z = (x, P)`` with ``J(z) = 0``; with an
+        advected vector ``x`` is the data point ``(x, Gamma)`` and ``z = (x, Gamma, P)``.
         """
         names = self.space.momentum_names
         unknown = [i for i, s in enumerate(names) if s not in known]
@@ -434,6 +462,25 @@ class NonholonomicSystem:
     def reconstruction(self, g, z, *, extended=True):
         """``g'`` in the group's embedding, see :func:`liefi.reduction.reconstruction`."""
         return _red.reconstruction(self, g, z, extended=extended)
+
+
+def _at_data_point(fun, n):
+    """A datum ``fun(x, Gamma)`` as a function of the data point ``y = (x, Gamma)``: ``f(y) = fun(y[:n], y[n:])``.
+
+    Constants, ``None`` and functions already of ``y`` (marked ``liefi_data_point``)
+    are returned unchanged.  Slicing keeps complex and traced entries, so the
+    complex step (and the engine's tracing) differentiate in ``x`` and ``Gamma`` at once.
+    """
+    if not callable(fun) or getattr(fun, "liefi_data_point", False):
+        return fun
+
+    def at(y):
+        y = np.asarray(y)
+        return fun(y[..., :n], y[..., n:])
+
+    at.liefi_data_point = True
+    at.__name__ = getattr(fun, "__name__", "datum")
+    return at
 
 
 def _cholesky(C):

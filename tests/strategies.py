@@ -16,7 +16,13 @@ The systems are the paper's three kinds (Section 2):
 * ``cotangent``: ``CotangentBundle(n)`` with ``x``-dependent metric, constraints
   and potential (``(original:nonholo)``);
 * ``bundle``: ``TrivialPrincipalBundle(G, n)`` with ``x``-dependent data
-  (``(sys:QG:trivial)``).
+  (``(sys:QG:trivial)``);
+* ``semidirect`` / ``semidirect-bundle``: the same two with an advected vector
+  ``Gamma = g^{-1} . a_0`` in a representation of ``G`` (:data:`REPRESENTATIONS`:
+  ``SO(3)`` on ``R^3``, ``SE(2)`` on ``R^3``, three copies of ``R^3`` under the
+  rotation block of ``SO(3) x R^2``), reduced to ``(g x| V)*`` (``x T*X``); the
+  data depend on ``(x, Gamma)``, drawn as the ``x``-dependent data below with
+  ``x`` replaced by the data point ``y = (x, Gamma)``.
 
 The ``x``-dependent data are batch-first and complex-step safe:
 ``m(x) = M0 + sin(x.c1) S1 + cos(x.c2) S2`` (SPD by construction), rows of
@@ -47,7 +53,7 @@ from hypothesis import strategies as st
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 from liefi import CotangentBundle, LieGroupPhaseSpace, NonholonomicSystem, TrivialPrincipalBundle  # noqa: E402
-from liefi.groups import S1, SE2, SE3, SO2, SO3, Rn  # noqa: E402
+from liefi.groups import S1, SE2, SE3, SO2, SO3, Representation, Rn  # noqa: E402
 from liefi.reduction import evaluate as _evaluate  # noqa: E402
 
 # ---------------------------------------------------------------------------
@@ -72,6 +78,17 @@ GROUPS = [
 ]
 
 
+#: Representations with an advected vector ``(rep, a0)``: the heavy top's and the
+#: rolling bodies' ``SO(3)`` on ``R^3``, ``SE(2)`` on homogeneous ``R^3`` (a non-orthogonal
+#: action: no Casimir ``|Gamma|^2``), and the whole attitude of a body on a plane.
+REPRESENTATIONS = [
+    pytest.param((Representation(SO3()), np.array([0.0, 0.0, 1.0])), id="SO3xR3"),
+    pytest.param((Representation(SE2()), np.array([0.3, -0.2, 1.0])), id="SE2xR3"),
+    pytest.param((Representation(SO3() * Rn(2), block=(0, 3), copies=3), np.eye(3).ravel()),
+                 id="SO3R2x(R3)^3"),
+]
+
+
 def _spaces():
     out = []
     for p in GROUPS:
@@ -81,7 +98,19 @@ def _spaces():
         (G,) = p.values
         out.append(pytest.param(("bundle", G), id=f"bundle-{p.id}"))
     out.append(pytest.param(("cotangent", None), id="cotangent"))
+    for p in REPRESENTATIONS:
+        (rep,) = p.values
+        out.append(pytest.param(("semidirect", rep), id=f"semidirect-{p.id}"))
+    out.append(pytest.param(("semidirect-bundle", REPRESENTATIONS[0].values[0]), id="semidirect-bundle-SO3xR3"))
     return out
+
+
+def advected_space(kind, spec_group, n=0):
+    """The phase space of a ``semidirect`` / ``semidirect-bundle`` spec (``spec_group = (rep, a0)``)."""
+    rep, a0 = spec_group
+    if kind == "semidirect":
+        return LieGroupPhaseSpace(rep.group, advected=rep, a0=a0)
+    return TrivialPrincipalBundle(rep.group, n, advected=rep, a0=a0)
 
 
 #: ``(kind, group)`` for every system kind over every group (one cotangent entry).
@@ -243,7 +272,7 @@ class Case:
         return self.system.K
 
     def random_state(self, shape=(), scale=1.0):
-        """Random reduced states ``z = (x, mu, p_x)`` of shape ``shape + (nz,)``."""
+        """Random reduced states ``z = (x, mu, p_x)`` (``(x, Gamma, mu, p_x)``) of shape ``shape + (nz,)``."""
         return scale * self.rng.normal(size=tuple(shape) + (self.space.nz,))
 
     def constrained_state(self, shape=(), scale=1.0):
@@ -260,9 +289,12 @@ def build_case(kind, group, rng, K, n, orthonormal=False, vector_potential=False
         space = CotangentBundle(n)
     elif kind == "bundle":
         space = TrivialPrincipalBundle(group, n)
+    elif kind in ("semidirect", "semidirect-bundle"):
+        space = advected_space(kind, group, n)
     else:  # pragma: no cover
         raise ValueError(kind)
     D = space.D
+    n_shape, n = space.n, space.data_dim  # the data are drawn as functions of y = (x, Gamma)
     M0 = random_spd(rng, D)
     E0 = random_constraints(rng, K, D)
 
@@ -317,7 +349,14 @@ def build_case(kind, group, rng, K, n, orthonormal=False, vector_potential=False
         def shift(x):
             return A0 + np.sin(x @ f)[..., None] * A1 + np.einsum("ij,...j->...i", G, x)
 
-    system = NonholonomicSystem(space, metric, constraints if K else None, potential, vector_potential=shift)
+    def user(f):
+        """The datum as the user writes it: ``f(x)``, or ``f(x, Gamma)`` with an advected vector."""
+        if f is None or not space.k:
+            return f
+        return lambda x, G: f(np.concatenate([np.broadcast_to(x, G.shape[:-1] + (n_shape,)), G], -1))
+
+    system = NonholonomicSystem(space, user(metric), user(constraints) if K else None, user(potential),
+                                vector_potential=user(shift))
     return Case(kind, system, metric, constraints, potential, orthonormal, orthonormal or K == 0, rng, shift)
 
 
@@ -332,6 +371,12 @@ def cases(draw, spec, *, min_K=0, orthonormal=None, max_n=2, vector_potential=No
     if kind == "lie":
         n = 0
         D = group.dim
+    elif kind == "semidirect":
+        n = 0
+        D = group[0].group.dim
+    elif kind == "semidirect-bundle":
+        n = draw(st.integers(1, max_n))
+        D = group[0].group.dim + n
     elif kind == "cotangent":
         n = draw(st.integers(max(1, min_K + 1), 3))
         D = n
@@ -360,7 +405,7 @@ def oracle(case, z):
     """``(h, h~, J)`` at ``z`` from the raw data: ``h = 1/2 P.m^-1 P + U``,
     ``J = E P``, ``C = E m E^T``, ``h~ = h - 1/2 J.C^-1 J`` (``(def:H:tilde:general)``),
     with ``P`` replaced by the kinetic momentum ``P - A(x)`` when there is a vector potential."""
-    n = case.space.n
+    n = case.space.data_dim
     x, P = z[..., :n], z[..., n:]
     P = P - case.shift(x)
     m = np.broadcast_to(case.metric(x), P.shape[:-1] + P.shape[-1:] * 2)

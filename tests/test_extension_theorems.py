@@ -84,7 +84,7 @@ def test_gradients_agree_with_complex_step_of_data(spec, data):
     for got, fun in ((t.dh, oracle_h(case)), (t.dht, oracle_ht(case)), (t.dJ, oracle_J(case))):
         want = cs_grad(fun, z)
         assert rel_err(got, want, np.max(np.abs(want), initial=1.0)) < TOL
-    np.testing.assert_allclose(t.Cinv, np.linalg.inv(oracle_gram(case, z[..., : case.space.n])), rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(t.Cinv, np.linalg.inv(oracle_gram(case, z[..., : case.space.data_dim])), rtol=1e-10, atol=1e-12)
 
 
 @settings(max_examples=6, deadline=None)
@@ -128,7 +128,7 @@ def test_projection_is_metric_orthogonal(spec, data):
     """``project`` is the ``m``-closest point of ``C``: ``J(Pz) = 0``, ``Pz - z`` lies in
     ``span(e_i^flat)``, and projecting twice changes nothing."""
     case, z = _draw(data, spec, min_K=1)
-    sys_, n = case.system, case.space.n
+    sys_, n = case.system, case.space.data_dim
     zc = sys_.project(z)
     np.testing.assert_array_equal(zc[..., :n], z[..., :n])
     dP = (zc - z)[..., n:]
@@ -180,7 +180,7 @@ def test_original_hamiltonian_drift_with_varying_gram(spec, data):
     if kind == "lie":
         pytest.skip("constant data: the Gram matrix is constant")
     case, z = _draw(data, spec, min_K=1, orthonormal=False)
-    sys_, n = case.system, case.space.n
+    sys_, n = case.system, case.space.data_dim
     X = sys_.extended_vector_field(z)
     t = evaluate(sys_, z)
     w = np.einsum("...kl,...l->...k", t.Cinv, t.J)

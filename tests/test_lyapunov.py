@@ -307,7 +307,8 @@ def test_state_names_are_unique(spec):
     from strategies import build_case
 
     case = build_case(kind, G, np.random.default_rng(0), 1, 2, False)
-    parts = [G.identity_config()] if G is not None and G.config_dim else []
+    G = case.space.group
+    parts = [G.identity_config()] if G.config_dim else []
     fi = FeedbackIntegrator(case.system, np.concatenate(parts + [case.constrained_state()]))
     dup = sorted({nm for nm in fi.names if fi.names.count(nm) > 1})
     assert not dup, f"duplicate component names {dup} in {fi.names}"

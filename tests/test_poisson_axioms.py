@@ -21,7 +21,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from liefi import CotangentBundle, LieGroupPhaseSpace, TrivialPrincipalBundle
-from strategies import BATCH_SHAPES, PROPERTY, SEEDS, SPACES, cs_grad, dot
+from strategies import BATCH_SHAPES, PROPERTY, SEEDS, SPACES, advected_space, cs_grad, dot
 
 pytestmark = pytest.mark.parametrize("spec", SPACES)
 
@@ -33,6 +33,10 @@ def phase_spaces(draw, spec):
         return LieGroupPhaseSpace(G)
     if kind == "cotangent":
         return CotangentBundle(draw(st.integers(1, 3)))
+    if kind == "semidirect":
+        return advected_space(kind, G)
+    if kind == "semidirect-bundle":
+        return advected_space(kind, G, draw(st.integers(1, 2)))
     return TrivialPrincipalBundle(G, draw(st.integers(1, 2)))
 
 
@@ -154,14 +158,23 @@ def test_coordinate_brackets(spec, data):
     """``{x_i, p_j} = delta_ij``, ``{x_i, x_j} = {p_i, p_j} = 0``, ``{mu_a, mu_b} = -<mu, [E_a, E_b]>``,
     ``{mu_a, x_i} = {mu_a, p_i} = 0`` -- the bracket ``(bracket:QG:trivial)`` on coordinate functions."""
     sp, rng, z = _setup(data, spec, shape=())
-    n, d, nz = sp.n, sp.d, sp.nz
+    n, d, nz, a = sp.n, sp.d, sp.nz, sp.data_dim
     eye = np.eye(nz)
-    B = np.array([[sp.bracket(z, eye[a], eye[b]) for b in range(nz)] for a in range(nz)])
+    B = np.array([[sp.bracket(z, eye[i], eye[j]) for j in range(nz)] for i in range(nz)])
     want = np.zeros((nz, nz))
-    want[:n, n + d :] = np.eye(n)
-    want[n + d :, :n] = -np.eye(n)
+    want[:n, a + d :] = np.eye(n)
+    want[a + d :, :n] = -np.eye(n)
     if d:
         E = np.eye(d)
-        mu = z[n : n + d]
-        want[n : n + d, n : n + d] = -np.array([[mu @ sp.group.bracket(E[a], E[b]) for b in range(d)] for a in range(d)])
+        mu = z[a : a + d]
+        want[a : a + d, a : a + d] = -np.array([[mu @ sp.group.bracket(E[i], E[j]) for j in range(d)] for i in range(d)])
+    if sp.k:
+        # {mu_b, Gamma} = E_b . Gamma (the group matrix's block acting on each copy), {Gamma, Gamma} = 0
+        rep, Gamma = sp.advected, z[n:a]
+        s0, size = rep.block
+        for b in range(d):
+            Lb = np.asarray(sp.group.hat(np.eye(d)[b]))[s0 : s0 + size, s0 : s0 + size]
+            act = np.concatenate([Lb @ c for c in Gamma.reshape(rep.copies, size)])
+            want[a + b, n:a] = act
+            want[n:a, a + b] = -act
     np.testing.assert_allclose(B, want, atol=1e-15)

@@ -27,6 +27,19 @@ are first integrals of the extended field (``<e_l^flat, dh~/dP> = J_l - (C C^{-1
 J)_l = 0``) and that it equals the constrained field on ``J = 0`` (there
 ``C^{-1} J = 0``) go through unchanged, since they use only these gradients.
 
+Data that depend on the group element through an advected vector ``Gamma =
+g^{-1} . a_0`` (:mod:`liefi.phase_space`, ``advected=``) need nothing here
+beyond reading the data at ``y = (x, Gamma)``: ``dh/dGamma``, ``dJ_i/dGamma`` and
+``dh~/dGamma`` are formed exactly as the ``x``-gradients (the same terms, the
+same complex step), and the semidirect-product bracket turns them into
+``Gamma' = -xi . Gamma`` and the diamond term ``Gamma diamond dh~/dGamma`` of
+``mu'``.  ``h~`` and ``J_i`` stay first integrals of the extended field and it
+still equals the constrained field on ``C``: the proofs above use only that the
+Poisson tensor is antisymmetric and that the forces act on the momentum slots.
+Why this design: ``Gamma`` enters exactly where ``x`` does (a point at which
+the data are read), so one pass, one derivative machinery and the compiled
+engine's trace serve both; what is new lives in the bracket, in one place.
+
 Everything is evaluated in one pass by :func:`evaluate`; every ``x``
 derivative comes from the data's complex-step (or analytic) derivatives, so
 the results are exact to rounding.  Nothing here knows any particular system.
@@ -145,7 +158,10 @@ def evaluate(system, z, *, data=NUMPY_DATA) -> Terms:
     :attr:`~liefi.NonholonomicSystem.gram_inverse`.
     """
     sp = system.space
-    n, d, D, K = sp.n, sp.d, sp.D, system.K
+    # n: the data point y = (x, Gamma) (Gamma: the advected vector, if any); the data
+    # and their derivatives are read there, and dh/dy, dJ/dy, dh~/dy below are the
+    # gradients in the first n slots of z (the bracket then gives the diamond term).
+    n, d, D, K = sp.data_dim, sp.d, sp.D, system.K
     z = np.asarray(z)
     if np.iscomplexobj(z):
         # A complex step through liefi's own functions (e.g. an Invariant built from
@@ -234,7 +250,7 @@ def _multipliers(system, z, dH, dJ, Cinv):
 
 def _field(system, z, dH, lam, Eflat):
     """``B dH + sum_i lam_i e_i^flat`` (the force acts on the momentum slot only)."""
-    n = system.space.n
+    n = system.space.data_dim
     f = system.space.hamiltonian_vector_field(z, dH)
     if system.K:
         force = np.einsum("...k,...kj->...j", lam, Eflat)
@@ -261,7 +277,7 @@ def constraint_momenta(system, z):
 
 
 def gram_matrix(system, x):
-    """``C^{li} = <e_l^flat, e_i> = (E m E^T)_{li}`` at shape points ``x``."""
+    """``C^{li} = <e_l^flat, e_i> = (E m E^T)_{li}`` at data points ``x`` (shape points, and ``Gamma`` if advected)."""
     E = system.constraints(x)
     return E @ system.metric(x) @ np.swapaxes(E, -1, -2)
 
@@ -312,7 +328,7 @@ def _project_with(system, z, t):
     """:func:`project` from the terms ``t = evaluate(system, z)`` already at hand."""
     if not system.K:
         return z
-    n = system.space.n
+    n = system.space.data_dim
     w = np.einsum("...kl,...l->...k", t.Cinv, t.J)
     P = z[..., n:] - np.einsum("...k,...kj->...j", w, t.Eflat)
     return np.concatenate([z[..., :n], P], -1)
@@ -338,7 +354,7 @@ def field_terms(system, z, *, kind="extended", terms=None, data=NUMPY_DATA):
     dH = t.dh if kind == "constrained" else t.dht
     lam = _multipliers(system, z_eval, dH, t.dJ, t.Cinv)
     zdot = _field(system, z_eval, dH, lam, t.Eflat)
-    n, d = system.space.n, system.space.d
+    n, d = system.space.data_dim, system.space.d
     return zdot, dH[..., n : n + d], t_z
 
 
@@ -357,7 +373,7 @@ def projected_vector_field(system, z):
 def group_velocity(system, z, *, extended=True):
     """``xi = dh~/dmu`` (or ``dh/dmu``): the body velocity in ``g' = g . xi``."""
     t = evaluate(system, z)
-    n, d = system.space.n, system.space.d
+    n, d = system.space.data_dim, system.space.d
     return (t.dht if extended else t.dh)[..., n : n + d]
 
 

@@ -81,14 +81,22 @@ class LeftTrivialization:
         d = self.d
         return q[..., :d], q[..., d:], p[..., :d], p[..., d:]
 
+    def advected(self, s):
+        """``Gamma(s) = G(s)^{-1} . a_0`` (shape ``(..., k)``; empty without an advected vector); complex-step safe."""
+        s = np.asarray(s)
+        if not self.space.k:
+            return np.zeros(s.shape[:-1] + (0,), dtype=s.dtype)
+        return self.space.advected.body_from_matrix(self.chart(s), self.space.a0)
+
     def _reduced_state(self, q, p):
-        """``z = (x, T(s)^{-T} p_s, p_x)``; complex-step safe."""
+        """``z = (x, Gamma(s), T(s)^{-T} p_s, p_x)``; complex-step safe."""
         s, x, ps, px = self._split(q, p)
         T = self.body_jacobian(s)
         mu = np.linalg.solve(np.swapaxes(T, -1, -2), ps[..., None])[..., 0]
-        batch = np.broadcast_shapes(x.shape[:-1], mu.shape[:-1], px.shape[:-1])
+        Gamma = self.advected(s)
+        batch = np.broadcast_shapes(x.shape[:-1], Gamma.shape[:-1], mu.shape[:-1], px.shape[:-1])
         return np.concatenate(
-            [np.broadcast_to(a, batch + a.shape[-1:]) for a in (x, mu, px)], -1
+            [np.broadcast_to(a, batch + a.shape[-1:]) for a in (x, Gamma, mu, px)], -1
         )
 
     # --- pi, its tangent map, and a right inverse -----------------------------
@@ -104,8 +112,9 @@ class LeftTrivialization:
         -------
         g : ndarray, shape ``(..., config_dim)``
             ``G(s)`` in the group's configuration embedding (``matrix_to_config``).
-        z : ndarray, shape ``(..., n + d + n)``
-            The reduced state ``(x, mu, p_x)``, ``mu = T(s)^{-T} p_s``.
+        z : ndarray, shape ``(..., n + k + d + n)``
+            The reduced state ``(x, Gamma, mu, p_x)``, ``mu = T(s)^{-T} p_s``,
+            ``Gamma = G(s)^{-1} . a_0`` (no ``Gamma`` without an advected vector).
         """
         q = np.asarray(q, dtype=float)
         g = self.group.matrix_to_config(np.asarray(self.chart(q[..., : self.d])))
@@ -124,7 +133,7 @@ class LeftTrivialization:
         Returns
         -------
         gdot : ndarray, shape ``(..., config_dim)``
-        zdot : ndarray, shape ``(..., n + d + n)``
+        zdot : ndarray, shape ``(..., nz)``
         """
         q, p, qdot, pdot = (np.asarray(a, dtype=float) for a in (q, p, qdot, pdot))
         h = _diff.STEP
@@ -137,7 +146,8 @@ class LeftTrivialization:
     def lift(self, s, z):
         """A right inverse of ``pi`` at the chart point ``s``: ``(q, p)`` with ``pi(q, p) = (G(s), z)``.
 
-        ``q = (s, x)``, ``p = (T(s)^T mu, p_x)`` for ``z = (x, mu, p_x)``.
+        ``q = (s, x)``, ``p = (T(s)^T mu, p_x)`` for ``z = (x, mu, p_x)`` (or
+        ``(x, Gamma, mu, p_x)``, which is in the image only when ``Gamma = G(s)^{-1} . a_0``).
         """
         s = np.asarray(s, dtype=float)
         x, mu, px = self.space.split(np.asarray(z, dtype=float))
@@ -172,7 +182,12 @@ def unreduce(system, chart, chart_jacobian, *, names=None, sample=None, check: b
 
         M(q) = B^T m(x) B, \\qquad e_i(q) = B^{-1} e_i(x), \\qquad U(q) = U(x),
 
-    and a vector potential becomes ``A(q) = B^T A(x)``, so that ``H(q, p) =
+    and a vector potential becomes ``A(q) = B^T A(x)``; with an advected vector
+    every datum is read at ``(x, Gamma(s))``, ``Gamma(s) = G(s)^{-1} . a_0``
+    (semidirect-product reduction: the unreduced system is invariant only
+    under the isotropy group of ``a_0``), and its ``s``-derivative gains
+    ``(dGamma/ds)^T d/dGamma`` (chain rule; ``dGamma/ds`` by complex step of
+    the chart), so that ``H(q, p) =
     h(pi(q, p))``, ``<p - A(q), e_i(q)> = <P - A(x), e_i(x)>`` and the Gram
     matrices agree, ``E_Q M E_Q^T = E m E^T``.  ``pi(q, p) = (G(s), (x,
     T^{-T} p_s, p_x))``.  By the commutative diagrams of Sections 2.2 and 2.3,
@@ -275,43 +290,67 @@ def unreduce(system, chart, chart_jacobian, *, names=None, sample=None, check: b
         dB[..., :d, :d, :d] = dT
         return B, dB
 
-    def x_derivative(datum, x, batch):
-        """``d datum / dq`` from the reduced datum's ``d/dx`` (zero for the s slots)."""
-        val, dval = datum.with_derivative(x)
+    k = space.k
+
+    def data_point(q):
+        """``y(q) = (x, Gamma(s))``: where the reduced data are read (``x`` alone without ``Gamma``)."""
+        s, x = parts(q)
+        if not k:
+            return x
+        Gamma = pi.advected(s)
+        batch = np.broadcast_shapes(x.shape[:-1], Gamma.shape[:-1])
+        return np.concatenate([np.broadcast_to(x, batch + (n,)), Gamma], -1)
+
+    def q_derivative(datum, q, batch):
+        """``(datum(y(q)), d datum/dq)`` by the chain rule through ``y(q) = (x, Gamma(s))``.
+
+        ``d/dx`` is the datum's own; ``d/ds = (dGamma/ds)^T d/dGamma``, with
+        ``dGamma/ds`` by complex step of ``Gamma(s) = G(s)^{-1} . a_0`` (first
+        derivatives of the chart only, so exact).
+        """
+        q = np.asarray(q, dtype=float)
+        val, dval = datum.with_derivative(data_point(q))
         shape = datum.shape
         out = np.zeros(batch + (D,) + shape)
-        if dval is not None and n:
-            out[(Ellipsis, slice(d, None)) + (slice(None),) * len(shape)] = np.broadcast_to(dval, batch + (n,) + shape)
+        if dval is not None:
+            rest = (slice(None),) * len(shape)
+            dval = np.broadcast_to(dval, batch + (n + k,) + shape)
+            out[(Ellipsis, slice(d, None)) + rest] = dval[(Ellipsis, slice(None, n)) + rest]
+            if k:
+                _, dGamma = _diff.jacobian(pi.advected, q[..., :d])  # (..., d, k)
+                dG = np.broadcast_to(dGamma, batch + (d, k))
+                flat = dval[(Ellipsis, slice(n, None)) + rest].reshape(batch + (k, -1))
+                out[(Ellipsis, slice(None, d)) + rest] += (dG @ flat).reshape(batch + (d,) + shape)
         return np.broadcast_to(val, batch + shape), out
 
     # --- metric M(q) = B^T m B --------------------------------------------------
     def metric(q):
-        s, x = parts(q)
+        s = parts(q)[0]
         B = bmat(pi.body_jacobian(s))
-        return np.swapaxes(B, -1, -2) @ system.metric(x) @ B
+        return np.swapaxes(B, -1, -2) @ system.metric(data_point(q)) @ B
 
     def metric_derivative(q):
-        s, x = parts(np.asarray(q, dtype=float))
+        s = parts(np.asarray(q, dtype=float))[0]
         B, dB = with_dB(s)
         batch = B.shape[:-2]
-        m, dm = x_derivative(system.metric, x, batch)
+        m, dm = q_derivative(system.metric, q, batch)
         Bt, Bk, mk = np.swapaxes(B, -1, -2)[..., None, :, :], B[..., None, :, :], m[..., None, :, :]
         dBm = np.swapaxes(dB, -1, -2) @ mk @ Bk
         return dBm + np.swapaxes(dBm, -1, -2) + Bt @ dm @ Bk
 
     # --- constraints e_i(q) = B^{-1} e_i(x), rows: E_Q = E B^{-T} ---------------
     def constraints(q):
-        s, x = parts(q)
+        s = parts(q)[0]
         B = bmat(pi.body_jacobian(s))
-        E = np.asarray(system.constraints(x))
+        E = np.asarray(system.constraints(data_point(q)))
         E = np.broadcast_to(E, B.shape[:-2] + E.shape[-2:])
         return np.swapaxes(np.linalg.solve(B, np.swapaxes(E, -1, -2)), -1, -2)
 
     def constraints_derivative(q):
-        s, x = parts(np.asarray(q, dtype=float))
+        s = parts(np.asarray(q, dtype=float))[0]
         B, dB = with_dB(s)
         batch = B.shape[:-2]
-        E, dE = x_derivative(system.constraints, x, batch)
+        E, dE = q_derivative(system.constraints, q, batch)
         BinvT = np.swapaxes(np.linalg.inv(B), -1, -2)[..., None, :, :]
         EQ = (E @ BinvT[..., 0, :, :])[..., None, :, :]
         return dE @ BinvT - EQ @ np.swapaxes(dB, -1, -2) @ BinvT
@@ -322,26 +361,26 @@ def unreduce(system, chart, chart_jacobian, *, names=None, sample=None, check: b
     else:
 
         def potential(q):
-            return system.potential(parts(q)[1])
+            return system.potential(data_point(q))
 
         def potential_gradient(q):
-            x = parts(np.asarray(q, dtype=float))[1]
-            return x_derivative(system.potential, x, x.shape[:-1])[1]
+            q = np.asarray(q, dtype=float)
+            return q_derivative(system.potential, q, q.shape[:-1])[1]
 
     # --- vector potential A(q) = B^T A(x) (so that p - A(q) = B^T (P - A(x))) --------
     vector_potential = vector_potential_derivative = None
     if system.vector_potential is not None:
 
         def vector_potential(q):
-            s, x = parts(q)
+            s = parts(q)[0]
             B = bmat(pi.body_jacobian(s))
-            A = np.asarray(system.vector_potential(x))
+            A = np.asarray(system.vector_potential(data_point(q)))
             return np.einsum("...ak,...a->...k", B, A)
 
         def vector_potential_derivative(q):
-            s, x = parts(np.asarray(q, dtype=float))
+            s = parts(np.asarray(q, dtype=float))[0]
             B, dB = with_dB(s)
-            A, dA = x_derivative(system.vector_potential, x, B.shape[:-2])
+            A, dA = q_derivative(system.vector_potential, q, B.shape[:-2])
             return np.einsum("...lak,...a->...lk", dB, A) + np.einsum("...ak,...la->...lk", B, dA)
 
     # the reduced system's own class: the reduction layer never imports the system layer

@@ -23,6 +23,8 @@ REGISTRY = {
     "nonreversible-contact-oscillator": "nonreversible",
     "nonreversible-knife-edge": "nonreversible_knife_edge",
     "rigid-body": "rigid_body",
+    "heavy-top": "heavy_top",
+    "chaplygin-ball": "chaplygin_ball",
 }
 
 

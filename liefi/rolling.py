@@ -1,0 +1,287 @@
+r"""Rigid bodies rolling without slipping on a horizontal plane, built from the body's data.
+
+A body is its mass ``m``, its inertia ``I`` about the centre of mass (principal
+axes = body axes), gravity ``g`` and its surface, given by the *contact
+function* ``r(Gamma)``: the vector, in body axes, from the centre of mass to
+the point of the surface whose outward normal is ``-Gamma`` (the point that
+touches the plane when the upward vertical seen from the body is ``Gamma``).
+:func:`sphere`, :func:`ellipsoid` and :func:`disk` give it for common shapes; a
+user may write their own (batch-first, complex-step safe).
+
+The system (what liefi derives from these data)
+-----------------------------------------------
+Configuration ``(R, x, y) in SO(3) x R^2`` (attitude, horizontal position of
+the centre of mass); velocities ``(Omega, u)``, ``Omega`` the body angular
+velocity and ``u = (x', y')``.  The height of the centre of mass is fixed by
+the contact, ``c_3 = -<Gamma, r(Gamma)>``, so its rate is ``c_3' = <w, Omega>``
+with ``w = Gamma x r`` (the surface is tangent to the plane at the contact:
+``<Gamma, dr> = 0``).  Hence
+
+.. math::
+
+    T = \tfrac12 \langle \Omega, (I + m\, w w^T) \Omega \rangle + \tfrac m2 |u|^2,
+    \qquad U = -m g \langle \Gamma, r(\Gamma) \rangle,
+
+and no slip at the contact, ``v_c + omega x (R r) = 0``, has the horizontal rows
+
+.. math:: u_i + \langle \Omega, r \times \rho_i \rangle = 0, \qquad \rho_i = R^T e_i \quad (i = 1, 2),
+
+(its vertical component is the height's rate above).  The metric and the
+potential depend on the attitude through ``Gamma = R^T e_3``, the rows through
+``R^T e_1``, ``R^T e_2`` as well: the data are invariant under the horizontal
+translations and, together, under rotations about the vertical (``SE(2)``),
+but *not* under all of ``SO(3)``.
+
+Which space, which symmetry, and why
+------------------------------------
+The no-slip rows are kept as constraint momenta ``J_i`` on ``T*(SO(3) x R^2)``
+and the data depend on the whole attitude through the advected vector
+``(R^T e_1, R^T e_2, R^T e_3)`` in ``V = R^3 x R^3 x R^3`` (three copies of the
+rotation block; :class:`liefi.groups.Representation`): the reduced state is
+``(rho_1, rho_2, Gamma, Pi, p)`` on ``((so(3) x R^2) x| V)*``, with the
+semidirect-product bracket.  This keeps the paper's structure -- ``h~`` and
+the ``J_i`` are first integrals of the extended field, it equals the
+constrained field on ``C``, ``V`` and the feedback integrator apply, and
+extension commutes with reduction (tested) -- at the price of reducing by the
+translations only (the ``SE(2)`` symmetry is not used: with the attitude
+advected the reduced space still carries it, which a dynamics user also wants
+for reconstruction).  Eliminating the rows instead (the Chaplygin ball's
+``M' = M x Omega`` in ``(M, Gamma)``) leaves an unconstrained system whose
+bracket is not Poisson (no Jacobi identity): no extension theory, no ``J``
+for ``V`` to hold at zero.  The contact path is ``(x, y)`` minus the
+horizontal part of ``R r``, reconstructed from ``g' = g xi``.
+
+References
+----------
+Chaplygin, "On a ball's rolling on a horizontal plane", Mat. Sbornik 24 (1903),
+transl. Regul. Chaotic Dyn. 7 (2002) 131; Borisov & Mamaev, "Rolling of a rigid
+body on plane and sphere. Hierarchy of dynamics", Regul. Chaotic Dyn. 7 (2002) 177;
+Bloch, *Nonholonomic Mechanics and Control*, 2nd ed., Sec. 1.7 and 5.8.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._data import as_float_array
+from .feedback import Invariant
+from .groups import SO3, Representation, Rn
+from .phase_space import LieGroupPhaseSpace
+from .system import NonholonomicSystem
+
+#: names of the advected vector ``(R^T e_1, R^T e_2, R^T e_3)``
+ATTITUDE_NAMES = ("rho1_1", "rho1_2", "rho1_3", "rho2_1", "rho2_2", "rho2_3", "Gamma_1", "Gamma_2", "Gamma_3")
+
+
+def _pair(i, j):
+    """``<V_i, V_j>`` of the advected copies ``i, j`` (0: ``rho_1``, 1: ``rho_2``, 2: ``Gamma``), with its gradient."""
+
+    def fun(z):
+        return sum(z[..., 3 * i + k] * z[..., 3 * j + k] for k in range(3))
+
+    def grad(z):
+        zero = 0.0 * z[..., 0]
+        g = [zero] * z.shape[-1]
+        for k in range(3):
+            g[3 * i + k] = g[3 * i + k] + z[..., 3 * j + k]
+            g[3 * j + k] = g[3 * j + k] + z[..., 3 * i + k]
+        return np.stack(g, -1)
+
+    names = ("rho1", "rho2", "Gamma")
+    name = f"|{names[i]}|^2" if i == j else f"{names[i]}.{names[j]}"
+    return Invariant(name, fun, grad)
+
+
+#: The six Casimirs ``<rho_i, rho_j>`` of the advected attitude (``|Gamma|^2`` among them): first
+#: integrals of every field on :func:`rolling_space` (constraint forces act on the momenta only);
+#: penalized in ``V`` they keep the rows of ``R`` orthonormal.
+ATTITUDE_CASIMIRS = tuple(_pair(i, j) for i in range(3) for j in range(i, 3))
+
+
+def rolling_space():
+    """``((so(3) x R^2) x| (R^3)^3)*``: ``SO(3) x R^2`` with the whole attitude advected, ``a_0 = (e_1, e_2, e_3)``."""
+    G = SO3() * Rn(2)
+    rep = Representation(G, block=(0, 3), copies=3, names=ATTITUDE_NAMES)
+    return LieGroupPhaseSpace(G, advected=rep, a0=np.eye(3).ravel())
+
+
+def _cross(a, b):
+    """``a x b`` batch-first without ``np.cross`` (which some traced inputs do not take)."""
+    return np.stack([a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
+                     a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
+                     a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]], -1)
+
+
+def _vector(value, name, size=3):
+    v = as_float_array(value, name)
+    if v.shape != (size,) or not np.all(np.isfinite(v)):
+        raise ValueError(f"{name}: expected {size} finite numbers, got {np.shape(value)}")
+    return v
+
+
+def rolling_body(mass, inertia, contact, gravity=9.81, *, sample=None, scaling="unit", check=True):
+    """The rolling-without-slipping system of a rigid body on a plane (module docstring).
+
+    Parameters
+    ----------
+    mass : float
+        ``m > 0``.
+    inertia : array_like (3,) or (3, 3)
+        The inertia about the centre of mass in body axes (principal moments, or
+        a symmetric positive definite matrix).
+    contact : callable
+        ``r(Gamma)``: ``(..., 3) -> (..., 3)``, body-axes vector from the centre of
+        mass to the contact point for the upward vertical ``Gamma``; batch-first
+        and complex-step safe (:func:`sphere`, :func:`ellipsoid`, :func:`disk`).
+    gravity : float
+        ``g >= 0`` (along ``-e_3``).
+    sample : array_like (3, 3), optional
+        An attitude ``R`` at which the data are checked (default the identity;
+        give one where the contact function is regular, e.g. a disk standing up).
+    scaling : {"unit", "orthonormal", None}
+        Scaling of the constraint rows, see
+        :meth:`NonholonomicSystem.from_velocity_constraints`.
+
+    Returns
+    -------
+    NonholonomicSystem
+        On :func:`rolling_space`, state ``(rho_1, rho_2, Gamma, Pi, p)``, two
+        constraints (the horizontal no-slip rows).
+    """
+    m = float(mass)
+    if not np.isfinite(m) or m <= 0:
+        raise ValueError(f"mass: expected a positive number, got {mass!r}")
+    I = as_float_array(inertia, "inertia")
+    if I.shape == (3,):
+        I = np.diag(I)
+    if I.shape != (3, 3) or not np.all(np.isfinite(I)):
+        raise ValueError(f"inertia: expected 3 principal moments or a 3 x 3 matrix, got shape {I.shape}")
+    g = float(gravity)
+    if not np.isfinite(g) or g < 0:
+        raise ValueError(f"gravity: expected a non-negative number, got {gravity!r}")
+    if not callable(contact):
+        raise TypeError(f"contact: expected a function r(Gamma) -> (..., 3), got {contact!r}")
+    R0 = np.eye(3) if sample is None else as_float_array(sample, "sample")
+    if R0.shape != (3, 3) or not np.allclose(R0.T @ R0, np.eye(3), atol=1e-12):
+        raise ValueError("sample: expected a rotation matrix (3 x 3, R^T R = I)")
+    with np.errstate(all="ignore"):
+        probe = np.asarray(contact(R0[2]))
+    if probe.shape != (3,):
+        raise ValueError(f"contact: r(Gamma) must return 3 numbers for Gamma of shape (3,), got shape {probe.shape}")
+    if not np.all(np.isfinite(probe)):
+        raise ValueError(f"contact: r(Gamma) is not finite at Gamma = {R0[2].tolist()} (the attitude sample); "
+                         "pass sample= an attitude where the surface is regular (a disk standing on its rim)")
+
+    def r_at(V):
+        return np.asarray(contact(V[..., 6:9]))
+
+    def metric(x, V):
+        w = _cross(V[..., 6:9], r_at(V))  # c_3' = <w, Omega>
+        top = I + m * w[..., :, None] * w[..., None, :]
+        batch = top.shape[:-2]
+        zero = np.zeros(batch + (3, 2), dtype=top.dtype)
+        bottom = np.concatenate([np.zeros(batch + (2, 3), dtype=top.dtype),
+                                 np.broadcast_to(m * np.eye(2), batch + (2, 2)).astype(top.dtype)], -1)
+        return np.concatenate([np.concatenate([top, zero], -1), bottom], -2)
+
+    def potential(x, V):
+        return -m * g * np.einsum("...i,...i->...", V[..., 6:9], r_at(V))
+
+    def rows(x, V):  # u_i + <Omega, r x rho_i> = 0
+        r = r_at(V)
+        one = 1.0 + 0.0 * r[..., 0]
+        zero = 0.0 * r[..., 0]
+        r1 = np.concatenate([_cross(r, V[..., 0:3]), np.stack([one, zero], -1)], -1)
+        r2 = np.concatenate([_cross(r, V[..., 3:6]), np.stack([zero, one], -1)], -1)
+        return np.stack([r1, r2], -2)
+
+    return NonholonomicSystem.from_velocity_constraints(
+        rolling_space(), metric, rows, potential, scaling=scaling, check=check, sample=attitude_state(R0))
+
+
+def attitude_state(R):
+    """The advected vector ``(R^T e_1, R^T e_2, R^T e_3)`` = the rows of ``R``, from a rotation matrix."""
+    return np.asarray(R, float).reshape(np.shape(R)[:-2] + (9,))
+
+
+def rolling_start(system, R, Omega, position=(0.0, 0.0)):
+    """The full start ``(R, x, y, rho_1, rho_2, Gamma, Pi, p)`` of a rolling body on the constraint set.
+
+    ``R``: the attitude (3 x 3), ``Omega``: the body angular velocity; the horizontal
+    velocity ``u`` is solved from the no-slip rows and the momenta are ``m (Omega, u)``.
+    """
+    R = np.asarray(R, float)
+    if R.shape != (3, 3) or not np.allclose(R.T @ R, np.eye(3), atol=1e-12) or np.linalg.det(R) <= 0:
+        raise ValueError("R: expected a rotation matrix (3 x 3, R^T R = I, det R = 1)")
+    Omega = _vector(Omega, "Omega")
+    position = _vector(position, "position", 2)
+    V = attitude_state(R)
+    m = np.asarray(system.metric(V), float)
+    E = np.asarray(system.constraints(V), float) @ m  # the rows a_i (times their scaling)
+    u = np.linalg.solve(E[:, 3:], -E[:, :3] @ Omega)
+    P = m @ np.concatenate([Omega, u])
+    return np.concatenate([R.ravel(), position, V, P])
+
+
+# --- contact functions ------------------------------------------------------------------------
+
+
+def sphere(radius, offset=(0.0, 0.0, 0.0)):
+    """``r(Gamma) = -radius Gamma - offset``: a ball whose centre of mass sits at ``offset`` from its centre.
+
+    (``offset`` in body axes; the Chaplygin ball has ``offset = 0``.)  Uses ``|Gamma| = 1``.
+    """
+    a = float(radius)
+    if not np.isfinite(a) or a <= 0:
+        raise ValueError(f"radius: expected a positive number, got {radius!r}")
+    c = _vector(offset, "offset")
+
+    def r(Gamma):
+        return -a * np.asarray(Gamma) + (0.0 * np.asarray(Gamma) - c)
+
+    return r
+
+
+def ellipsoid(semi_axes, offset=(0.0, 0.0, 0.0), rotation=None):
+    """Contact function of an ellipsoid: ``r = Q r_s(Q^T Gamma) - offset``, ``r_s(n) = -A^2 n / sqrt(n.A^2 n)``.
+
+    ``semi_axes`` ``(a, b, c)`` along the shape axes, which are rotated by ``Q =
+    rotation`` against the body (inertia) axes -- the rattleback's misalignment;
+    ``offset``: the centre of mass relative to the ellipsoid's centre, in body axes
+    (``(0, 0, -h)`` for a centre of mass a height ``h`` below it).  ``r_s(n)`` is
+    the point of ``x.A^-2 x = 1`` whose outward normal is ``-n``.
+    """
+    A = _vector(semi_axes, "semi_axes")
+    if np.any(A <= 0):
+        raise ValueError(f"semi_axes: expected three positive numbers, got {semi_axes!r}")
+    A2 = A**2
+    c = _vector(offset, "offset")
+    Q = np.eye(3) if rotation is None else as_float_array(rotation, "rotation")
+    if Q.shape != (3, 3) or not np.allclose(Q.T @ Q, np.eye(3), atol=1e-12):
+        raise ValueError("rotation: expected a rotation matrix (3 x 3, orthogonal)")
+
+    def r(Gamma):
+        n = np.einsum("ji,...j->...i", Q, Gamma)  # Q^T Gamma
+        An = A2 * n
+        rs = -An / np.sqrt(np.einsum("...i,...i->...", n, An))[..., None]
+        return np.einsum("ij,...j->...i", Q, rs) - c
+
+    return r
+
+
+def disk(radius):
+    """Contact function of a thin disk in the body's ``e_1 e_2`` plane, centre of mass at its centre.
+
+    ``r(Gamma) = -radius (Gamma - Gamma_3 e_3) / sqrt(Gamma_1^2 + Gamma_2^2)``: the
+    lowest point of the rim (singular when the disk lies flat, ``Gamma = +-e_3``).
+    """
+    a = float(radius)
+    if not np.isfinite(a) or a <= 0:
+        raise ValueError(f"radius: expected a positive number, got {radius!r}")
+
+    def r(Gamma):
+        Gamma = np.asarray(Gamma)
+        s = np.sqrt(Gamma[..., 0] ** 2 + Gamma[..., 1] ** 2)
+        return -a * np.stack([Gamma[..., 0] / s, Gamma[..., 1] / s, 0.0 * s], -1)
+
+    return r
