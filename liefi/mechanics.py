@@ -116,6 +116,9 @@ def _bound(sympy, args, params, exprs, shape, holder):
 
     def fun(x):
         x = np.asarray(x)
+        if x.dtype == object and holder.values.ndim > 1:
+            raise ValueError("per-member constants run on the numpy path (a compiled kernel holds one set of "
+                             "constants, folded into its code)")
         batch = x.shape[:-1]
         c = holder.aligned(batch)
         vals = f(*[x[..., i] for i in range(n)], *[c[..., k] for k in range(P)])
@@ -166,6 +169,12 @@ class MechanicsSystem(NonholonomicSystem):
     def constants(self, value):
         holder = self._mech["constants"]
         holder.values = holder.parse(value)
+
+    @property
+    def data_key(self):
+        """The current constants as bytes: the compiled engine keys its kernels by it (they fold them in)."""
+        v = self._mech["constants"].values
+        return v.shape, v.tobytes()
 
     def constants_dict(self):
         """``{name: value(s)}`` of the current constants."""
