@@ -502,7 +502,10 @@ def _load_potential(sympy, me, parts, checks, potential):
             continue
         U -= vec.dot(where.pos_from(O))
     if potential is not None:
-        return sympy.sympify(potential), W
+        if not isinstance(potential, sympy.Basic):
+            raise TypeError(f"potential: expected a sympy expression U(q) (of the model's symbols), got "
+                            f"{type(potential).__name__}; liefi does not parse strings")
+        return potential, W
     if bad:
         raise NonConservativeLoadError(
             f"model: liefi cannot derive a potential for the load(s) {[str(b) for b in bad]} (only forces "

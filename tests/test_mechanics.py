@@ -265,6 +265,8 @@ def test_mass_sweep_is_one_ensemble_call_equal_to_separate_builds():
     # target would be one number for the whole ensemble, the members' mean)
     ens = liefi.FeedbackIntegrator(sleigh, z0, gains=10.0, invariants=("constraints",)).run(1e-2, 1.0, "rk4")
     assert ens.y.shape == (4, 6, 101)
+    qdot = sleigh.velocities(ens)  # each member's velocities with its own mass
+    assert qdot.shape == (4, 3, 101)
     for k, mk in enumerate(masses):
         LMk, (mm, II, aa) = sleigh_model()
         one = liefi.from_mechanics(LMk, {mm: mk, II: 1.0, aa: 0.5})
@@ -272,6 +274,7 @@ def test_mass_sweep_is_one_ensemble_call_equal_to_separate_builds():
         np.testing.assert_allclose(z0[k], zk, rtol=0, atol=1e-15)
         solk = liefi.FeedbackIntegrator(one, zk, gains=10.0, invariants=("constraints",)).run(1e-2, 1.0, "rk4")
         assert np.max(np.abs(ens.y[k] - solk.y)) <= TOL * np.max(np.abs(solk.y))
+        np.testing.assert_allclose(qdot[k], one.velocities(solk), rtol=0, atol=1e-12)
     theta = ens.y[:, 2, -1]
     assert np.ptp(theta) > 1e-2  # the members differ: each ran with its own mass
 
@@ -300,6 +303,16 @@ def test_loads_without_a_potential_are_named():
     np.testing.assert_allclose(osc.potential(np.array([0.5])), 3.0 * 0.25 / 2, rtol=1e-15)
     with pytest.raises(NonConservativeLoadError, match="potential: its -dU/dt is not the power"):
         liefi.from_mechanics(LM, {m: 2.0, k: 3.0}, potential=k * x**2)
+    with pytest.raises(TypeError, match="potential: expected a sympy expression .* does not parse strings"):
+        liefi.from_mechanics(LM, {m: 2.0, k: 3.0}, potential="k*x**2/2")
+    # a load given to kanes_equations (the docs' older style) is read from there too
+    u = me.dynamicsymbols("u")
+    Q = O.locatenew("Q", x * N.x)
+    Q.set_vel(N, u * N.x)
+    KM = me.KanesMethod(N, [x], [u], kd_eqs=[x.diff() - u])
+    KM.kanes_equations([me.Particle("p", Q, m)], [(Q, -m * k * N.x)])
+    fall = liefi.from_mechanics(KM, {m: 2.0, k: 3.0})
+    np.testing.assert_allclose(fall.potential(np.array([1.5])), 2.0 * 3.0 * 1.5, rtol=1e-15)
 
 
 def test_bad_models_and_constants_are_named():
