@@ -2,6 +2,7 @@
 from .phase_space import CotangentBundle, LieGroupPhaseSpace, PhaseSpace, TrivialPrincipalBundle
 from .system import NonholonomicSystem
 from .sympy_input import from_sympy
+from .mechanics import from_mechanics
 from . import groups, reduction
 
 __version__ = "0.1.0"

@@ -122,6 +122,50 @@ def from_sympy(L, q, qd, constraints=(), names=None, *, scaling="unit", **kw):
     from .phase_space import CotangentBundle
     from .system import NonholonomicSystem
 
+    X, M, b, U, rows, q = lagrangian_data(sympy, _scalar_lagrangian(sympy, L), q, qd, constraints)
+    n = len(q)
+    metric = _batch_function(sympy, X, [e for row in M for e in row], (n, n))
+    potential = None if sympy.simplify(U) == 0 else _batch_function(sympy, X, [U], ())
+    vector_potential = None
+    if any(sympy.simplify(e) != 0 for e in b):
+        vector_potential = _batch_function(sympy, X, b, (n,))
+    if names is None:
+        names = coordinate_names(sympy, q)
+    space = CotangentBundle(n, names=names)
+    if not rows:
+        return NonholonomicSystem(space, metric, None, potential, vector_potential=vector_potential, **kw)
+    A = _batch_function(sympy, X, [e for row in rows for e in row], (len(rows), n))
+    return NonholonomicSystem.from_velocity_constraints(
+        space, metric, A, potential, scaling=scaling, vector_potential=vector_potential, **kw
+    )
+
+
+def _scalar_lagrangian(sympy, L):
+    """``L`` itself, the element of a 1x1 Matrix (as ``LagrangesMethod`` stores it), or a named error."""
+    if type(L).__name__ in ("LagrangesMethod", "KanesMethod", "System"):
+        raise TypeError(
+            f"L: a sympy.physics.mechanics {type(L).__name__}, not a Lagrangian expression; hand the "
+            "model itself to liefi.from_mechanics(model, constants={...})"
+        )
+    if isinstance(L, sympy.MatrixBase):
+        if L.shape != (1, 1):
+            raise ValueError(f"L: expected one scalar expression (the Lagrangian), got a {L.shape[0]}x{L.shape[1]} Matrix")
+        return L[0, 0]
+    return L
+
+
+def coordinate_names(sympy, q):
+    """``str(q_i)`` of plain symbols, the function name of ``dynamicsymbols`` (``x`` of ``x(t)``)."""
+    return tuple(str(s.func) if isinstance(s, sympy.core.function.AppliedUndef) else str(s) for s in q)
+
+
+def lagrangian_data(sympy, L, q, qd, constraints, parameters=()):
+    """The metric, vector potential, potential and Pfaffian rows of ``L`` as sympy expressions.
+
+    ``M = d^2 L / dqd^2``, ``b = dL/dqd (qd = 0)``, ``U = -L(qd = 0)``, ``a_i = d c_i / dqd``,
+    in plain symbols ``X`` for ``q`` (and the ``parameters``, which may appear).
+    Returns ``(X, M, b, U, rows, q)``; the errors are those of :func:`from_sympy`.
+    """
     q = _symbols(sympy, q, "q")
     qd = _symbols(sympy, qd, "qd")
     n = len(q)
@@ -146,11 +190,13 @@ def from_sympy(L, q, qd, constraints=(), names=None, *, scaling="unit", **kw):
         except (sympy.SympifyError, TypeError) as exc:
             raise ValueError(f"{what}: not a sympy expression ({exc})") from None
         e = e.xreplace(to_plain).xreplace(to_plain_q)
-        extra = e.free_symbols - set(X) - set(V)
+        extra = e.free_symbols - set(X) - set(V) - set(parameters)
         if extra:
             raise ValueError(
                 f"{what}: contains symbols {sorted(map(str, extra))} that are neither in q nor in qd; "
-                "substitute numbers for the parameters (expr.subs({...})) first"
+                "substitute numbers for the parameters (expr.subs({...})) first, or keep them as "
+                "runtime constants: liefi.from_mechanics(LagrangesMethod(L, q, nonhol_coneqs=...), "
+                "constants={...})"
             )
         return e
 
@@ -192,18 +238,4 @@ def from_sympy(L, q, qd, constraints=(), names=None, *, scaling="unit", **kw):
                 "treats linear homogeneous constraints a(q) . qd = 0"
             )
         rows.append([sympy.diff(cp, V[j]) for j in range(n)])
-
-    metric = _batch_function(sympy, X, [e for row in M for e in row], (n, n))
-    potential = None if sympy.simplify(U) == 0 else _batch_function(sympy, X, [U], ())
-    vector_potential = None
-    if any(sympy.simplify(e) != 0 for e in b):
-        vector_potential = _batch_function(sympy, X, b, (n,))
-    if names is None:
-        names = tuple(str(s.func) if isinstance(s, sympy.core.function.AppliedUndef) else str(s) for s in q)
-    space = CotangentBundle(n, names=names)
-    if not rows:
-        return NonholonomicSystem(space, metric, None, potential, vector_potential=vector_potential, **kw)
-    A = _batch_function(sympy, X, [e for row in rows for e in row], (len(rows), n))
-    return NonholonomicSystem.from_velocity_constraints(
-        space, metric, A, potential, scaling=scaling, vector_potential=vector_potential, **kw
-    )
+    return X, M, b, U, rows, q

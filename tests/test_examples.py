@@ -39,3 +39,14 @@ def test_knife_edge_example_from_its_velocity_constraint(capsys):
     err, drift = load("knife_edge").main(t_final=2.0)
     assert max(err.values()) < 1e-3
     assert drift["J_1"] < 1e-6 and drift["p_phi"] < 1e-6
+
+
+def test_from_mechanics_example_rolls_and_sweeps(capsys):
+    """The sympy.physics.mechanics example: the Kane rolling disk keeps its constraints and energy, and
+    the sleigh's mass sweep (one ensemble run) turns the lighter sleighs faster."""
+    pytest.importorskip("sympy")
+    out = load("from_mechanics").main(t_final=0.1, dt=1e-3)
+    assert out["drift"]["J_1"] < 1e-9 and out["drift"]["J_2"] < 1e-9 and out["drift"]["h~"] < 1e-9
+    assert out["sweep"].y.shape == (5, 6, 101)
+    assert np.all(np.diff(out["theta"]) < 0)  # heavier sleigh (I fixed): larger I + m a^2, slower turn
+    assert "rolling disk: built in" in capsys.readouterr().out

@@ -52,8 +52,10 @@ def _fi_key(fi, kind):
 
 def _cached(system, key, engine, build):
     """The kernel of ``(system, key, engine)``: from this process's table, or ``build()`` and keep it
-    (weakly per system; the generated module itself is shared by the hash of its text)."""
-    full = (id(system),) + key + (engine,)
+    (weakly per system; the generated module itself is shared by the hash of its text).  A system whose
+    data can change in place (the constants of :class:`liefi.mechanics.MechanicsSystem`) names its current
+    data by ``data_key``, which is part of the key."""
+    full = (id(system), getattr(system, "data_key", None)) + key + (engine,)
     with _cache._LOCK:
         got = _KERNELS.get(full)
         if got is not None and got[0]() is system:
