@@ -87,7 +87,7 @@ def main():
                              "hand": lambda: [fb.vector_field(z0) for _ in range(100)]}, 5)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            run = interleaved({"gen": lambda: fa.run(1e-3, 1.0, "rk4"), "hand": lambda: fb.run(1e-3, 1.0, "rk4")}, 3)
+            run = interleaved({"gen": lambda: fa.run(1.0, dt=1e-3, scheme="rk4"), "hand": lambda: fb.run(1.0, dt=1e-3, scheme="rk4")}, 3)
         print(f"| {name} | {t_model:.3f} | {t_build:.3f} | {field['gen'] / field['hand']:.2f} | "
               f"{run['gen']:.2f} | {run['hand']:.2f} | {run['gen'] / run['hand']:.2f} |")
 
@@ -99,14 +99,14 @@ def main():
     def ensemble():
         sled.constants = {"m": masses}
         z = sled.state(np.broadcast_to(q0, (8, 3)), np.broadcast_to(v0, (8, 3)))
-        return liefi.FeedbackIntegrator(sled, z, gains=10.0, invariants=("constraints",)).run(1e-3, 1.0, "rk4")
+        return liefi.FeedbackIntegrator(sled, z, gains=10.0).run(1.0, dt=1e-3, scheme="rk4")
 
     def separate():
         out = []
         for mk in masses:
             sled.constants = {"m": mk}
             z = sled.state(q0, v0)
-            out.append(liefi.FeedbackIntegrator(sled, z, gains=10.0, invariants=("constraints",)).run(1e-3, 1.0, "rk4"))
+            out.append(liefi.FeedbackIntegrator(sled, z, gains=10.0).run(1.0, dt=1e-3, scheme="rk4"))
         return out
 
     sweep = interleaved({"ensemble": ensemble, "separate": separate}, 3)

@@ -72,7 +72,7 @@ def main(t_final=5.0, dt=1e-3):
     z0 = disk.state([0.0, 0.2, 0.0, 0.0, 0.0], u=[0.0, 4.0, 0.3])  # spin 4, yaw rate 0.3; u4, u5 solved
     fi = liefi.FeedbackIntegrator(disk, z0, gains=1.0)
     t = time.perf_counter()
-    sol = fi.run(dt, t_final, "rk4")
+    sol = fi.run(t_final, dt=dt, scheme="rk4")
     run = time.perf_counter() - t
     v = fi.invariant_values(np.moveaxis(sol.y, -1, -2))
     drift = {k: float(np.max(np.abs(v[k] - v[k][0]))) for k in ("J_1", "J_2", "h~")}
@@ -88,7 +88,7 @@ def main(t_final=5.0, dt=1e-3):
     sled.constants = {"m": masses}  # five members, no rebuild
     z0 = sled.state(np.zeros((masses.size, 3)), np.broadcast_to([0.5, 0.0, 1.0], (masses.size, 3)))
     t = time.perf_counter()
-    sweep = liefi.FeedbackIntegrator(sled, z0, gains=10.0, invariants=("constraints",)).run(dt, t_final, "rk4")
+    sweep = liefi.FeedbackIntegrator(sled, z0, gains="auto").run(t_final, dt=dt, scheme="imex-rk4")
     run_sweep = time.perf_counter() - t
     theta = sweep["theta"][:, -1]
     print(f"sleigh: built in {build_sled:.2f} s; mass sweep {masses.tolist()} as one ensemble run in "

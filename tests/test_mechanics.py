@@ -151,8 +151,8 @@ def _agree(a, b, z):
 
 
 def _same_trajectories(a, b, z0, t_final=1.0, dt=1e-2, gains=10.0):
-    sa = liefi.FeedbackIntegrator(a, z0, gains=gains).run(dt, t_final, "rk4")
-    sb = liefi.FeedbackIntegrator(b, z0, gains=gains).run(dt, t_final, "rk4")
+    sa = liefi.FeedbackIntegrator(a, z0, gains=gains).run(t_final, dt=dt, scheme="rk4")
+    sb = liefi.FeedbackIntegrator(b, z0, gains=gains).run(t_final, dt=dt, scheme="rk4")
     assert np.max(np.abs(sa.y - sb.y)) <= TOL * max(1.0, np.max(np.abs(sb.y)))
     return sa
 
@@ -261,9 +261,10 @@ def test_mass_sweep_is_one_ensemble_call_equal_to_separate_builds():
     sleigh.constants = {"m": masses}  # per-member constants, shape (4, 3): no rebuild
     assert sleigh.constants.shape == (4, 3)
     z0 = sleigh.state(np.broadcast_to(q0, (4, 3)), np.broadcast_to(qdot0, (4, 3)))
-    # one call; V penalizes the constraint, whose target is 0 for every member (an energy
-    # target would be one number for the whole ensemble, the members' mean)
-    ens = liefi.FeedbackIntegrator(sleigh, z0, gains=10.0, invariants=("constraints",)).run(1e-2, 1.0, "rk4")
+    # one call; V penalizes the constraint (target 0) and the energy (each member's own h~ at its start)
+    fi = liefi.FeedbackIntegrator(sleigh, z0, gains=10.0)
+    np.testing.assert_allclose(fi.targets["energy"], fi.invariant_values(z0)["h~"], rtol=1e-15)
+    ens = fi.run(1.0, dt=1e-2, scheme="rk4")
     assert ens.y.shape == (4, 6, 101)
     qdot = sleigh.velocities(ens)  # each member's velocities with its own mass
     assert qdot.shape == (4, 3, 101)
@@ -272,7 +273,7 @@ def test_mass_sweep_is_one_ensemble_call_equal_to_separate_builds():
         one = liefi.from_mechanics(LMk, {mm: mk, II: 1.0, aa: 0.5})
         zk = one.state(q0, qdot0)
         np.testing.assert_allclose(z0[k], zk, rtol=0, atol=1e-15)
-        solk = liefi.FeedbackIntegrator(one, zk, gains=10.0, invariants=("constraints",)).run(1e-2, 1.0, "rk4")
+        solk = liefi.FeedbackIntegrator(one, zk, gains=10.0).run(1.0, dt=1e-2, scheme="rk4")
         assert np.max(np.abs(ens.y[k] - solk.y)) <= TOL * np.max(np.abs(solk.y))
         np.testing.assert_allclose(qdot[k], one.velocities(solk), rtol=0, atol=1e-12)
     theta = ens.y[:, 2, -1]
