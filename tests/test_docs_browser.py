@@ -192,22 +192,22 @@ def served(site):
 CHROMIUM_FLAGS = [
     "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
     "--disable-background-networking", "--disable-component-update", "--disable-sync",
-    "--enable-logging=stderr", "--v=0", "--virtual-time-budget=15000",
+    "--enable-logging=stderr", "--v=0", "--virtual-time-budget=8000",
 ]
 
 
 def _render(chromium, url, tmp_path, what):
     """``(dom, console lines)`` of ``url`` after MathJax had time to typeset; a screenshot beside."""
-    profile = tmp_path / f"profile-{what}"
-    base = [chromium, *CHROMIUM_FLAGS, f"--user-data-dir={profile}"]
-    dom = subprocess.run([*base, "--dump-dom", url], capture_output=True, text=True, timeout=120)
-    assert dom.returncode == 0, dom.stderr[-2000:]
     shot = tmp_path / f"{what}.png"
-    subprocess.run([*base, f"--screenshot={shot}", "--window-size=1280,2000", "--hide-scrollbars", url],
-                   capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(
+        [chromium, *CHROMIUM_FLAGS, f"--user-data-dir={tmp_path / 'profile'}", "--window-size=1280,2000",
+         "--hide-scrollbars", f"--screenshot={shot}", "--dump-dom", url],
+        capture_output=True, text=True, timeout=120,
+    )
+    assert proc.returncode == 0, proc.stderr[-2000:]
     assert shot.is_file() and shot.stat().st_size > 10_000, f"no screenshot of {url}"
-    console = [line for line in dom.stderr.splitlines() if ":CONSOLE" in line]
-    return dom.stdout, console
+    console = [line for line in proc.stderr.splitlines() if ":CONSOLE" in line]
+    return proc.stdout, console
 
 
 @pytest.mark.parametrize("page", ["getting-started/", "api/gains/"])
