@@ -23,6 +23,8 @@ REGISTRY = {
     "nonreversible-contact-oscillator": "nonreversible",
     "nonreversible-knife-edge": "nonreversible_knife_edge",
     "rigid-body": "rigid_body",
+    "kepler": "kepler",
+    "perturbed-kepler": "kepler",
 }
 
 
