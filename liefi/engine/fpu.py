@@ -4,10 +4,11 @@ A subnormal (denormal) double is a nonzero number below ``2.2e-308`` in
 magnitude (``np.finfo(float).tiny``).  Many x86 cores handle an operation
 that reads or produces one in microcode, tens of times slower than a normal
 one.  Some solutions decay towards zero for ever: Suslov's
-``Pi_2 = Pi_3 = sech t`` passes ``2.2e-308`` near ``t = 709`` and the run's
-values stay subnormal from there (the feedback holds them at a few ulps of
-the subnormal range), so every later step pays the penalty (on Intel cores
-about 25x per step; on this project's AMD test machine 1.2x with Euler).
+``Pi_2 = Pi_3 = sech t`` passes ``2.2e-308`` near ``t = 709`` (products such
+as ``Pi_2^2`` near ``t = 355``) and the run's values stall in the subnormal
+range (``~1e-321``), so every later step pays the penalty (about 25x per step
+has been reported on Intel cores; 1.9x with Euler on an AMD EPYC,
+``benchmarks/subnormals.py``).
 
 The generated loops therefore run with the two SSE control bits of the x86
 ``MXCSR`` register that remove the slow path:
@@ -37,6 +38,14 @@ absolute rounding error of every sum with a normal number of size above
 checks (all measured against numbers of order ``1e-16`` times the state's
 scale).  Only a model whose own scale is near ``1e-300`` would see it, and it
 sits at the edge of double precision anyway: rescale its units.
+
+Why the register and not a flush in the generated step (``if abs(v) < tiny:
+v = 0``): intermediates go subnormal long before the state does (``Pi_2^2``
+from ``t = 355``, ``Pi_2`` from ``t = 709``), so flushing the state would leave
+the slow arithmetic inside the field, and a compare per value costs on every
+step; the register costs two instructions per loop, and the per-step cost of
+the flushing loop equals that of the plain one where nothing is subnormal
+(20.0 ns both, Suslov Euler to ``t = 300``).  No package is needed either.
 
 The register is read and written with the LLVM intrinsics
 ``llvm.x86.sse.stmxcsr`` / ``llvm.x86.sse.ldmxcsr`` (a numba ``@intrinsic``:
