@@ -74,15 +74,38 @@ import numpy as np
 {imports}
 CACHE = {cache}
 '''
-# liefi's njit: numba's, with its on-disk cache signed and kept in the private kernel directory
-_NUMBA_IMPORTS = f"from numba import prange\nfrom {__package__}.numba_cache import njit\n"
+# liefi's njit: numba's, with its on-disk cache signed and kept in the private kernel directory;
+# the loops set flush-to-zero around their work (fpu)
+_NUMBA_IMPORTS = (f"from numba import prange\nfrom {__package__}.numba_cache import njit\n"
+                  f"from {__package__}.fpu import fpu_enter, fpu_exit\n")
 _PYTHON_IMPORTS = '''\
 def njit(*args, **kwargs):
     if args and callable(args[0]):
         return args[0]
     return lambda f: f
 prange = range
+def fpu_enter():
+    return 0
+def fpu_exit(state):
+    return None
 '''
+
+#: the loops' arguments (one trajectory)
+_LOOP_ARGS = "y0, p, dt, n_steps, save_every, check_every, out, bad, last, pp, maxit, tol"
+
+
+def _flushing(fname, args, inner):
+    """Source of ``fname(args)``: ``inner(args)`` with subnormals flushed to zero on the calling
+    thread for its duration, the caller's floating-point state restored after (:mod:`liefi.engine.fpu`)."""
+    return "\n".join([
+        "@njit(cache=CACHE, error_model='numpy')",
+        f"def {fname}({args}):",
+        "    csr = fpu_enter()",
+        f"    r = {inner}({args})",
+        "    fpu_exit(csr)",
+        "    return r",
+        "",
+    ])
 
 
 def _step_source(scheme, N, rhs="rhs"):
@@ -132,9 +155,12 @@ def loop_source(fname, scheme, N, *, project=False, split=False):
     means success.  ``out`` ``(N, n_saved)`` receives the saved states,
     ``bad``/``last`` the first non-finite state and the last finite one.  With
     ``project`` every step is followed by the Newton projection ``project(y, pp, ...)``.
+    ``fname`` runs the loop ``fname + '_loop'`` with subnormals flushed to zero
+    (:mod:`liefi.engine.fpu`), on the thread that runs it, and restores the
+    caller's floating-point state after it.
     """
     S = scheme.stages
-    L = ["@njit(cache=CACHE, error_model='numpy')", f"def {fname}(y0, p, dt, n_steps, save_every, check_every, out, bad, last, pp, maxit, tol):"]
+    L = ["@njit(cache=CACHE, error_model='numpy')", f"def {fname}_loop({_LOOP_ARGS}):"]
     L.append("    y = y0.copy()")
     for i in range(S):
         L.append(f"    k{i} = np.empty({N})")
@@ -176,6 +202,8 @@ def loop_source(fname, scheme, N, *, project=False, split=False):
         "            j += 1",
         "    return 0, last_step, nproj",
         "",
+        "",
+        _flushing(fname, _LOOP_ARGS, f"{fname}_loop"),
         "",
         "@njit(parallel=True, cache=CACHE, error_model='numpy')",
         f"def {fname}_batch(Y0, P, dt, n_steps, save_every, check_every, OUT, BAD, LAST, PP, maxit, tol, STATUS):",
@@ -243,7 +271,7 @@ def project(y, pp, buf, GG, lam, maxit, tol):
 
 _DLA_LOOP = '''
 @njit(cache=CACHE, error_model='numpy')
-def dla_run(q0, q1, p, n_steps, save_every, out, bad):
+def dla_run_loop(q0, q1, p, n_steps, save_every, out, bad):
     """q_0 .. q_N of the DLA scheme; out[:, j] holds q at saved index j, out[:, j + n_saved] the
     previous point (for the discrete momentum).  Returns the failing update index (0: success)."""
     n = {n}
@@ -315,4 +343,4 @@ def project_source(N, m):
 
 def dla_loop_source(n):
     """The DLA loop around ``dla_update(qp, qc, p, out)`` for ``q`` of size ``n``."""
-    return _DLA_LOOP.format(n=n)
+    return _DLA_LOOP.format(n=n) + "\n\n" + _flushing("dla_run", "q0, q1, p, n_steps, save_every, out, bad", "dla_run_loop")

@@ -25,6 +25,8 @@ REGISTRY = {
     "rigid-body": "rigid_body",
     "heavy-top": "heavy_top",
     "chaplygin-ball": "chaplygin_ball",
+    "kepler": "kepler",
+    "perturbed-kepler": "kepler",
 }
 
 

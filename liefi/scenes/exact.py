@@ -34,6 +34,7 @@ __all__ = [
     "vertical_disk",
     "heisenberg",
     "oscillator_y",
+    "kepler",
 ]
 
 #: Absolute tolerance (relative to the size of the data) used to decide whether
@@ -532,3 +533,58 @@ def oscillator_y(t, y0, py0):
     t = _as_time(t)
     c, s = np.cos(t), np.sin(t)
     return {"y": y0 * c + py0 * s, "p_y": -y0 * s + py0 * c}
+
+
+def kepler(t, q0, p0, mu=1.0):
+    r"""The bound Kepler orbit ``q'' = -mu q / |q|^3`` from ``(q0, p0)`` (unit mass: ``p = q'``).
+
+    Kepler's equation ``E - e sin E = M`` for the eccentric anomaly (Newton's
+    method from ``E = M + 0.85 e sign(sin M)``, Danby's start, to ``2 ulp``),
+    then the Lagrange coefficients
+    ``q = f q0 + g p0``, ``p = f' q0 + g' p0`` with, for ``dE = E - E0``,
+    ``f = 1 - (a/r0)(1 - cos dE)``, ``g = t - (dE - sin dE)/n``,
+    ``f' = -sqrt(mu a) sin dE / (r r0)``, ``g' = 1 - (a/r)(1 - cos dE)``,
+    ``r = a (1 - e cos E)``, ``a = -mu/(2 E_tot)``, ``n = sqrt(mu/a^3)``
+    (e.g. Danby, *Fundamentals of Celestial Mechanics*, 2nd ed., Sec. 6.8).
+    Times are reduced modulo the period first, so a horizon of thousands of
+    periods costs no accuracy beyond the reduction's rounding.
+
+    Returns ``{x, y, z, p_x, p_y, p_z}``.  Raises :class:`ValueError` for an
+    unbound (``E_tot >= 0``) or rectilinear (``L = 0``) start.
+    """
+    t = _as_time(t)
+    q0 = np.asarray(q0, float)
+    p0 = np.asarray(p0, float)
+    r0 = float(np.linalg.norm(q0))
+    energy = 0.5 * float(p0 @ p0) - mu / r0
+    if not energy < 0:
+        raise ValueError(f"q0, p0: the orbit is not bound (energy {energy:g} >= 0)")
+    L = np.cross(q0, p0)
+    if not np.linalg.norm(L) > 0:
+        raise ValueError("q0, p0: the start has no angular momentum (a rectilinear orbit)")
+    a = -mu / (2.0 * energy)
+    n = np.sqrt(mu / a**3)
+    period = 2.0 * np.pi / n
+    ecosE0 = 1.0 - r0 / a
+    esinE0 = float(q0 @ p0) / np.sqrt(mu * a)
+    e = float(np.hypot(ecosE0, esinE0))
+    E0 = float(np.arctan2(esinE0, ecosE0))
+    tau = np.mod(t, period)  # the motion is periodic: reduce the time first
+    M = E0 - esinE0 + n * tau
+    E = M + 0.85 * e * np.sign(np.sin(M))
+    for _ in range(50):
+        dE = (E - e * np.sin(E) - M) / (1.0 - e * np.cos(E))
+        E = E - dE
+        if np.max(np.abs(dE), initial=0.0) <= 4e-16 * max(1.0, float(np.max(np.abs(M), initial=0.0))):
+            break
+    d = E - E0
+    cd, sd = np.cos(d), np.sin(d)
+    r = a * (1.0 - e * np.cos(E))
+    f = 1.0 - (a / r0) * (1.0 - cd)
+    g = tau - (d - sd) / n
+    fd = -np.sqrt(mu * a) * sd / (r * r0)
+    gd = 1.0 - (a / r) * (1.0 - cd)
+    q = f[..., None] * q0 + g[..., None] * p0
+    p = fd[..., None] * q0 + gd[..., None] * p0
+    names = ("x", "y", "z", "p_x", "p_y", "p_z")
+    return dict(zip(names, [q[..., i] for i in range(3)] + [p[..., i] for i in range(3)]))
