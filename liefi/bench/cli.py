@@ -3,7 +3,12 @@
 Every run is appended to ``OUT/results.sqlite`` as it finishes (a rerun into
 the same ``--out`` resumes, skipping the runs already there);
 ``OUT/summary.json`` is rebuilt from that store after each scene and on
-Ctrl-C, so it always describes exactly what is in the store.
+Ctrl-C or SIGTERM, so it always describes exactly what is in the store.
+
+One bench at a time writes into a folder: it holds an exclusive lock on
+``OUT/.liefi-bench.lock`` (``flock``, released when the process ends, however
+it ends), and a second bench on the same ``--out`` is refused at once rather
+than computing every run a second time.
 """
 
 from __future__ import annotations
@@ -15,7 +20,9 @@ import sys
 
 from .. import engine as _engine
 from .. import scenes as _scenes
-from ..sweep import ResultStore, SweepInterrupted, TaskError
+from .._files import writing
+from .._signals import describe, exit_code, terminate_as_interrupt
+from ..sweep import ResultStore, StoreError, SweepInterrupted, TaskError
 from .core import (FI_GAINS, FIXED_SCHEMES, IVP_METHODS, METHODS, STORE, applicable_methods, build_tasks,
                    error_row, summarize, summary, work_precision)
 from .validate import positive
@@ -126,21 +133,74 @@ def write_summary(out_dir, expected=None):
            "scenes": {name: summarize(rows, 1e-8, tasks=expected.get(name)) for name, rows in sorted(by.items())}}
     out = os.path.join(out_dir, "summary.json")
     tmp = out + ".tmp"
-    with open(tmp, "w") as fh:
+    with writing(out), open(tmp, "w") as fh:
         json.dump(doc, fh, indent=1, default=lambda x: None if isinstance(x, float) and not math.isfinite(x) else x)
     os.replace(tmp, out)
     return out
+
+
+#: the lock file of an output folder (see the module docstring)
+LOCK = ".liefi-bench.lock"
+
+
+def lock_folder(out_dir):
+    """Take the exclusive lock of ``out_dir`` for this process; returns the open lock file (close it to release).
+
+    Raises ``OSError`` naming the folder and the process holding it when another bench writes there.
+    Where ``fcntl`` does not exist (Windows) nothing is locked.
+    """
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - no flock: one bench at a time is the user's to keep
+        return None
+    path = os.path.join(out_dir, LOCK)
+    with writing(path):
+        fh = open(path, "a+")
+    try:
+        fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        fh.seek(0)
+        holder = fh.read().strip()
+        fh.close()
+        raise OSError(f"out: {out_dir} is in use by another liefi bench{f' (process {holder})' if holder else ''}; "
+                      "two benches on one folder would compute the same runs twice: wait for it to finish (a rerun "
+                      "then resumes from its results) or choose another --out") from None
+    fh.seek(0)
+    fh.truncate()
+    fh.write(str(os.getpid()))
+    fh.flush()
+    return fh
+
+
+def _summarized(out_dir, expected):
+    """Write ``summary.json`` after an interrupt or a store failure; returns the words that say where
+    (or why it could not be written: the disk may be full)."""
+    path = os.path.join(out_dir, "summary.json")
+    try:
+        write_summary(out_dir, expected)
+    except OSError as exc:
+        return f"{path} could not be rewritten ({' '.join(str(exc).split())})"
+    return f"summarized in {path}"
 
 
 def run_from_args(args, log=None):
     """Run ``liefi bench`` from parsed arguments; prints the summary, returns the exit code.
 
     0: every task finished (some runs may have diverged: they are data); 1: some
-    task raised or lost its worker (reported, every other result kept); 130:
-    interrupted (what finished is in the store and ``summary.json``).
-    """
-    from ..sweep import open_executor
+    task raised or lost its worker (reported, every other result kept); 130 (Ctrl-C)
+    or 143 (SIGTERM, when :func:`~liefi._signals.terminate_as_interrupt` is active,
+    as in :func:`main`): interrupted, what finished is in the store and
+    ``summary.json``, one line on stderr says so.
 
+    Raises
+    ------
+    OSError
+        The output folder is in use by another bench (:func:`lock_folder`) or
+        cannot be written; or a :class:`~liefi.sweep.StoreError`: the store is
+        damaged or another program's, or could not be written during the runs
+        (disk full) -- then after printing the summary of what finished and
+        rewriting ``summary.json`` where possible.
+    """
     log = log or (lambda m: print(m, file=sys.stderr, flush=True))
     if args.scene != "all" and args.scene not in _scenes.REGISTRY:
         raise ValueError(f"scene: unknown scene {args.scene!r}; choose one of {_scenes.names()} or 'all'")
@@ -153,7 +213,18 @@ def run_from_args(args, log=None):
     schemes, ivp = _schemes(getattr(args, "schemes", None))
     gains = _gains(getattr(args, "gains", None))
     os.makedirs(args.out, exist_ok=True)  # outputs checked before any work
-    ResultStore(os.path.join(args.out, STORE)).close()
+    lock = lock_folder(args.out)
+    try:
+        ResultStore(os.path.join(args.out, STORE)).close()
+        return _run(args, log, names, methods, schemes, ivp, gains)
+    finally:
+        if lock is not None:
+            lock.close()
+
+
+def _run(args, log, names, methods, schemes, ivp, gains):
+    from ..sweep import open_executor
+
     if not _engine.available():
         log(f"liefi bench: numba is not available ({_engine.NUMBA_ERROR}); the generated code runs as plain "
             "Python, orders of magnitude slower. Install it with `pip install liefi[fast]`.")
@@ -183,12 +254,21 @@ def run_from_args(args, log=None):
 
                     long_horizon(rows, args.out, ex, t_final=args.long_horizon, log=log)
     except KeyboardInterrupt as exc:
-        write_summary(args.out, expected)
+        where = _summarized(args.out, expected)
         done = f"{exc.done} runs of this scene finished, " if isinstance(exc, SweepInterrupted) else ""
-        print(f"liefi bench: interrupted; {done}everything finished is kept in "
-              f"{os.path.join(args.out, STORE)} and summarized in {os.path.join(args.out, 'summary.json')}",
-              file=sys.stderr, flush=True)
-        return 130
+        print(f"liefi bench: {describe(exc)}; {done}everything finished is kept in "
+              f"{os.path.join(args.out, STORE)} and {where}", file=sys.stderr, flush=True)
+        return exit_code(exc)
+    except StoreError as exc:  # disk full, or a damaged store: the summary of what finished, then the error
+        if exc.results is None:  # found before any run (a damaged row): nothing new to summarize
+            raise
+        rows = getattr(exc, "rows", None) or []
+        if rows:
+            print(f"{rows[0]['scene']} (t_final = {rows[0]['t_final']:g}; stopped after {len(rows)} of "
+                  f"{expected.get(rows[0]['scene'], '?')} runs):")
+            print("  " + summary(rows).replace("\n", "\n  "), flush=True)
+        where = _summarized(args.out, expected)
+        raise StoreError(f"{' '.join(str(exc).split())}; {where}") from None
     print(f"written to {args.out}")
     if errors:
         log(f"liefi bench: {errors} runs raised or lost their worker; every other result is kept (see the CSV)")
@@ -204,10 +284,11 @@ def main(argv=None):
     add_arguments(p)
     args = p.parse_args(argv)
     try:
-        return run_from_args(args)
-    except KeyboardInterrupt:
-        print("liefi bench: interrupted", file=sys.stderr)
-        return 130
+        with terminate_as_interrupt():
+            return run_from_args(args)
+    except KeyboardInterrupt as exc:
+        print(f"liefi bench: {describe(exc)}", file=sys.stderr)
+        return exit_code(exc)
     except (ValueError, OSError, ImportError) as exc:
         print(f"liefi bench: error: {' '.join(str(exc).split())}", file=sys.stderr)
         return 2
