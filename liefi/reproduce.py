@@ -102,8 +102,13 @@ class Output:
     def _atomic(self, name, write):
         final = os.path.join(self.path, name)
         tmp = os.path.join(self.path, f".{name}.tmp{os.getpid()}")
-        with writing(final), open(tmp, "w") as f:
-            write(f)
+        try:
+            with writing(final), open(tmp, "w") as f:
+                write(f)
+        except OSError:
+            if os.path.exists(tmp):  # half a file (a full disk): the old one stays as it was
+                os.remove(tmp)
+            raise
         os.replace(tmp, final)
         return final
 

@@ -312,6 +312,7 @@ def test_file_too_large_names_the_file(tmp_path):
     assert len(lines) == len(names), r.stdout + r.stderr
     for line, name in zip(lines, names):
         assert line.startswith(f"cannot write {name} (File too large); free space on its disk"), line
+    assert not [f for d in (tmp_path, tmp_path / "r") for f in os.listdir(d) if ".tmp" in f]  # no half files
 
 
 # --------------------------------------------------------------------------------------

@@ -133,8 +133,13 @@ def write_summary(out_dir, expected=None):
            "scenes": {name: summarize(rows, 1e-8, tasks=expected.get(name)) for name, rows in sorted(by.items())}}
     out = os.path.join(out_dir, "summary.json")
     tmp = out + ".tmp"
-    with writing(out), open(tmp, "w") as fh:
-        json.dump(doc, fh, indent=1, default=lambda x: None if isinstance(x, float) and not math.isfinite(x) else x)
+    try:
+        with writing(out), open(tmp, "w") as fh:
+            json.dump(doc, fh, indent=1, default=lambda x: None if isinstance(x, float) and not math.isfinite(x) else x)
+    except OSError:
+        if os.path.exists(tmp):  # half a file (a full disk): the old summary.json stays as it was
+            os.remove(tmp)
+        raise
     os.replace(tmp, out)
     return out
 
@@ -181,6 +186,11 @@ def _summarized(out_dir, expected):
     except OSError as exc:
         return f"{path} could not be rewritten ({' '.join(str(exc).split())})"
     return f"summarized in {path}"
+
+
+def _unwritten(exc):
+    why = getattr(exc, "unwritten", None)  # the CSV of what finished (liefi.bench.core.work_precision)
+    return f"; the CSV could not be written ({why})" if why else ""
 
 
 def run_from_args(args, log=None):
@@ -254,7 +264,7 @@ def _run(args, log, names, methods, schemes, ivp, gains):
 
                     long_horizon(rows, args.out, ex, t_final=args.long_horizon, log=log)
     except KeyboardInterrupt as exc:
-        where = _summarized(args.out, expected)
+        where = _summarized(args.out, expected) + _unwritten(exc)
         done = f"{exc.done} runs of this scene finished, " if isinstance(exc, SweepInterrupted) else ""
         print(f"liefi bench: {describe(exc)}; {done}everything finished is kept in "
               f"{os.path.join(args.out, STORE)} and {where}", file=sys.stderr, flush=True)
@@ -267,7 +277,7 @@ def _run(args, log, names, methods, schemes, ivp, gains):
             print(f"{rows[0]['scene']} (t_final = {rows[0]['t_final']:g}; stopped after {len(rows)} of "
                   f"{expected.get(rows[0]['scene'], '?')} runs):")
             print("  " + summary(rows).replace("\n", "\n  "), flush=True)
-        where = _summarized(args.out, expected)
+        where = _summarized(args.out, expected) + _unwritten(exc)
         raise StoreError(f"{' '.join(str(exc).split())}; {where}") from None
     print(f"written to {args.out}")
     if errors:
