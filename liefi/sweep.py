@@ -217,9 +217,11 @@ class ResultStore:
         name = getattr(exc, "sqlite_errorname", "") or ""
         text = " ".join(str(exc).split())
         if name.startswith(("SQLITE_FULL", "SQLITE_IOERR")) or "disk is full" in text or "disk I/O" in text:
-            return StoreError(f"store: cannot {doing} {self.path} ({text}): its disk is full or a file size limit "
-                              "was reached; free space (or raise the limit) and rerun to resume, or choose another "
-                              "output folder (--out); what finished before is kept in it")
+            why = "its disk is full" if "full" in text else "its disk is full, a file size limit was reached or " \
+                "the disk failed"
+            return StoreError(f"store: cannot {doing} {self.path} ({text}): {why}; free space (or raise the limit) "
+                              "and rerun to resume, or choose another output folder (--out); what finished before "
+                              "is kept in it")
         if name.startswith(("SQLITE_BUSY", "SQLITE_LOCKED")):
             return StoreError(f"store: {self.path} is locked by another process ({text}); wait for it to finish or "
                               "choose another output folder (--out)")

@@ -266,7 +266,7 @@ def test_store_past_a_file_size_limit_is_one_line_and_a_resume_finishes(tmp_path
     error): one line naming the store, exit 2; what finished is kept and a rerun completes it."""
     out = tmp_path / "o"
     grid = dict(t_final=1.0, quick=True, methods=["FI"], schemes=("euler", "rk4"), ivp_methods=(), gains=(None,))
-    assert len(bench.work_precision("suslov", plots=False, **grid)) == 6  # kernels cached: the child writes its store only
+    assert len(bench.work_precision("suslov", plots=False, **grid)) == 6  # kernels cached: the child writes its store
     argv = ["bench", "suslov", "--quick", "--t-final", "1", "--methods", "FI", "--schemes", "euler,rk4", "--gains",
             "scene", "--no-progress", "--out", str(out)]
     p = _start(argv, tmp_path, preexec_fn=_limit_file_size(20_000))  # about three runs fit
