@@ -178,6 +178,32 @@ def test_sigterm_on_reproduce_with_two_jobs_stops_cleanly(tmp_path):
     assert not [f for f in os.listdir(d) if ".tmp" in f]
 
 
+def test_sigterm_during_liefi_run_is_one_line_and_143(capsys, monkeypatch):
+    """The handler is the command's: SIGTERM to this very process during ``liefi run`` gives 143 and one
+    line; outside the command the previous handler is back."""
+    from liefi import scenes
+
+    def run(self, **kw):
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(5)  # the handler raises here
+        raise AssertionError("SIGTERM was not handled")
+
+    def unhandled(signum, frame):  # not the default action: that would end the test session
+        raise AssertionError("SIGTERM reached the test's handler: the command did not handle it")
+
+    monkeypatch.setattr(scenes.Scene, "run", run)
+    previous = signal.signal(signal.SIGTERM, unhandled)
+    try:
+        code = cli.main(["run", "suslov"])
+        after = signal.getsignal(signal.SIGTERM)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    err = capsys.readouterr().err
+    assert code == 143 and err.strip().splitlines() == [
+        "liefi: terminated by SIGTERM (what finished is kept; see the command's output folder)"]
+    assert after is unhandled
+
+
 # --------------------------------------------------------------------------------------
 # an interrupt is counted from the store
 # --------------------------------------------------------------------------------------
