@@ -20,8 +20,10 @@ drift of every invariant and its CPU time; ``--json`` prints one JSON object.
 Errors (unknown scene, variant or scheme, malformed gains, a diverging run, an
 output that cannot be written -- checked before any work) print one line
 ``liefi: error: ...`` on stderr and exit with code 2; an interrupt (Ctrl-C,
-SIGINT) prints one line and exits with code 130, after ``reproduce`` has
-written the summary of what finished.  Nothing here names a scene: what is
+SIGINT) prints one line and exits with code 130, SIGTERM (``timeout``, ``kill``,
+Slurm, ``docker stop``) the same with code 143, after ``reproduce`` and
+``bench`` have stopped their workers and written the summary of what finished.
+Nothing here names a scene: what is
 particular to one (its figures, whether they need the configuration, its
 reproduction runs) is asked of the scene (:class:`liefi.scenes.Scene`).
 :func:`main` takes ``argv`` and returns the exit code, so tests call it directly.
@@ -461,7 +463,9 @@ def main(argv=None):
             seen.append(line)
             print(f"liefi: warning: {line}", file=sys.stderr, flush=True)
 
-    with warnings.catch_warnings():
+    from ._signals import terminate_as_interrupt
+
+    with warnings.catch_warnings(), terminate_as_interrupt():
         warnings.simplefilter("always")
         warnings.showwarning = show
         return _main(parser, argv, seen)
@@ -488,9 +492,12 @@ def _main(parser, argv, seen=()):
     except UsageError as exc:
         print(f"liefi: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:  # Ctrl-C / SIGINT: one line, the shell's code for SIGINT
-        print("liefi: interrupted (what finished is kept; see the command's output folder)", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:  # Ctrl-C / SIGINT or SIGTERM: one line, the shell's code (130, 143)
+        from ._signals import describe, exit_code
+
+        detail = getattr(exc, "detail", None) or "what finished is kept; see the command's output folder"
+        print(f"liefi: {describe(exc)} ({detail})", file=sys.stderr)
+        return exit_code(exc)
     except BrokenPipeError:  # e.g. `liefi list | head`: stop quietly
         import os
 

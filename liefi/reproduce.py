@@ -32,8 +32,11 @@ the command): neither command writes into the other's folder.
 ``t_final_scale`` (``--t-final-scale``, for tests) multiplies every horizon,
 rounded to a whole number of steps.  A failing experiment is recorded (status
 ``failed`` and its error) and the others still run.  ``KeyboardInterrupt``
-(SIGINT) stops the work, writes the summary of everything finished (with
-``"interrupted": true``) and is raised again.
+(SIGINT, or SIGTERM under :func:`liefi._signals.terminate_as_interrupt`, as in
+the ``liefi`` command) stops the work: the worker processes (which ignore both
+signals) are killed and joined, the summary of everything finished is written
+(with ``"interrupted": true``), and the interrupt is raised again with
+``detail`` saying where that summary is.
 """
 
 from __future__ import annotations
@@ -47,7 +50,9 @@ import warnings
 
 from . import __version__
 from . import _json
+from ._files import writing
 from ._progress import Progress
+from ._signals import ignore_in_worker
 from . import scenes as _scenes
 
 #: the file that marks a folder as liefi's and lists what liefi wrote there
@@ -102,8 +107,13 @@ class Output:
     def _atomic(self, name, write):
         final = os.path.join(self.path, name)
         tmp = os.path.join(self.path, f".{name}.tmp{os.getpid()}")
-        with open(tmp, "w") as f:
-            write(f)
+        try:
+            with writing(final), open(tmp, "w") as f:
+                write(f)
+        except OSError:
+            if os.path.exists(tmp):  # half a file (a full disk): the old one stays as it was
+                os.remove(tmp)
+            raise
         os.replace(tmp, final)
         return final
 
@@ -348,12 +358,6 @@ def _draw(output, spec, filename, failures):
     return True
 
 
-def _ignore_sigint():
-    import signal
-
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-
 # --------------------------------------------------------------------------------------
 # everything
 # --------------------------------------------------------------------------------------
@@ -401,11 +405,15 @@ def reproduce(out="./liefi-out", *, only=None, t_final_scale=1.0, jobs=None, all
                 finished(_scene_job(task))
         else:
             _parallel(tasks, jobs, finished)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
         bar.close()
         state["interrupted"] = True
-        summary = _write_summary(output, names, state, scale)
-        _log(f"reproduce: interrupted; the summary of the {len(summary['runs'])} finished runs is in {output.path}")
+        try:
+            summary = _write_summary(output, names, state, scale)
+        except OSError as err:  # e.g. the disk is full: say so in the one line
+            exc.detail = f"the summary could not be written: {' '.join(str(err).split())}"
+        else:
+            exc.detail = f"the summary of the {len(summary['runs'])} finished runs is in {output.path}"
         raise
     bar.close()
     summary = _write_summary(output, names, state, scale)
@@ -443,22 +451,43 @@ def _cpu_all():
 def _parallel(tasks, jobs, finished):
     """Run ``_scene_job`` over ``tasks`` in ``jobs`` processes; ``finished(done)`` as each ends.
 
-    The workers ignore SIGINT: the parent receives it, terminates them and reports
-    what finished."""
+    The workers ignore SIGINT and SIGTERM: the parent receives them, kills and joins
+    its workers (none is left running), removes the temporary files they were
+    writing, and reports what finished."""
     import multiprocessing as mp
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+
+    from .sweep import _stop
 
     methods = mp.get_all_start_methods()
     ctx = mp.get_context("fork" if "fork" in methods else None)
-    pool = ctx.Pool(jobs, initializer=_ignore_sigint)
+    pool = ProcessPoolExecutor(jobs, mp_context=ctx, initializer=ignore_in_worker)
+    pending = {pool.submit(_scene_job, t) for t in tasks}
     try:
-        for done in pool.imap_unordered(_scene_job, tasks):
-            finished(done)
-        pool.close()
+        while pending:
+            done, pending = wait(pending, return_when=FIRST_COMPLETED)
+            for f in done:
+                finished(f.result())
     except BaseException:
-        pool.terminate()
+        pids = [p.pid for p in (getattr(pool, "_processes", None) or {}).values()]
+        _stop(pool)
+        _remove_partial_files(tasks[0][1], pids)
         raise
     finally:
-        pool.join()
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _remove_partial_files(path, pids):
+    """Remove the temporary files (``.NAME.tmpPID``) that the killed workers ``pids`` left in ``path``."""
+    ends = tuple(f".tmp{p}" for p in pids)
+    if not ends:
+        return
+    for name in os.listdir(path):
+        if name.startswith(".") and name.endswith(ends):
+            try:
+                os.remove(os.path.join(path, name))
+            except OSError:
+                pass
 
 
 def _write_summary(output, names, state, scale):

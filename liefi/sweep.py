@@ -31,11 +31,19 @@ Nothing is lost
   once.  A rerun with the same store skips the tasks already done (a task is
   identified by its JSON text) and re-runs those that ended in a
   :class:`TaskError`.
-* **Ctrl-C** (``SIGINT``) stops the sweep: the tasks not started are cancelled,
-  the workers of a process pool are stopped, and :class:`SweepInterrupted`
-  (a ``KeyboardInterrupt``) is raised carrying every result finished so far
-  (also in the store).  Workers of the pools made by :func:`open_executor`
-  ignore ``SIGINT``: the interrupt is the main process's to handle.
+* **Ctrl-C** (``SIGINT``), or ``SIGTERM`` where :func:`liefi._signals.terminate_as_interrupt`
+  turns it into a ``KeyboardInterrupt`` (the ``liefi`` commands do), stops the
+  sweep: the tasks not started are cancelled, the workers of a process pool are
+  killed and joined, and :class:`SweepInterrupted` (a ``KeyboardInterrupt``) is
+  raised carrying every result finished so far.  With a store, those results are
+  read back from the store, so they are exactly what it holds (a task committed
+  just before the signal is counted).  Workers of the pools made by
+  :func:`open_executor` ignore ``SIGINT`` and ``SIGTERM``: the interrupt is the
+  main process's to handle.
+* **A store that cannot be written** (disk full, file size limit) or read
+  (damaged, another program's file) raises :class:`StoreError`, an ``OSError``
+  naming the file and what to do; in :func:`run_sweep` it stops the workers the
+  same way and carries the results finished so far (``exc.results``).
 
 The function must be picklable (a module-level function) and the tasks plain
 data (scene names, numbers, dicts: JSON-serializable when a store is used),
@@ -78,8 +86,9 @@ from concurrent.futures import FIRST_COMPLETED, Executor, wait
 
 from ._json import plain as _plain
 from ._progress import Progress
+from ._signals import ignore_in_worker, signum_of
 
-__all__ = ["run_sweep", "open_executor", "TaskError", "SweepInterrupted", "ResultStore", "task_key"]
+__all__ = ["run_sweep", "open_executor", "TaskError", "SweepInterrupted", "ResultStore", "StoreError", "task_key"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -106,13 +115,23 @@ class TaskError:
 
 
 class SweepInterrupted(KeyboardInterrupt):
-    """Ctrl-C during :func:`run_sweep`.  ``results`` holds, in task order, each finished
-    task's value and ``None`` for the others; ``done`` counts the finished ones."""
+    """Ctrl-C (or SIGTERM) during :func:`run_sweep`.  ``results`` holds, in task order, each
+    finished task's value and ``None`` for the others; ``done`` counts the finished ones;
+    ``signum`` is the signal (``SIGINT`` for Ctrl-C)."""
 
-    def __init__(self, results):
+    def __init__(self, results, signum=signal.SIGINT):
         super().__init__("sweep interrupted")
         self.results = results
         self.done = sum(r is not None for r in results)
+        self.signum = int(signum)
+
+
+class StoreError(OSError):
+    """A :class:`ResultStore` that cannot be used: not a results store, damaged, or not writable
+    (disk full).  The message names the file and what to do.  Raised by :func:`run_sweep`, it
+    carries ``results`` (as :class:`SweepInterrupted` does): what finished, all of it stored."""
+
+    results = None
 
 
 def _call(fn, task):
@@ -146,20 +165,73 @@ class ResultStore:
         "CREATE TABLE IF NOT EXISTS results (key TEXT PRIMARY KEY, sweep TEXT, idx INTEGER, task TEXT, "
         "status TEXT, error_type TEXT, message TEXT, traceback TEXT, value TEXT, seconds REAL, finished_at REAL)"
     )
+    COLUMNS = ("key", "sweep", "idx", "task", "status", "error_type", "message", "traceback", "value", "seconds",
+               "finished_at")
 
     def __init__(self, path, sweep=""):
         self.path = os.fspath(path)
         self.sweep = sweep
+        self._db = None
         try:
             self._db = sqlite3.connect(self.path, timeout=30)
-            self._db.execute(self.SCHEMA)
-            self._db.commit()
-        except sqlite3.DatabaseError as exc:
-            raise OSError(f"store: cannot open {self.path!r} as a results store ({exc}); "
-                          "choose another output or remove the file") from None
+            tables = sorted(r[0] for r in self._db.execute("SELECT name FROM sqlite_master WHERE type = 'table'"))
+            if "results" in tables:
+                cols = tuple(r[1] for r in self._db.execute("PRAGMA table_info(results)"))
+                if cols != self.COLUMNS:
+                    raise self._foreign(f"its table 'results' has the columns {', '.join(cols)}")
+            elif tables:  # another program's database: never add a table to it
+                raise self._foreign(f"it holds the tables {', '.join(tables)}")
+            else:
+                self._db.execute(self.SCHEMA)
+                self._db.commit()
+        except sqlite3.Error as exc:
+            self.close()
+            raise self._error(exc, "open") from None
+        except StoreError:
+            self.close()
+            raise
+
+    def _foreign(self, what):
+        return StoreError(f"store: {self.path} is not a liefi results store ({what}); liefi does not write into "
+                          "another program's database: move the file away or choose another output folder (--out)")
+
+    def _error(self, exc, doing):
+        """``exc`` (an ``sqlite3.Error``) as a :class:`StoreError` naming the file and what to do."""
+        name = getattr(exc, "sqlite_errorname", "") or ""
+        text = " ".join(str(exc).split())
+        if name.startswith(("SQLITE_FULL", "SQLITE_IOERR")) or "disk is full" in text or "disk I/O" in text:
+            why = "its disk is full" if "full" in text else "its disk is full, a file size limit was reached or " \
+                "the disk failed"
+            return StoreError(f"store: cannot {doing} {self.path} ({text}): {why}; free space (or raise the limit) "
+                              "and rerun to resume, or choose another output folder (--out); what finished before "
+                              "is kept in it")
+        if name.startswith(("SQLITE_BUSY", "SQLITE_LOCKED")):
+            return StoreError(f"store: {self.path} is locked by another process ({text}); wait for it to finish or "
+                              "choose another output folder (--out)")
+        if name.startswith(("SQLITE_READONLY", "SQLITE_CANTOPEN", "SQLITE_PERM", "SQLITE_AUTH")):
+            return StoreError(f"store: cannot {doing} {self.path} ({text}); make it writable or choose another "
+                              "output folder (--out)")
+        return StoreError(f"store: {self.path} is damaged or not a liefi results store ({text}); move it away "
+                          "(or delete it: its runs are then run again) or choose another output folder (--out)")
+
+    def _damaged_row(self, what, task):
+        task = " ".join(str(task).split())
+        task = task if len(task) <= 100 else task[:100] + "..."
+        return StoreError(f"store: {self.path} holds a damaged row ({what} is not JSON; task {task}); move the "
+                          "file away (or delete it: its runs are then run again) or choose another output folder "
+                          "(--out)")
+
+    def _value(self, task, status, etype, msg, tb, value):
+        if status == "error":
+            return TaskError(etype, msg, tb or "")
+        try:
+            return json.loads(value)
+        except (TypeError, ValueError):
+            raise self._damaged_row("its stored value" if value else "its stored value is empty, which", task) from None
 
     def close(self):
-        self._db.close()
+        if self._db is not None:
+            self._db.close()
 
     def __enter__(self):
         return self
@@ -169,14 +241,17 @@ class ResultStore:
 
     def get(self, task, *, errors=False):
         """The stored value of ``task``; ``None`` if not there (or, unless ``errors``, if it failed)."""
-        row = self._db.execute("SELECT status, error_type, message, traceback, value FROM results WHERE key = ?",
-                               (task_key(task),)).fetchone()
+        key = task_key(task)
+        try:
+            row = self._db.execute("SELECT status, error_type, message, traceback, value FROM results WHERE key = ?",
+                                   (key,)).fetchone()
+        except sqlite3.Error as exc:
+            raise self._error(exc, "read") from None
         if row is None:
             return None
-        status, etype, msg, tb, value = row
-        if status == "error":
-            return TaskError(etype, msg, tb or "") if errors else None
-        return json.loads(value)
+        if row[0] == "error" and not errors:
+            return None
+        return self._value(key, *row)
 
     def put(self, task, value, *, index=None, seconds=None):
         """Record ``value`` (or a :class:`TaskError`) for ``task`` and commit; returns the value as
@@ -187,9 +262,14 @@ class ResultStore:
         else:
             value = _plain(value)
             rec = ("done", None, None, None, json.dumps(value, allow_nan=False))
-        self._db.execute("INSERT OR REPLACE INTO results VALUES (?,?,?,?,?,?,?,?,?,?,?)",
-                         (key, self.sweep, index, key, *rec, seconds, time.time()))
-        self._db.commit()
+        try:
+            self._db.execute("INSERT OR REPLACE INTO results VALUES (?,?,?,?,?,?,?,?,?,?,?)",
+                             (key, self.sweep, index, key, *rec, seconds, time.time()))
+            self._db.commit()
+        except sqlite3.Error as exc:
+            with contextlib.suppress(sqlite3.Error):
+                self._db.rollback()
+            raise self._error(exc, "write") from None
         return value
 
     def rows(self, sweep=None):
@@ -200,8 +280,16 @@ class ResultStore:
             q += " WHERE sweep = ?"
             args = (sweep,)
         out = []
-        for task, status, etype, msg, tb, value in self._db.execute(q + " ORDER BY finished_at", args):
-            out.append((json.loads(task), TaskError(etype, msg, tb or "") if status == "error" else json.loads(value)))
+        try:
+            found = self._db.execute(q + " ORDER BY finished_at", args).fetchall()
+        except sqlite3.Error as exc:
+            raise self._error(exc, "read") from None
+        for task, *row in found:
+            try:
+                t = json.loads(task)
+            except (TypeError, ValueError):
+                raise self._damaged_row("its task", task) from None
+            out.append((t, self._value(task, *row)))
         return out
 
 
@@ -218,10 +306,6 @@ def _workers(executor):
     return os.cpu_count() or 1
 
 
-def _ignore_sigint():
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-
 def _fresh_pool(executor):
     """A new process pool like ``executor`` (which broke), or ``None`` if it is not a process pool."""
     from concurrent.futures import ProcessPoolExecutor
@@ -229,17 +313,37 @@ def _fresh_pool(executor):
     if not isinstance(executor, ProcessPoolExecutor):
         return None
     return ProcessPoolExecutor(max_workers=_workers(executor), mp_context=getattr(executor, "_mp_context", None),
-                               initializer=_ignore_sigint)
+                               initializer=ignore_in_worker)
 
 
 def _stop(executor):
-    """Cancel what has not started and stop a process pool's workers (after Ctrl-C)."""
+    """Cancel what has not started and stop a process pool's workers (after Ctrl-C or SIGTERM).
+
+    The workers ignore SIGTERM (:func:`~liefi._signals.ignore_in_worker`): they are killed and
+    joined, so none is left running.  A Dask executor cancels its futures; its cluster is closed
+    by :func:`open_executor`."""
     procs = list((getattr(executor, "_processes", None) or {}).values())  # no public way before Python 3.14;
-    with contextlib.suppress(Exception):  # taken first: shutdown() forgets them
+    writer = getattr(getattr(executor, "_result_queue", None), "_writer", None)  # taken first: shutdown()
+    try:  # forgets them
         executor.shutdown(wait=False, cancel_futures=True)
+    except TypeError:  # Dask's ClientExecutor: shutdown(wait) only
+        with contextlib.suppress(Exception):
+            executor.shutdown(wait=False)
+    except Exception:  # noqa: BLE001 -- stopping must not raise
+        pass
     for p in procs:
         with contextlib.suppress(Exception):
-            p.terminate()
+            p.kill()
+    for p in procs:
+        with contextlib.suppress(Exception):
+            p.join(10)
+    # A worker killed while it was sending a large result leaves half a message in the result pipe, and the
+    # pool's manager thread would wait for the rest for ever (and the interpreter for that thread at exit).
+    # With every worker dead, closing this process's write end gives that read an end of file: the manager
+    # thread sees a broken pool and ends.
+    if procs and writer is not None:
+        with contextlib.suppress(Exception):
+            writer.close()
 
 
 def run_sweep(fn, tasks, executor: Executor | None = None, *, store=None, convert=None, progress=None,
@@ -316,16 +420,34 @@ def run_sweep(fn, tasks, executor: Executor | None = None, *, store=None, conver
             return results
         _parallel(fn, tasks, todo, executor, record, owned, max_in_flight)
         return results
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
         for ex in [executor, *owned]:
             if ex is not None:
                 _stop(ex)
-        raise SweepInterrupted(results) from None
+        if store is not None:  # the store is the record: a task committed just before the signal counts
+            _from_store(store, tasks, results)
+        raise SweepInterrupted(results, signum_of(exc)) from None
+    except StoreError as exc:  # the disk is full, or the store is damaged: stop as for Ctrl-C
+        for ex in [executor, *owned]:
+            if ex is not None:
+                _stop(ex)
+        exc.results = results
+        raise
     finally:
         bar.close()
         for ex in owned:
             with contextlib.suppress(Exception):
                 ex.shutdown(wait=True, cancel_futures=True)
+
+
+def _from_store(store, tasks, results):
+    """Fill the unfinished entries of ``results`` from ``store`` (after an interrupt)."""
+    for i, t in enumerate(tasks):
+        if results[i] is None:
+            try:
+                results[i] = store.get(t, errors=True)
+            except StoreError:
+                return
 
 
 def _parallel(fn, tasks, todo, executor, record, owned, max_in_flight):
@@ -411,7 +533,7 @@ def open_executor(scheduler: str | None = None):
     """An executor for ``scheduler`` (see the module docstring); closed on exit.
 
     Yields ``None`` for ``None``/``"serial"`` (run in this process).  The workers
-    of a process pool ignore ``SIGINT`` (the main process handles Ctrl-C).
+    of a process pool ignore ``SIGINT`` and ``SIGTERM`` (the main process handles them).
 
     Raises
     ------
@@ -427,7 +549,7 @@ def open_executor(scheduler: str | None = None):
     if scheduler.startswith("processes"):
         from concurrent.futures import ProcessPoolExecutor
 
-        with ProcessPoolExecutor(max_workers=_count(scheduler, cores), initializer=_ignore_sigint) as ex:
+        with ProcessPoolExecutor(max_workers=_count(scheduler, cores), initializer=ignore_in_worker) as ex:
             yield ex
         return
     if scheduler.startswith("threads"):
@@ -449,8 +571,11 @@ def open_executor(scheduler: str | None = None):
             with Client(scheduler) as client:
                 yield client.get_executor()
             return
-        n = _count(scheduler, cores)
-        with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        import logging
+
+        n = _count(scheduler, cores)  # the workers' warnings (a task cancelled on Ctrl-C) would bury liefi's line
+        with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+                          silence_logs=logging.ERROR) as cluster:
             with Client(cluster) as client:
                 yield client.get_executor()
         return

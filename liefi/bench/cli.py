@@ -3,7 +3,7 @@
 Every run is appended to ``OUT/results.sqlite`` as it finishes (a rerun into
 the same ``--out`` resumes, skipping the runs already there);
 ``OUT/summary.json`` is rebuilt from that store after each scene and on
-Ctrl-C.  It, the CSV and the console summary describe exactly this
+Ctrl-C or SIGTERM.  It, the CSV and the console summary describe exactly this
 invocation's task set (the store filtered to its tasks: runs of earlier
 invocations with other arguments are kept in the store, not summarized), and
 ``complete`` says whether every task of this invocation has a stored result.
@@ -12,6 +12,11 @@ invocations with other arguments are kept in the store, not summarized), and
 ``liefi reproduce`` uses): a new or empty folder, or one an earlier ``liefi
 bench`` wrote; every file an invocation writes is claimed before any work, and
 one of that name that liefi did not write is never overwritten.
+
+One bench at a time writes into a folder: it holds an exclusive lock on
+``OUT/.liefi-bench.lock`` (``flock``, released when the process ends, however
+it ends), and a second bench on the same ``--out`` is refused at once rather
+than computing every run a second time.
 """
 
 from __future__ import annotations
@@ -22,7 +27,9 @@ import sys
 from .. import _json
 from .. import engine as _engine
 from .. import scenes as _scenes
-from ..sweep import ResultStore, SweepInterrupted, TaskError, task_key
+from .._files import writing
+from .._signals import describe, exit_code, terminate_as_interrupt
+from ..sweep import ResultStore, StoreError, SweepInterrupted, TaskError, task_key
 from .core import (FI_GAINS, FIXED_SCHEMES, IVP_METHODS, METHODS, STORE, applicable_methods, build_tasks,
                    error_row, summarize, summary, work_precision)
 from .validate import positive
@@ -166,8 +173,13 @@ def write_summary(out_dir, tasks=None, arguments=None):
         doc["other_runs_in_store"] = other
     out = os.path.join(out_dir, "summary.json")
     tmp = os.path.join(out_dir, f".summary.json.tmp{os.getpid()}")
-    with open(tmp, "w") as fh:
-        fh.write(_json.dumps(doc, indent=1))
+    try:
+        with writing(out), open(tmp, "w") as fh:
+            fh.write(_json.dumps(doc, indent=1))
+    except OSError:
+        if os.path.exists(tmp):  # half a file (a full disk): the old summary.json stays as it was
+            os.remove(tmp)
+        raise
     os.replace(tmp, out)
     return doc
 
@@ -195,20 +207,80 @@ def _check_steps(sc, tasks, args):
                          "--long-horizon, or raise --max-steps")
 
 
+#: the lock file of an output folder (see the module docstring)
+LOCK = ".liefi-bench.lock"
+
+
+def lock_folder(out_dir):
+    """Take the exclusive lock of ``out_dir`` for this process; returns the open lock file (close it to release).
+
+    Raises ``OSError`` naming the folder and the process holding it when another bench writes there.
+    Where ``fcntl`` does not exist (Windows) nothing is locked.
+    """
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - no flock: one bench at a time is the user's to keep
+        return None
+    path = os.path.join(out_dir, LOCK)
+    with writing(path):
+        fh = open(path, "a+")
+    try:
+        fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        fh.seek(0)
+        holder = fh.read().strip()
+        fh.close()
+        raise OSError(f"out: {out_dir} is in use by another liefi bench{f' (process {holder})' if holder else ''}; "
+                      "two benches on one folder would compute the same runs twice: wait for it to finish (a rerun "
+                      "then resumes from its results) or choose another --out") from None
+    fh.seek(0)
+    fh.truncate()
+    fh.write(str(os.getpid()))
+    fh.flush()
+    return fh
+
+
+def _summarized(out_dir, expected, arguments=None):
+    """Write ``summary.json`` after an interrupt or a store failure; returns the words that say where
+    (or why it could not be written: the disk may be full)."""
+    path = os.path.join(out_dir, "summary.json")
+    try:
+        write_summary(out_dir, expected, arguments)
+    except OSError as exc:
+        return f"{path} could not be rewritten ({' '.join(str(exc).split())})"
+    return f"summarized in {path}"
+
+
+def _unwritten(exc):
+    why = getattr(exc, "unwritten", None)  # the CSV of what finished (liefi.bench.core.work_precision)
+    return f"; the CSV could not be written ({why})" if why else ""
+
+
 def run_from_args(args, log=None):
     """Run ``liefi bench`` from parsed arguments; prints the summary, returns the exit code.
 
     0: every task finished (some runs may have diverged: they are data); 1: some
-    task raised or lost its worker (reported, every other result kept); 130:
-    interrupted (what finished is in the store and ``summary.json``).
+    task raised or lost its worker (reported, every other result kept); 130 (Ctrl-C)
+    or 143 (SIGTERM, when :func:`~liefi._signals.terminate_as_interrupt` is active,
+    as in :func:`main`): interrupted, what finished is in the store and
+    ``summary.json``, one line on stderr says so.
 
     Before any work: every argument, the length of every run (``--max-steps``,
     as ``liefi run``) and the output folder (:func:`liefi.reproduce.prepare_output`:
     a new or empty folder or one ``liefi bench`` owns; every file this invocation
-    writes is claimed, and a file of that name that liefi did not write is refused).
+    writes is claimed, and a file of that name that liefi did not write is refused),
+    then the folder's lock (:func:`lock_folder`).
+
+    Raises
+    ------
+    OSError
+        The output folder is in use by another bench (:func:`lock_folder`) or
+        cannot be written; or a :class:`~liefi.sweep.StoreError`: the store is
+        damaged or another program's, or could not be written during the runs
+        (disk full) -- then after printing the summary of what finished and
+        rewriting ``summary.json`` where possible.
     """
     from ..reproduce import OutputError, prepare_output
-    from ..sweep import open_executor
 
     log = log or (lambda m: print(m, file=sys.stderr, flush=True))
     if args.scene != "all" and args.scene not in _scenes.REGISTRY:
@@ -240,11 +312,22 @@ def run_from_args(args, log=None):
         plan.append((sc, kw, tasks))
     try:  # outputs checked before any work
         output = prepare_output(args.out, "bench", keep=True)
-        output.claim_all([STORE, "summary.json"]
+        output.claim_all([STORE, "summary.json", LOCK]
                          + [f for sc, _, _ in plan for f in output_files(sc.name, bool(args.long_horizon))])
     except OutputError as exc:
         raise ValueError(str(exc)) from None
-    ResultStore(os.path.join(args.out, STORE)).close()
+    lock = lock_folder(args.out)
+    try:
+        ResultStore(os.path.join(args.out, STORE)).close()
+        return _run(args, log, plan)
+    finally:
+        if lock is not None:
+            lock.close()
+
+
+def _run(args, log, plan):
+    from ..sweep import open_executor
+
     if not _engine.available():
         log(f"liefi bench: numba is not available ({_engine.NUMBA_ERROR}); the generated code runs as plain "
             "Python, orders of magnitude slower. Install it with `pip install liefi[fast]`.")
@@ -264,12 +347,21 @@ def run_from_args(args, log=None):
 
                     long_horizon(rows, args.out, ex, t_final=args.long_horizon, log=log)
     except KeyboardInterrupt as exc:
-        write_summary(args.out, expected, arguments)
+        where = _summarized(args.out, expected, arguments) + _unwritten(exc)
         done = f"{exc.done} runs of this scene finished, " if isinstance(exc, SweepInterrupted) else ""
-        print(f"liefi bench: interrupted; {done}everything finished is kept in "
-              f"{os.path.join(args.out, STORE)} and summarized in {os.path.join(args.out, 'summary.json')}",
-              file=sys.stderr, flush=True)
-        return 130
+        print(f"liefi bench: {describe(exc)}; {done}everything finished is kept in "
+              f"{os.path.join(args.out, STORE)} and {where}", file=sys.stderr, flush=True)
+        return exit_code(exc)
+    except StoreError as exc:  # disk full, or a damaged store: the summary of what finished, then the error
+        if exc.results is None:  # found before any run (a damaged row): nothing new to summarize
+            raise
+        rows = getattr(exc, "rows", None) or []
+        if rows:
+            print(f"{rows[0]['scene']} (t_final = {rows[0]['t_final']:g}; stopped after {len(rows)} of "
+                  f"{len(expected.get(rows[0]['scene'], ())) or '?'} runs):")
+            print("  " + summary(rows).replace("\n", "\n  "), flush=True)
+        where = _summarized(args.out, expected, arguments) + _unwritten(exc)
+        raise StoreError(f"{' '.join(str(exc).split())}; {where}") from None
     print(f"written to {args.out}")
     if errors:
         log(f"liefi bench: {errors} runs raised or lost their worker; every other result is kept (see the CSV)")
@@ -285,10 +377,11 @@ def main(argv=None):
     add_arguments(p)
     args = p.parse_args(argv)
     try:
-        return run_from_args(args)
-    except KeyboardInterrupt:
-        print("liefi bench: interrupted", file=sys.stderr)
-        return 130
+        with terminate_as_interrupt():
+            return run_from_args(args)
+    except KeyboardInterrupt as exc:
+        print(f"liefi bench: {describe(exc)}", file=sys.stderr)
+        return exit_code(exc)
     except (ValueError, OSError, ImportError) as exc:
         print(f"liefi bench: error: {' '.join(str(exc).split())}", file=sys.stderr)
         return 2

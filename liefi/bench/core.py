@@ -81,7 +81,8 @@ import numpy as np
 
 from .. import engine as _engine
 from .. import scenes as _scenes
-from ..sweep import ResultStore, SweepInterrupted, TaskError, run_sweep
+from .._files import writing
+from ..sweep import ResultStore, StoreError, SweepInterrupted, TaskError, run_sweep
 
 FIXED_SCHEMES = ("euler", "heun", "rk4", "imex-euler", "imex-heun", "imex-rk4")
 IVP_METHODS = ("RK45", "DOP853", "LSODA")
@@ -429,8 +430,11 @@ def work_precision(scene, t_final=None, out_dir=None, executor=None, *, variant=
     Raises
     ------
     liefi.sweep.SweepInterrupted
-        On Ctrl-C, after the CSV of the runs finished so far is written
-        (``exc.rows``).
+        On Ctrl-C (or SIGTERM), after the CSV of the runs finished so far is
+        written (``exc.rows``: exactly the runs of the grid in the store).
+    liefi.sweep.StoreError
+        When the store cannot be written (disk full) or read (damaged), with
+        ``exc.rows`` and the CSV as for an interrupt.
     """
     sc = _scenes.get(scene) if isinstance(scene, str) else scene
     T = sc.t_final if t_final is None else t_final
@@ -460,13 +464,20 @@ def work_precision(scene, t_final=None, out_dir=None, executor=None, *, variant=
     def rows_of(values):
         return [error_row(t, x) if isinstance(x, TaskError) else x for t, x in zip(tasks, values) if x is not None]
 
+    def keep(exc):  # the CSV of what finished (all of it in the store), before the interrupt goes on
+        exc.rows = rows_of(exc.results) if exc.results is not None else []
+        exc.unwritten = None
+        if out_dir and exc.rows:
+            try:
+                write_csv(exc.rows, os.path.join(out_dir, f"{sc.name}-work-precision.csv"))
+            except OSError as err:  # e.g. the disk is full too: the store keeps everything
+                exc.unwritten = str(err)
+
     try:
         rows = rows_of(run_sweep(run_task, tasks, executor, store=store, convert=convert, progress=progress,
                                  label=sc.name))
-    except SweepInterrupted as exc:
-        exc.rows = rows_of(exc.results)
-        if out_dir and exc.rows:
-            write_csv(exc.rows, os.path.join(out_dir, f"{sc.name}-work-precision.csv"))
+    except (SweepInterrupted, StoreError) as exc:
+        keep(exc)
         raise
     finally:
         if own is not None:
@@ -496,7 +507,7 @@ def write_csv(rows, path):
     extra = sorted({k for r in rows for k in r if k.startswith("error_")})
     extra += sorted({k for r in rows for k in r if k.startswith("drift_")})
     cols = list(_FIRST) + extra + ["message"]
-    with open(path, "w", newline="") as fh:
+    with writing(path), open(path, "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=cols, extrasaction="ignore")
         w.writeheader()
         for r in rows:

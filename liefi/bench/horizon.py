@@ -8,6 +8,7 @@ import os
 import numpy as np
 
 from .. import scenes as _scenes
+from .._files import writing
 from ..sweep import TaskError, run_sweep
 from .core import FI_GAINS, _integrator, _label, error_row, invariant_drifts, measure, run_task, write_csv
 from .plots import _series, plot_long_horizon, save_curves
@@ -222,6 +223,7 @@ def plot_cost_vs_horizon(curves, path, name, drift=1e-10):
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    with writing(path):
+        fig.savefig(path, dpi=110)
     plt.close(fig)
     return path

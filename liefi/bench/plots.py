@@ -6,6 +6,7 @@ import os
 
 import numpy as np
 
+from .._files import writing
 from ..plotting import finish_panel_grid, panel_grid
 
 # ======================================================================================
@@ -67,7 +68,8 @@ def plot(rows, out_dir, name):
     fig.legend(h, lab, loc="center right", fontsize=7)
     fig.tight_layout(rect=(0, 0, 0.84, 1))
     p = os.path.join(out_dir, f"{name}-error.png")
-    fig.savefig(p, dpi=110)
+    with writing(p):
+        fig.savefig(p, dpi=110)
     plt.close(fig)
     paths.append(p)
 
@@ -98,7 +100,8 @@ def save_curves(curves, path):
         meta.append([label, float(cpu), m, s, list(d)])
     import json
 
-    np.savez_compressed(path, meta=json.dumps(meta), **arrays)
+    with writing(path):
+        np.savez_compressed(path, meta=json.dumps(meta), **arrays)
     return path
 
 
