@@ -25,6 +25,7 @@ REGISTRY = {
     "rigid-body": "rigid_body",
     "heavy-top": "heavy_top",
     "chaplygin-ball": "chaplygin_ball",
+    "rattleback": "rattleback",
 }
 
 
