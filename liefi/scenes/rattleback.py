@@ -277,6 +277,12 @@ class Rattleback(Scene):
                 return float(brentq(lambda x: rate(x)[0], t[k - 1], t[k], xtol=1e-15, rtol=1e-15))
         return float("nan")
 
+    def reference_solution(self, variant, t_final, *, backend=None):
+        """The hand-written reference on ``[0, t_final]`` (what :meth:`exact` reads; ``liefi reproduce``
+        computes it once up front), not the base class' liefi-derived constrained field."""
+        self._reference(float(t_final))
+        return lambda t: self.exact(t, variant)
+
     def exact(self, t, variant):
         t = np.asarray(t, float)
         T, dense, _, omega = self._reference(float(t[-1]))
