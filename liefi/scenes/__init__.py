@@ -27,6 +27,7 @@ REGISTRY = {
     "chaplygin-ball": "chaplygin_ball",
     "kepler": "kepler",
     "perturbed-kepler": "kepler",
+    "rattleback": "rattleback",
 }
 
 
