@@ -127,7 +127,7 @@ needs_proc = pytest.mark.skipif(not os.path.isdir("/proc/self"), reason="checks 
 @pytest.mark.parametrize("scheduler, signum", [
     ("processes:2", signal.SIGTERM),
     ("processes:2", signal.SIGINT),
-    pytest.param("dask:2", signal.SIGTERM, marks=pytest.mark.slow),
+    ("dask:2", signal.SIGTERM),  # about 10 s: kept in the default suite, the issue's must-show
 ])
 def test_signal_on_a_parallel_bench_stops_cleanly(tmp_path, scheduler, signum):
     """Exit 128 + signal, one line, no worker left, and the message, the CSV and summary.json count

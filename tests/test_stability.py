@@ -39,13 +39,6 @@ from liefi.scenes import exact as _exact
 from strategies import PROPERTY, SPACES, cases
 
 
-@pytest.fixture(autouse=True)
-def _slow_only_when_asked(request):
-    """``@pytest.mark.slow`` tests run only with ``-m slow`` (the battery, every map, t = 1000)."""
-    if request.node.get_closest_marker("slow") and "slow" not in (request.config.getoption("-m") or ""):
-        pytest.skip("slow: run with -m slow")
-
-
 def knife_state(t):
     ke = scenes.get("knife-edge")
     ref = _exact.knife_edge(np.atleast_1d(t), m=1, J=1, g=1, alpha=np.pi / 6, p_phi0=0.5, x0=0, y0=0, phi0=0, v0=0)
