@@ -47,7 +47,7 @@ TOL = 1e-10
 def _field_from_definition(case, z, H):
     """``B dH + sum_i lambda_i e_i^flat``, ``lambda = C^-1 {H, J}``, all from the data (``H`` an oracle)."""
     sp = case.space
-    n = sp.n
+    n = sp.data_dim  # the data are read at (x, Gamma); the momenta follow
     dH = cs_grad(H, z)  # (..., nz)
     dJ = cs_grad(oracle_J(case), z)  # (..., K, nz)
     B = sp.poisson_tensor(z)  # (..., nz, nz), {f, g} = df . B . dg
@@ -73,7 +73,7 @@ def test_constrained_and_extended_fields_off_constraint_set_match_definitions(sp
     sys_ = case.system
     J = sys_.constraint_momenta(z)
     assert np.max(np.abs(J)) > 1e-6  # really off the constraint set
-    G, n, d = case.space.group, case.space.n, case.space.d
+    G, n, d = case.space.group, case.space.data_dim, case.space.d
     g = G.random_config(np.random.default_rng(0), z.shape[:-1])
     for kind, H, field in (("constrained", oracle_h(case), sys_.constrained_vector_field),
                            ("extended", oracle_ht(case), sys_.extended_vector_field)):
