@@ -83,7 +83,6 @@ import json
 import math
 import os
 import sys
-import time
 
 import numpy as np
 
@@ -95,6 +94,15 @@ PARAMS = {"a": 0.20, "b": 0.03, "c": 0.02, "h": 0.01, "m": 1.0, "g": 9.81,
 ROLL0 = math.radians(0.5)   # their alpha
 PITCH0 = -math.radians(0.5)  # minus their beta (b_y flipped)
 SPIN0 = 5.0                  # minus their omega_3 = -5 rad/s (b_z flipped)
+
+
+def cpu():
+    """CPU seconds of this process and its finished children (the C compiler of ``pydy-cython``).
+
+    The machine may be shared: CPU time, not wall time, is the measure here.
+    """
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
 
 
 def build_model():
@@ -111,7 +119,7 @@ def build_model():
     import sympy as sm
     import sympy.physics.mechanics as me
 
-    t0 = time.perf_counter()
+    t0 = cpu()
     a, b, c, h, m, g, A, B, C, D = sm.symbols("a b c h m g A B C D")
     q1, q2, q3, q4, q5 = q = me.dynamicsymbols("q1:6")
     u1, u2, u3, u4, u5, u6 = u = me.dynamicsymbols("u1:7")
@@ -157,7 +165,7 @@ def build_model():
               + Bf.ang_vel_in(N).dot(body.central_inertia.dot(Bf.ang_vel_in(N))) / 2
               + m * g * (-r_GP.dot(N.z)))
     spin = Bf.ang_vel_in(N).dot(N.z)
-    seconds = time.perf_counter() - t0
+    seconds = cpu() - t0
     return {"kane": kane, "q": list(q), "u": list(u), "constants": [a, b, c, h, m, g, A, B, C, D],
             "energy": energy, "slip": slip, "spin": spin, "mass_matrix_full": MM,
             "forcing_full": FF, "seconds": seconds}
@@ -185,7 +193,7 @@ def generate(model, generator="lambdify"):
     """
     import sympy as sm
 
-    t0 = time.perf_counter()
+    t0 = cpu()
     q, u, consts = model["q"], model["u"], model["constants"]
     pvals = np.array([PARAMS[str(s)] for s in consts])
     states = q + u
@@ -219,7 +227,7 @@ def generate(model, generator="lambdify"):
                 for v in f_out(Y, pvals)]
         return vals[0], np.sqrt(vals[1] ** 2 + vals[2] ** 2 + vals[3] ** 2), vals[4]
 
-    seconds = time.perf_counter() - t0
+    seconds = cpu() - t0
     return rhs, outputs, seconds
 
 
@@ -277,10 +285,10 @@ def integrate(rhs, y0, t_final, method, tol, repeats=1):
 
     best, sol = math.inf, None
     for _ in range(repeats):
-        t0 = time.process_time()
+        t0 = cpu()
         sol = solve_ivp(rhs, (0.0, t_final), y0, method=method, rtol=tol, atol=tol,
                         dense_output=True)
-        best = min(best, time.process_time() - t0)
+        best = min(best, cpu() - t0)
     if not sol.success:
         raise RuntimeError(f"solve_ivp {method} at tol {tol:g} failed: {sol.message}")
     return sol, best
@@ -293,10 +301,26 @@ def liefi_scene():
         from liefi import scenes
 
         return scenes.get("rattleback")
-    except Exception as exc:  # the scene is built on another branch (issue 18)
+    except (ValueError, ImportError) as exc:  # the scene is built on another branch (issue 18)
         print(f"liefi scene 'rattleback' is missing ({type(exc).__name__}: {exc}); "
               "measuring the peer on its own", file=sys.stderr)
         return None
+
+
+def run_liefi(scene, dts, t_final):
+    """LIEFI HOOK: liefi's scene at ``imex-rk4`` with automatic gains; one summary per step."""
+    out = []
+    for dt in dts:
+        try:
+            res = scene.run(dt=dt, t_final=t_final, scheme="imex-rk4", gains="auto")
+        except Exception as exc:  # report, do not hide the peer's numbers
+            print(f"liefi rattleback at dt = {dt:g} failed: {type(exc).__name__}: {exc}", file=sys.stderr)
+            continue
+        row = {"dt": dt, "total_s": res.cpu_seconds + res.overhead_seconds, **res.to_dict()}
+        out.append(row)
+        print(json.dumps({k: row[k] for k in ("dt", "total_s", "cpu_seconds", "max_error", "max_drift")}),
+              flush=True)
+    return out
 
 
 def main(argv=None):
@@ -309,6 +333,8 @@ def main(argv=None):
                     choices=["lambdify", "pydy-lambdify", "pydy-cython"])
     ap.add_argument("--repeats", type=int, default=1, help="best of N integrations (timing)")
     ap.add_argument("--n-out", type=int, default=2001, help="output times for the errors")
+    ap.add_argument("--liefi-dts", type=float, nargs="+", default=[1e-2, 5e-3, 2e-3],
+                    help="steps of liefi's scene (LIEFI HOOK; used once the scene exists)")
     ap.add_argument("--out", default=os.path.join(ROOT, "docs", "rattleback_peer"))
     args = ap.parse_args(argv)
     os.makedirs(args.out, exist_ok=True)
@@ -346,10 +372,19 @@ def main(argv=None):
         curves[f"{method} {tol:g}"] = (spin, drift, slip)
         print(json.dumps(row), flush=True)
 
-    hook = liefi_scene()  # LIEFI HOOK: compare at equal state error once the scene exists
-    if hook is not None:
-        print("liefi scene found: compare liefi.run on it at the state errors above "
-              "(not wired yet)", file=sys.stderr)
+    # ---- LIEFI HOOK ---------------------------------------------------------------
+    # liefi's own rattleback scene (issue 18) is built on another branch.  When
+    # liefi.scenes.get("rattleback") exists, it runs here at the steps --liefi-dts
+    # (imex-rk4, gains="auto"; compilation counted in the overhead) and its rows join
+    # the table: time to result, the scene's drifts and its state error against its
+    # own reference.  The comparison "at equal state error" needs the scene to be
+    # Kane & Levinson's body from the same start (check its docstring first).
+    scene = liefi_scene()
+    if scene is not None:
+        rows_liefi = run_liefi(scene, args.liefi_dts, args.t_final)
+        with open(os.path.join(args.out, "rattleback_liefi.json"), "w") as fh:
+            json.dump(rows_liefi, fh, indent=1)
+    # --------------------------------------------------------------------------------
 
     write_outputs(args, rows, curves, t_grid)
     return rows
