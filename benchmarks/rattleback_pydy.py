@@ -9,8 +9,9 @@ compares with liefi's ``rattleback`` scene when that scene exists (the hook is
 
 Run (from the repository root; sympy required, ``pydy`` optional: the ``peer`` extra)::
 
-    python benchmarks/rattleback_pydy.py                       # t in [0, 20], writes docs/rattleback_peer/
-    python benchmarks/rattleback_pydy.py --t-final 2 --tols 1e-6 1e-8 --ref-tol 1e-10 --out /tmp/rb
+    python benchmarks/rattleback_pydy.py                       # t in [0, 20], writes docs/rattleback_peer/lambdify/
+    python benchmarks/rattleback_pydy.py --generator pydy-cython --repeats 2   # pydy's Cython backend
+    python benchmarks/rattleback_pydy.py --t-final 2 --tols 1e-6 1e-8 --ref-tol 1e-10 --out rb-smoke
 
 Model
 -----
@@ -335,8 +336,10 @@ def main(argv=None):
     ap.add_argument("--n-out", type=int, default=2001, help="output times for the errors")
     ap.add_argument("--liefi-dts", type=float, nargs="+", default=[1e-2, 5e-3, 2e-3],
                     help="steps of liefi's scene (LIEFI HOOK; used once the scene exists)")
-    ap.add_argument("--out", default=os.path.join(ROOT, "docs", "rattleback_peer"))
+    ap.add_argument("--out", default=None, help="default: docs/rattleback_peer/GENERATOR")
     args = ap.parse_args(argv)
+    if args.out is None:
+        args.out = os.path.join(ROOT, "docs", "rattleback_peer", args.generator)
     os.makedirs(args.out, exist_ok=True)
 
     model = build_model()
@@ -400,7 +403,8 @@ def write_outputs(args, rows, curves, t_grid):
         w.writeheader()
         w.writerows(rows)
     with open(os.path.join(args.out, "rattleback_peer.json"), "w") as fh:
-        json.dump({"args": vars(args), "params": PARAMS, "rows": rows}, fh, indent=1)
+        settings = {**vars(args), "out": os.path.relpath(args.out, ROOT)}  # no machine path in the record
+        json.dump({"args": settings, "params": PARAMS, "rows": rows}, fh, indent=1)
     lines = ["| method | rtol = atol | f evals | integrate (s) | total (s) | energy drift (rel) "
              "| no-slip max (m/s) | state error | first reversal (s) | reversal error (s) |",
              "|---|---|---|---|---|---|---|---|---|---|"]
