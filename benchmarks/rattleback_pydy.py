@@ -336,6 +336,7 @@ def main(argv=None):
     ap.add_argument("--n-out", type=int, default=2001, help="output times for the errors")
     ap.add_argument("--liefi-dts", type=float, nargs="+", default=[1e-2, 5e-3, 2e-3],
                     help="steps of liefi's scene (LIEFI HOOK; used once the scene exists)")
+    ap.add_argument("--no-figure", action="store_true", help="tables only (no matplotlib)")
     ap.add_argument("--out", default=None, help="default: docs/rattleback_peer/GENERATOR")
     args = ap.parse_args(argv)
     if args.out is None:
@@ -414,6 +415,8 @@ def write_outputs(args, rows, curves, t_grid):
                      f"{r['state_err']:.1e} | {r['t_reversal']:.9f} | {r['reversal_err']:.1e} |")
     with open(os.path.join(args.out, "rattleback_peer.md"), "w") as fh:
         fh.write("\n".join(lines) + "\n")
+    if args.no_figure:
+        return
     try:
         import matplotlib
 
