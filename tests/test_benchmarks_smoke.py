@@ -87,3 +87,11 @@ def test_script_writes_its_table(peer, tmp_path, capsys):
         assert (tmp_path / name).stat().st_size > 0
     if mod.liefi_scene() is None:  # LIEFI HOOK: until the scene exists, the script says so
         assert "missing" in capsys.readouterr().err
+
+
+def test_reversal_times_first_and_settled(peer):
+    mod = peer[0]
+    assert mod.reversal_times([1.0, 1.2, 1.5, 4.0, 4.2]) == (1.0, 1.5)
+    assert mod.reversal_times([1.0]) == (1.0, 1.0)
+    first, settled = mod.reversal_times([])
+    assert np.isnan(first) and np.isnan(settled)
