@@ -352,9 +352,16 @@ def main(argv=None):
                     help="steps of liefi's scene (LIEFI HOOK; used once the scene exists)")
     ap.add_argument("--no-figure", action="store_true", help="tables only (no matplotlib)")
     ap.add_argument("--out", default=None, help="default: docs/rattleback_peer/GENERATOR")
+    ap.add_argument("--replot", action="store_true",
+                    help="redraw the work-precision figure from OUT/rattleback_peer.json, run nothing")
     args = ap.parse_args(argv)
     if args.out is None:
         args.out = os.path.join(ROOT, "docs", "rattleback_peer", args.generator)
+    if args.replot:
+        with open(os.path.join(args.out, "rattleback_peer.json")) as fh:
+            rows = json.load(fh)["rows"]
+        plot_work_precision(rows, args.out)
+        return rows
     os.makedirs(args.out, exist_ok=True)
 
     model = build_model()
@@ -454,6 +461,35 @@ def write_outputs(args, rows, curves, t_grid):
     ax[0].set_title("Kane & Levinson rattleback, sympy KanesMethod + solve_ivp")
     fig.tight_layout()
     fig.savefig(os.path.join(args.out, "rattleback_peer.png"), dpi=110)
+    plt.close(fig)
+    plot_work_precision(rows, args.out)
+
+
+def plot_work_precision(rows, out):
+    """State error, energy drift and no-slip violation against the time to result
+    (derivation + code generation + integration), one line per method."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(1, 3, figsize=(12, 3.8))
+    runs = [r for r in rows if r["state_err"] > 0]  # the reference has no error of its own
+    for method in dict.fromkeys(r["method"] for r in runs):
+        rs = sorted((r for r in runs if r["method"] == method), key=lambda r: r["total_s"])
+        x = [r["total_s"] for r in rs]
+        for a, key in zip(ax, ("state_err", "energy_drift_rel", "slip_max")):
+            a.semilogy(x, [r[key] for r in rs], "o-", label=method)
+            for r in rs:
+                a.annotate(f"{r['tol']:.0e}", (r["total_s"], r[key]), fontsize=6)
+    for a, lab in zip(ax, ("state error (max over t)", "energy drift (rel)", "no-slip max (m/s)")):
+        a.set_xlabel("time to result (CPU s)")
+        a.set_ylabel(lab)
+        a.grid(True, which="both", lw=0.3)
+    ax[0].legend()
+    fig.suptitle("rattleback peer: work-precision, t in [0, 20] s (labels: rtol = atol)")
+    fig.tight_layout()
+    fig.savefig(os.path.join(out, "rattleback_peer_wp.png"), dpi=110)
     plt.close(fig)
 
 
