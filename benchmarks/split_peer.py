@@ -23,11 +23,23 @@ from the values liefi's run uses, captured as closure constants).  The state is
 saved every ``save_every`` steps into ``out`` of shape ``(12, n_saved)``, as
 liefi's loop does; nothing is checked.
 
+The script times liefi's run as a user calls it -- ``cpu_seconds`` of
+``fi.run(T, dt=h, scheme="imex-rk4", backend="numba")`` with ``gains="auto"``,
+with the default stability guard and with ``check_stability=False`` -- against
+the hand kernel, saving every step (``save_every=None``, the default) and the
+last state only; process CPU time, best of ``--repeat``, the runs interleaved.
+It checks first that both take the same step (the largest difference of the
+states over 1000 steps and at the end).  Suslov has two peers: ``suslov``, the
+formulas as written above with the numbers folded (``I^{-1} Pi`` with the
+full matrix), and ``suslov-simplified``, the algebra done by hand for the
+scene's inertia (``xi = (Pi_1, Pi_2, 0)``).  Then the explicit Euler engine
+against ``hand_kernels.py`` with its constants folded.
+
 Run::
 
     python benchmarks/split_peer.py                 # h = 1e-2, t in [0, 1000], best of 3, interleaved
     python benchmarks/split_peer.py --quick         # t in [0, 100], a smoke test
-    python benchmarks/split_peer.py --json docs/split_peer.json --markdown docs/split_peer.md
+    python benchmarks/split_peer.py --json docs/work_precision/split_peer.json --markdown docs/work_precision/split_peer.md
 """
 
 from __future__ import annotations
@@ -110,6 +122,28 @@ def _suslov(inertia, e):
         h = 0.5 * (P1 * (a11 * P1 + a12 * P2 + a13 * P3) + P2 * (a21 * P1 + a22 * P2 + a23 * P3)
                    + P3 * (a31 * P1 + a32 * P2 + a33 * P3)) - 0.5 * J * J
         return J, e1, e2, e3, h, x1, x2, x3
+
+    return X, invariants
+
+
+def _suslov_simplified(inertia, e):
+    """Suslov with the algebra done by hand for the scene's ``I = [[1,0,0],[0,1,1],[0,1,2]]``, ``a = e_3``:
+    ``e = (0, -1, 1)``, ``I e = e_3``, ``J = Pi_3 - Pi_2``, ``xi = (Pi_1, Pi_2, 0)``, ``lam~ = Pi_1 Pi_3``,
+    ``h~ = (Pi_1^2 + Pi_2^2)/2``: the strongest peer (the same maths, other rounding)."""
+    if not (np.allclose(inertia, [[1, 0, 0], [0, 1, 1], [0, 1, 2]], rtol=0, atol=0) and np.allclose(e, [0, -1, 1])):
+        raise ValueError("the simplified Suslov kernel holds for the scene's inertia and a = e_3 only")
+
+    @njit(inline="always")
+    def X(R11, R12, R13, R21, R22, R23, R31, R32, R33, P1, P2, P3):
+        q = P1 * P3
+        return (-R13 * P2, R13 * P1, R11 * P2 - R12 * P1,
+                -R23 * P2, R23 * P1, R21 * P2 - R22 * P1,
+                -R33 * P2, R33 * P1, R31 * P2 - R32 * P1,
+                -P3 * P2, q, q)
+
+    @njit(inline="always")
+    def invariants(P1, P2, P3):
+        return P3 - P2, 0.0, -1.0, 1.0, 0.5 * (P1 * P1 + P2 * P2), P1, P2, 0.0
 
     return X, invariants
 
@@ -206,12 +240,15 @@ def liefi_setting(sc, fi, dt, t_final):
 
 
 def hand_kernel(name, fi, dt, t_final):
-    sc = scenes.get(name)
+    """``(run, invariant names)``: the hand kernel of ``name`` (``"rigid-body"``, ``"suslov"``,
+    ``"suslov-simplified"``) at the setting liefi's run of ``fi`` takes."""
+    sc = scenes.get(name.replace("-simplified", ""))
     if name == "rigid-body":
         X, inv = _rigid_body(sc.inertia)
-    elif name == "suslov":
+    elif name in ("suslov", "suslov-simplified"):
         Iinv_a = np.linalg.solve(sc.inertia, sc.a)
-        X, inv = _suslov(sc.inertia, Iinv_a / np.sqrt(sc.a @ Iinv_a))
+        make = _suslov if name == "suslov" else _suslov_simplified
+        X, inv = make(sc.inertia, Iinv_a / np.sqrt(sc.a @ Iinv_a))
     else:
         raise KeyError(name)
     tg, a, c, names = liefi_setting(sc, fi, dt, t_final)
@@ -237,15 +274,15 @@ def liefi_run(fi, t_final, dt, save_every, guard):
 
 def hand_run(run, y0, dt, n, save_every):
     ns = n // save_every + 1 + (1 if n % save_every else 0)
-    out = np.empty((12, ns))
+    out = np.zeros((12, ns))  # touched before the clock starts: no page faults timed
     c = time.process_time()
     run(y0, dt, n, save_every, out)
     return time.process_time() - c, out
 
 
-def measure(name, dt, t_final, save_every, repeat):
+def measure(scene, name, dt, t_final, save_every, repeat):
     """Best-of-``repeat`` CPU seconds of liefi (guard on and off) and the hand kernel, interleaved."""
-    sc = scenes.get(name)
+    sc = scenes.get(scene)
     fi = sc.integrator(None, gains="auto", configuration=True)
     n = int(round(t_final / dt))
     se = n if save_every is None else save_every
@@ -264,7 +301,7 @@ def measure(name, dt, t_final, save_every, repeat):
     _, yl = liefi_run(fi, t_final, dt, se, False)
     _, yh = hand_run(run, fi.y0, dt, n, se)
     return {
-        "scene": name, "invariants": names, "dt": dt, "t_final": t_final, "steps": n, "save_every": se,
+        "scene": scene, "peer": name, "invariants": names, "dt": dt, "t_final": t_final, "steps": n, "save_every": se,
         "hand_ns_per_step": 1e9 * best["hand"] / n,
         "liefi_ns_per_step": 1e9 * best["liefi"] / n,
         "liefi_no_guard_ns_per_step": 1e9 * best["liefi_no_guard"] / n,
@@ -275,39 +312,79 @@ def measure(name, dt, t_final, save_every, repeat):
     }
 
 
+def euler_rows(n_steps, repeat):
+    """The explicit Euler engine against the hand kernels of ``hand_kernels.py`` with their constants
+    folded (:func:`hand_kernels.folded_euler`): CPU seconds of the loop, best of ``repeat``, interleaved."""
+    sys.path.insert(0, HERE)
+    import hand_kernels
+    from liefi import engine
+
+    rows = []
+    for name, cfg in (("suslov", True), ("knife-edge", False), ("roller-racer", False)):
+        sc = scenes.get(name)
+        fi = sc.integrator(None, configuration=cfg)
+        _, euler, c = hand_kernels.for_scene(sc, fi, folded=True)
+        cf = engine.compile_feedback(fi)
+        cf.warmup("euler")
+        p = engine.parameters(fi)
+        euler(fi.y0, c, sc.dt, 1)
+        hand = liefi = np.inf
+        for _ in range(repeat):
+            t = time.process_time()
+            yh = euler(fi.y0, c, sc.dt, n_steps)
+            hand = min(hand, time.process_time() - t)
+            sol = cf.run(fi.y0, p, sc.dt, n_steps, "euler", save_every=n_steps)
+            liefi = min(liefi, sol.cpu_seconds)
+        rows.append({"scene": name, "steps": n_steps, "hand_ns_per_step": 1e9 * hand / n_steps,
+                     "engine_ns_per_step": 1e9 * liefi / n_steps, "ratio": liefi / hand,
+                     "max_abs_diff_final": float(np.max(np.abs(sol.y[:, -1] - yh)))})
+    return rows
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--dt", type=float, default=1e-2)
     ap.add_argument("--t-final", type=float, default=1000.0)
     ap.add_argument("--repeat", type=int, default=3)
-    ap.add_argument("--quick", action="store_true", help="t in [0, 100]")
+    ap.add_argument("--quick", action="store_true", help="t in [0, 100], 1e5 Euler steps")
+    ap.add_argument("--euler-steps", type=float, default=1e6, help="explicit Euler comparison (0: skip)")
     ap.add_argument("--json", default=None, metavar="FILE")
     ap.add_argument("--markdown", default=None, metavar="FILE")
     a = ap.parse_args(argv)
     if a.quick:
-        a.t_final = 100.0
+        a.t_final, a.euler_steps = 100.0, 1e5
     warnings.filterwarnings("ignore", category=DeprecationWarning)
     n = int(round(a.t_final / a.dt))
     rows = []
-    for name in ("rigid-body", "suslov"):
-        for se in (1, None):
-            rows.append(measure(name, a.dt, a.t_final, se, a.repeat))
+    for scene, name in (("rigid-body", "rigid-body"), ("suslov", "suslov"), ("suslov", "suslov-simplified")):
+        for se in (None, 1):
+            rows.append(measure(scene, name, a.dt, a.t_final, se, a.repeat))
     cpu = cpu_model()
     lines = [f"CPU: {cpu}; {SCHEME} at gains='auto', h = {a.dt:g}, t in [0, {a.t_final:g}] ({n} steps); "
              f"process CPU time, best of {a.repeat}, interleaved", "",
-             "| scene | saved | hand (ns/step) | liefi run() (ns/step) | no guard (ns/step) | run() / hand "
+             "| peer | saved | hand (ns/step) | liefi run() (ns/step) | no guard (ns/step) | run() / hand "
              "| no guard / hand | max diff, 1000 steps | max diff, final |",
              "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
         saved = "every step" if r["save_every"] == 1 else "last only"
-        lines.append(f"| {r['scene']} | {saved} | {r['hand_ns_per_step']:.1f} | {r['liefi_ns_per_step']:.1f} "
+        lines.append(f"| {r['peer']} | {saved} | {r['hand_ns_per_step']:.1f} | {r['liefi_ns_per_step']:.1f} "
                      f"| {r['liefi_no_guard_ns_per_step']:.1f} | {r['ratio']:.3f} | {r['ratio_no_guard']:.3f} "
                      f"| {r['max_abs_diff_1000_steps']:.1e} | {r['max_abs_diff_final']:.1e} |")
+    if a.euler_steps:
+        erows = euler_rows(int(a.euler_steps), a.repeat)
+        lines += ["", f"Explicit Euler engine (`CompiledField.run`, {int(a.euler_steps):.0e} steps, the scenes' dt and "
+                  "gains) against the hand kernels with their constants folded; best of "
+                  f"{a.repeat}, interleaved", "",
+                  "| scene | hand (ns/step) | engine (ns/step) | engine / hand | max diff, final |", "|---|---:|---:|---:|---:|"]
+        lines += [f"| {r['scene']} | {r['hand_ns_per_step']:.1f} | {r['engine_ns_per_step']:.1f} | {r['ratio']:.3f} "
+                  f"| {r['max_abs_diff_final']:.1e} |" for r in erows]
+    else:
+        erows = []
     text = "\n".join(lines)
     print(text)
     if a.json:
         with open(a.json, "w") as fh:
-            json.dump({"cpu": cpu, "rows": rows}, fh, indent=2)
+            json.dump({"cpu": cpu, "rows": rows, "euler": erows}, fh, indent=2)
     if a.markdown:
         with open(a.markdown, "w") as fh:
             fh.write(text + "\n")

@@ -32,6 +32,8 @@ import traceback
 
 import numpy as np
 
+from .cramer import cramer_solve
+
 __all__ = ["NotCompilable", "CompilationWarning", "Sym", "trace", "derivative", "jacobian", "TracedData",
            "TRACED_DATA", "traced_call"]
 
@@ -362,6 +364,8 @@ def add(a, b):
         return b
     if _is_const(b, 0.0):
         return a
+    if b.op == "neg" or a.op == "neg":  # a + (-b) == a - b exactly (signs out: more sharing, x - x = 0)
+        return sub(a, b.args[0]) if b.op == "neg" else sub(b, a.args[0])
     if a.id > b.id:  # a + b == b + a exactly: one canonical order shares more nodes
         a, b = b, a
     return _graph().node("add", (a, b))
@@ -378,6 +382,10 @@ def sub(a, b):
         return unary("neg", b)
     if a is b:
         return const(0.0)
+    if b.op == "neg":  # a - (-b) == a + b, (-a) - b == -(a + b): exact
+        return add(a, b.args[0])
+    if a.op == "neg":
+        return unary("neg", add(a.args[0], b))
     return _graph().node("sub", (a, b))
 
 
@@ -396,6 +404,9 @@ def mul(a, b):
         return unary("neg", b)
     if _is_const(b, -1.0):
         return unary("neg", a)
+    if a.op == "neg" or b.op == "neg":  # (-a) b == -(a b) exactly
+        return mul(a.args[0], b.args[0]) if a.op == b.op else unary("neg", mul(*(
+            (a.args[0], b) if a.op == "neg" else (a, b.args[0]))))
     if a.id > b.id:
         a, b = b, a
     return _graph().node("mul", (a, b))
@@ -585,7 +596,7 @@ def _is_traced(a):
 def _gauss_solve(A, B):
     """Solve ``A X = B`` for a small matrix ``A`` of traced scalars (object arrays).
 
-    2 x 2 and 3 x 3: Cramer's rule (:func:`_closed_solve`).  Larger: Gaussian
+    2 x 2 and 3 x 3: Cramer's rule (:func:`liefi.engine.cramer.cramer_solve`).  Larger: Gaussian
     elimination without pivoting (a traced value has no magnitude to
     pivot on), which is stable for the symmetric positive definite and
     diagonally dominant matrices that data functions meet (Golub & Van Loan,
@@ -599,7 +610,7 @@ def _gauss_solve(A, B):
         X = X[:, None]
     k = A.shape[0]
     if k in (2, 3):  # closed form: no elimination chain (each division waited for the previous one)
-        X = _closed_solve(A, X)
+        X = cramer_solve(A, X)
         return X[:, 0] if vec else X
     for i in range(k):
         for r in range(i + 1, k):
@@ -615,21 +626,6 @@ def _gauss_solve(A, B):
                 s = sub(s, mul(A[i, j], X[j, c]))
             X[i, c] = div(s, A[i, i])
     return X[:, 0] if vec else X
-
-
-def _closed_solve(A, X):
-    """``A^{-1} X`` for a 2 x 2 or 3 x 3 ``A`` by Cramer's rule: ``adj(A) X / det A``, divisions independent
-    of each other (2 x 2: ``x0 = (a11 b0 - a01 b1)/det``, ``x1 = (a00 b1 - a10 b0)/det``)."""
-    if A.shape[0] == 2:
-        det = sub(mul(A[0, 0], A[1, 1]), mul(A[0, 1], A[1, 0]))
-        return np.array([[div(sub(mul(A[1, 1], b[0]), mul(A[0, 1], b[1])), det) for b in X.T],
-                         [div(sub(mul(A[0, 0], b[1]), mul(A[1, 0], b[0])), det) for b in X.T]], dtype=object)
-    # cofactors C[r][c], cyclic indices (the sign is in the order); det along the first row
-    C = [[sub(mul(A[(r + 1) % 3, (c + 1) % 3], A[(r + 2) % 3, (c + 2) % 3]),
-              mul(A[(r + 1) % 3, (c + 2) % 3], A[(r + 2) % 3, (c + 1) % 3])) for c in range(3)] for r in range(3)]
-    det = add(add(mul(A[0, 0], C[0][0]), mul(A[0, 1], C[0][1])), mul(A[0, 2], C[0][2]))
-    return np.array([[div(add(add(mul(C[0][i], b[0]), mul(C[1][i], b[1])), mul(C[2][i], b[2])), det) for b in X.T]
-                     for i in range(3)], dtype=object)
 
 
 def _traced_solve(a, b):
