@@ -1,11 +1,15 @@
 """Code generation: traced graphs printed as straight-line Python, and the stepping loops.
 
 :func:`function_source` prints a traced graph as a function of ``(y, p, out)``
-with one assignment per node (in creation order, a topological order); the
-loops (:func:`loop_source`: a scheme's tableau unrolled, the same arithmetic
-order as :meth:`liefi.schemes.ExplicitRungeKutta.step`, for one trajectory and
-for a batch with ``prange``), the Newton projection and the DLA loop are
-templates around it.  Every ``@njit`` reads ``CACHE`` from the module header
+with one assignment per node (in creation order, a topological order);
+:func:`scalar_function_source` prints the same graph as a function of scalars
+returning a tuple.  The loops (:func:`scalar_loop_source`: a scheme's tableau
+unrolled, the same arithmetic order as
+:meth:`liefi.schemes.ExplicitRungeKutta.step`, the state, stages and
+parameters in local variables so that the compiled loop keeps them in
+registers; :func:`loop_source`, the same on arrays, for the projected loops;
+each for one trajectory and for a batch with ``prange``), the Newton
+projection and the DLA loop are templates around them.  Every ``@njit`` reads ``CACHE`` from the module header
 (:func:`module_text`), so the same source runs with numba's on-disk cache or
 compiled in memory (:mod:`liefi.engine.cache`), or as plain Python.
 """
