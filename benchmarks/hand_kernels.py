@@ -205,18 +205,49 @@ def racer_euler(z0, c, dt, n):
 # --------------------------------------------------------------------------------------
 
 
-def for_scene(scene, fi):
-    """``(field, euler, params)`` of the hand kernel for ``scene`` with ``fi``'s gains and targets."""
+def folded_euler(field, c, n_state):
+    """Explicit Euler on ``field`` with its constants ``c`` folded into the compiled code.
+
+    ``c`` becomes a tuple closed over by the kernel: numba freezes it as a
+    compile-time constant, so after inlining the compiler sees every inertia,
+    gain and target as a literal -- what a kernel written for one system with its
+    numbers typed in gets.  Called as ``euler(y0, c, dt, n)`` like the others
+    (``c`` is ignored).
+    """
+    C = tuple(float(v) for v in c)
+    N = int(n_state)
+
+    @njit
+    def euler(y0, c_ignored, dt, n):
+        y = y0.copy()
+        f = np.empty(N)
+        for _ in range(n):
+            field(y, C, f)
+            for i in range(N):
+                y[i] += dt * f[i]
+        return y
+
+    return euler
+
+
+def for_scene(scene, fi, *, folded=True):
+    """``(field, euler, params)`` of the hand kernel for ``scene`` with ``fi``'s gains and targets.
+
+    ``folded``: the Euler loop has the parameters folded in (:func:`folded_euler`);
+    otherwise it reads them from ``params`` at run time.
+    """
     g = fi.gains
     if scene.name == "suslov":
         c = suslov_params(scene.inertia, scene.a, g["penalty"], g["J_1"], g["energy"], fi.targets["energy"])
-        return suslov_field, suslov_euler, c
-    if scene.name == "knife-edge":
+        field, euler = suslov_field, suslov_euler
+    elif scene.name == "knife-edge":
         c = knife_params(scene.m, scene.J, scene.g, scene.alpha, g["J_1"], g["energy"], g["p_phi"],
                          fi.targets["energy"], fi.targets["p_phi"])
-        return knife_field, knife_euler, c
-    if scene.name == "roller-racer":
+        field, euler = knife_field, knife_euler
+    elif scene.name == "roller-racer":
         c = racer_params(scene.m, scene.I1, scene.I2, scene.d1, scene.d2, g["J_1"], g["J_2"], g["energy"],
                          fi.targets["energy"])
-        return racer_field, racer_euler, c
-    raise KeyError(scene.name)
+        field, euler = racer_field, racer_euler
+    else:
+        raise KeyError(scene.name)
+    return field, folded_euler(field, c, fi.n) if folded else euler, c

@@ -1,11 +1,15 @@
 """Code generation: traced graphs printed as straight-line Python, and the stepping loops.
 
 :func:`function_source` prints a traced graph as a function of ``(y, p, out)``
-with one assignment per node (in creation order, a topological order); the
-loops (:func:`loop_source`: a scheme's tableau unrolled, the same arithmetic
-order as :meth:`liefi.schemes.ExplicitRungeKutta.step`, for one trajectory and
-for a batch with ``prange``), the Newton projection and the DLA loop are
-templates around it.  Every ``@njit`` reads ``CACHE`` from the module header
+with one assignment per node (in creation order, a topological order);
+:func:`scalar_function_source` prints the same graph as a function of scalars
+returning a tuple.  The loops (:func:`scalar_loop_source`: a scheme's tableau
+unrolled, the same arithmetic order as
+:meth:`liefi.schemes.ExplicitRungeKutta.step`, the state, stages and
+parameters in local variables so that the compiled loop keeps them in
+registers; :func:`loop_source`, the same on arrays, for the projected loops;
+each for one trajectory and for a batch with ``prange``), the Newton
+projection and the DLA loop are templates around them.  Every ``@njit`` reads ``CACHE`` from the module header
 (:func:`module_text`), so the same source runs with numba's on-disk cache or
 compiled in memory (:mod:`liefi.engine.cache`), or as plain Python.
 """
@@ -27,13 +31,10 @@ def _literal(v):
     return f"({r})" if v < 0 or r.startswith("-") else r
 
 
-def function_source(name, outputs, args=("y", "p", "out")):
-    """Python source of ``def name(*args)`` writing ``outputs`` (Syms) into ``out[j]``.
-
-    One assignment per reachable node, in creation order (a topological order
-    of the graph).
-    """
-    outputs = [as_sym(o) for o in np.asarray(outputs, dtype=object).reshape(-1)]
+def _node_lines(outputs, var_ref, indent="    "):
+    """Assignments ``t<id> = ...`` of every node reachable from ``outputs`` (in creation order, a
+    topological order of the graph) and the expressions of the outputs; ``var_ref(name, index)``
+    prints an input."""
     seen = {}
     stack = list(outputs)
     while stack:
@@ -44,10 +45,10 @@ def function_source(name, outputs, args=("y", "p", "out")):
         if node.op != "var":
             stack.extend(node.args)
     ref = {}
-    lines = [f"def {name}({', '.join(args)}):"]
+    lines = []
     for node in sorted(seen.values(), key=lambda s: s.id):
         if node.op == "var":
-            ref[node.id] = f"{node.args[0]}[{node.args[1]}]"
+            ref[node.id] = var_ref(*node.args)
             continue
         a = [_literal(x.value) if x.op == "const" else ref[x.id] for x in node.args]
         if node.op == "pow" and node.args[1].op == "const":
@@ -57,13 +58,60 @@ def function_source(name, outputs, args=("y", "p", "out")):
             expr = _BINARY[node.op].format(*a)
         else:
             expr = _UNARY[node.op].format(*a)
-        lines.append(f"    t{node.id} = {expr}")
+        lines.append(f"{indent}t{node.id} = {expr}")
         ref[node.id] = f"t{node.id}"
-    for j, o in enumerate(outputs):
-        val = _literal(o.value) if o.op == "const" else ref[o.id]
-        lines.append(f"    {args[-1]}[{j}] = {val}")
+    return lines, [_literal(o.value) if o.op == "const" else ref[o.id] for o in outputs]
+
+
+def _syms(outputs):
+    return [as_sym(o) for o in np.asarray(outputs, dtype=object).reshape(-1)]
+
+
+def function_source(name, outputs, args=("y", "p", "out")):
+    """Python source of ``def name(*args)`` writing ``outputs`` (Syms) into ``out[j]``.
+
+    One assignment per reachable node, in creation order (a topological order
+    of the graph).
+    """
+    outputs = _syms(outputs)
+    body, vals = _node_lines(outputs, lambda name, i: f"{name}[{i}]")
+    lines = [f"def {name}({', '.join(args)}):"] + body
+    lines += [f"    {args[-1]}[{j}] = {v}" for j, v in enumerate(vals)]
     if len(lines) == 1 or not outputs:
         lines.append("    return")
+    return "\n".join(lines) + "\n"
+
+
+def scalar_names(name, size):
+    """The scalar arguments ``name_0, ..., name_{size-1}`` of an input of :func:`scalar_function_source`."""
+    return [f"{name}_{i}" for i in range(size)]
+
+
+def scalar_function_source(name, outputs, inputs, *, wrapper=None, inline=False):
+    """``def name(y_0, ..., p_0, ...)`` returning ``outputs`` (Syms) as a tuple; inputs as scalars.
+
+    ``inputs`` is ``[(symbol name, size), ...]`` in the order of the arguments.
+    The loops keep the state and the parameters in local variables and call
+    this form (numba inlines it; its tuple lives in registers).  ``wrapper``
+    ``(fname, args)`` also prints the array form ``def fname(*args)`` (the
+    inputs as arrays, then ``out``) that unpacks its arrays, calls ``name`` and
+    writes ``out``: one home for the formulas, two calling conventions.
+    ``inline``: numba inlines the function into its callers itself (``inline='always'``;
+    for a function called once per step, which LLVM does not always inline).
+    """
+    outputs = _syms(outputs)
+    params = [a for nm, size in inputs for a in scalar_names(nm, size)]
+    body, vals = _node_lines(outputs, lambda nm, i: f"{nm}_{i}")
+    ret = ", ".join(vals) + ("," if len(vals) == 1 else "")
+    deco = NJIT.rstrip("\n")[:-1] + ", inline='always')" if inline else NJIT.rstrip("\n")
+    lines = [deco, f"def {name}({', '.join(params)}):"] + body + [f"    return ({ret})"]
+    if wrapper is not None:
+        fname, args = wrapper
+        call = ", ".join(f"{a}[{i}]" for a, (_, size) in zip(args, inputs) for i in range(size))
+        lines += ["", "", NJIT.rstrip("\n"), f"def {fname}({', '.join(args)}):", f"    r = {name}({call})"]
+        lines += [f"    {args[-1]}[{j}] = r[{j}]" for j in range(len(outputs))]
+        if not outputs:
+            lines.append("    return")
     return "\n".join(lines) + "\n"
 
 
@@ -143,6 +191,83 @@ def _coeff_source(scheme):
     return L
 
 
+def _scalar_step_source(scheme, N, P, split):
+    """Body lines (indent 8) of one step on the scalars ``y_0..`` (:func:`scalar_loop_source`).
+
+    The arithmetic of :func:`_step_source`, term for term: ``yi_i = y_i + c1_0 * k0_i + ...``,
+    ``y_i = y_i + cb0 * k0_i + ...``; a split scheme then ``y = fstep_s(y, p, dt)``.
+    """
+    ys, ps = ", ".join(scalar_names("y", N)), ", ".join(scalar_names("p", P))
+    rhs = "xrhs_s" if split else "rhs_s"
+    pa = f", {ps}" if P else ""
+    L = []
+    for i in range(scheme.stages):
+        coeffs = [(j, a) for j, a in enumerate(scheme.A[i][:i]) if a]
+        ks = ", ".join(scalar_names(f"k{i}", N))
+        if not coeffs:
+            L.append(f"        {ks}{',' if N == 1 else ''} = {rhs}({ys}{pa})")
+            continue
+        for n in range(N):
+            L.append(f"        yi_{n} = y_{n} + " + " + ".join(f"c{i}_{j} * k{j}_{n}" for j, _ in coeffs))
+        L.append(f"        {ks}{',' if N == 1 else ''} = {rhs}({', '.join(scalar_names('yi', N))}{pa})")
+    for n in range(N):
+        L.append(f"        y_{n} = y_{n} + " + " + ".join(f"cb{j} * k{j}_{n}" for j, b in enumerate(scheme.b) if b))
+    if split:
+        L.append(f"        {ys}{',' if N == 1 else ''} = fstep_s({ys}{pa}, dt)")
+    return L
+
+
+def scalar_loop_source(fname, scheme, N, P, *, split=False):
+    """The loop of :func:`loop_source` (same signature, same results, the same flush-to-zero wrapper) on local variables.
+
+    The state ``y_0..``, the stages ``k0_0..`` and the parameters ``p_0..`` (read
+    once, before the loop) are scalars, and the fields are called in their scalar
+    form (``rhs_s``, ``xrhs_s``, ``fstep_s`` of :func:`scalar_function_source`), so
+    that the compiled loop keeps them in registers: no array is written per
+    stage.  The checks and the saves count down instead of taking ``step % k``
+    (an integer division per step).
+    """
+    ys = scalar_names("y", N)
+    L = ["@njit(cache=CACHE, error_model='numpy')", f"def {fname}_loop({_LOOP_ARGS}):"]
+    L += [f"    y_{i} = y0[{i}]" for i in range(N)]
+    L += [f"    p_{i} = p[{i}]" for i in range(P)]
+    L += _coeff_source(scheme)
+    L += [f"    out[{i}, 0] = y_{i}" for i in range(N)]
+    L += [f"    last[{i}] = y_{i}" for i in range(N)]
+    L += ["    j = 1", "    last_step = 0", "    to_check = check_every", "    to_save = save_every",
+          "    for step in range(1, n_steps + 1):"]
+    L += _scalar_step_source(scheme, N, P, split)
+    L += ["        to_check -= 1",
+          "        if to_check == 0 or step == n_steps:",
+          "            to_check = check_every",
+          "            s = " + " + ".join(ys),
+          "            if not (s - s == 0.0):"]
+    L += [f"                bad[{i}] = y_{i}" for i in range(N)]
+    L += ["                return step, last_step, 0"]
+    L += [f"            last[{i}] = y_{i}" for i in range(N)]
+    L += ["            last_step = step",
+          "        to_save -= 1",
+          "        if to_save == 0 or step == n_steps:",
+          "            to_save = save_every"]
+    L += [f"            out[{i}, j] = y_{i}" for i in range(N)]
+    L += ["            j += 1", "    return 0, last_step, 0", "", "", _flushing(fname, _LOOP_ARGS, f"{fname}_loop")]
+    return "\n".join(L) + "\n" + _batch_source(fname)
+
+
+def _batch_source(fname):
+    return "\n".join([
+        "",
+        "@njit(parallel=True, cache=CACHE, error_model='numpy')",
+        f"def {fname}_batch(Y0, P, dt, n_steps, save_every, check_every, OUT, BAD, LAST, PP, maxit, tol, STATUS):",
+        "    for b in prange(Y0.shape[0]):",
+        f"        r = {fname}(Y0[b], P[b], dt, n_steps, save_every, check_every, OUT[b], BAD[b], LAST[b], PP[b], maxit, tol)",
+        "        STATUS[b, 0] = r[0]",
+        "        STATUS[b, 1] = r[1]",
+        "        STATUS[b, 2] = r[2]",
+        "",
+    ]) + "\n"
+
+
 def loop_source(fname, scheme, N, *, project=False, split=False):
     """Source of the fixed-step loop of one trajectory (and its batch version ``fname + '_batch'``).
 
@@ -204,17 +329,8 @@ def loop_source(fname, scheme, N, *, project=False, split=False):
         "",
         "",
         _flushing(fname, _LOOP_ARGS, f"{fname}_loop"),
-        "",
-        "@njit(parallel=True, cache=CACHE, error_model='numpy')",
-        f"def {fname}_batch(Y0, P, dt, n_steps, save_every, check_every, OUT, BAD, LAST, PP, maxit, tol, STATUS):",
-        "    for b in prange(Y0.shape[0]):",
-        f"        r = {fname}(Y0[b], P[b], dt, n_steps, save_every, check_every, OUT[b], BAD[b], LAST[b], PP[b], maxit, tol)",
-        "        STATUS[b, 0] = r[0]",
-        "        STATUS[b, 1] = r[1]",
-        "        STATUS[b, 2] = r[2]",
-        "",
     ]
-    return "\n".join(L) + "\n"
+    return "\n".join(L) + "\n" + _batch_source(fname)
 
 
 _PROJECT_SOURCE = '''
@@ -312,23 +428,33 @@ def module_text(source, engine, cache):
     return _HEADER.format(imports=imports, cache=bool(cache)) + source
 
 
-def loops_source(N, *, projection=False):
-    """The loops of every explicit scheme of :mod:`liefi.schemes` (with the projected ones)."""
+def loops_source(N, *, projection=False, n_params=None):
+    """The loops of every explicit scheme of :mod:`liefi.schemes` (with the projected ones).
+
+    With ``n_params`` (the size of ``p``) the plain loops are those of
+    :func:`scalar_loop_source` (they call ``rhs_s``); without, of :func:`loop_source`
+    (they call ``rhs``).  The projected loops are :func:`loop_source`'s.
+    """
     from ..schemes import SCHEMES
 
     src = []
     for sch in SCHEMES.values():
-        src.append(loop_source(f"run_{sch.name}", sch, N))
+        if n_params is None:
+            src.append(loop_source(f"run_{sch.name}", sch, N))
+        else:
+            src.append(scalar_loop_source(f"run_{sch.name}", sch, N, n_params))
         if projection:
             src.append(loop_source(f"run_{sch.name}_proj", sch, N, project=True))
     return "\n".join(src)
 
 
-def split_loops_source(N):
-    """The loops of the split schemes of :mod:`liefi.schemes.split` (``run_imex_euler``, ...)."""
+def split_loops_source(N, n_params):
+    """The loops of the split schemes of :mod:`liefi.schemes.split` (``run_imex_euler``, ...), on
+    ``xrhs_s`` and ``fstep_s`` (:func:`scalar_loop_source`)."""
     from ..schemes.split import SPLIT_SCHEMES
 
-    return "\n".join(loop_source(split_loop_name(s), s.explicit, N, split=True) for s in SPLIT_SCHEMES.values())
+    return "\n".join(scalar_loop_source(split_loop_name(s), s.explicit, N, n_params, split=True)
+                     for s in SPLIT_SCHEMES.values())
 
 
 def split_loop_name(scheme):

@@ -28,7 +28,8 @@ import weakref
 import numpy as np
 
 from . import cache as _cache
-from .codegen import NJIT, dla_loop_source, function_source, loops_source, project_source, split_loops_source
+from .codegen import (NJIT, dla_loop_source, function_source, loops_source, project_source, scalar_function_source,
+                      split_loops_source)
 from .runners import CompiledDLA, CompiledField
 from .trace import TRACED_DATA, CompilationWarning, NotCompilable, as_sym, jacobian, trace, traced_call
 
@@ -116,7 +117,8 @@ def compile_feedback(fi, *, feedback=True, engine=None):
             f = traced_call("the feedback field", fi.vector_field, y, p, data=TRACED_DATA)
         else:
             f = traced_call("the extended field", fi.unforced_vector_field, y, p, data=TRACED_DATA)
-        src = NJIT + function_source("rhs", f) + "\n\n" + loops_source(fi.n)
+        src = (scalar_function_source("rhs_s", f, [("y", fi.n), ("p", size)], wrapper=("rhs", ("y", "p", "out")))
+               + "\n\n" + loops_source(fi.n, n_params=size))
         return src, size, "feedback" if feedback else "extended", 0
 
     return _field_kernel(fi, "feedback" if feedback else "extended", engine, make)
@@ -141,8 +143,10 @@ def compile_split(fi, *, engine=None):
         h = tr.symbols("hh", 1)[0]
         x = traced_call("the extended field", fi.unforced_vector_field, y, p, data=TRACED_DATA)
         yn = traced_call("the feedback step", feedback_step, fi, y, h, p, data=TRACED_DATA)
-        src = (NJIT + function_source("xrhs", x) + "\n\n" + NJIT + function_source("fstep", yn, ("y", "p", "hh", "out"))
-               + "\n\n" + split_loops_source(fi.n))
+        src = (scalar_function_source("xrhs_s", x, [("y", fi.n), ("p", size)], wrapper=("xrhs", ("y", "p", "out")))
+               + "\n\n" + scalar_function_source("fstep_s", yn, [("y", fi.n), ("p", size), ("hh", 1)],
+                                                  wrapper=("fstep", ("y", "p", "hh", "out")), inline=True)
+               + "\n\n" + split_loops_source(fi.n, size))
         return src, size, "split", 0
 
     return _field_kernel(fi, "split", engine, make)

@@ -32,17 +32,10 @@ import traceback
 
 import numpy as np
 
-__all__ = [
-    "NotCompilable",
-    "CompilationWarning",
-    "Sym",
-    "trace",
-    "derivative",
-    "jacobian",
-    "TracedData",
-    "TRACED_DATA",
-    "traced_call",
-]
+from .cramer import cramer_solve
+
+__all__ = ["NotCompilable", "CompilationWarning", "Sym", "trace", "derivative", "jacobian", "TracedData",
+           "TRACED_DATA", "traced_call"]
 
 
 class NotCompilable(ValueError):
@@ -371,6 +364,8 @@ def add(a, b):
         return b
     if _is_const(b, 0.0):
         return a
+    if b.op == "neg" or a.op == "neg":  # a + (-b) == a - b exactly (signs out: more sharing, x - x = 0)
+        return sub(a, b.args[0]) if b.op == "neg" else sub(b, a.args[0])
     if a.id > b.id:  # a + b == b + a exactly: one canonical order shares more nodes
         a, b = b, a
     return _graph().node("add", (a, b))
@@ -387,6 +382,10 @@ def sub(a, b):
         return unary("neg", b)
     if a is b:
         return const(0.0)
+    if b.op == "neg":  # a - (-b) == a + b, (-a) - b == -(a + b): exact
+        return add(a, b.args[0])
+    if a.op == "neg":
+        return unary("neg", add(a.args[0], b))
     return _graph().node("sub", (a, b))
 
 
@@ -405,6 +404,9 @@ def mul(a, b):
         return unary("neg", b)
     if _is_const(b, -1.0):
         return unary("neg", a)
+    if a.op == "neg" or b.op == "neg":  # (-a) b == -(a b) exactly
+        return mul(a.args[0], b.args[0]) if a.op == b.op else unary("neg", mul(*(
+            (a.args[0], b) if a.op == "neg" else (a, b.args[0]))))
     if a.id > b.id:
         a, b = b, a
     return _graph().node("mul", (a, b))
@@ -594,7 +596,8 @@ def _is_traced(a):
 def _gauss_solve(A, B):
     """Solve ``A X = B`` for a small matrix ``A`` of traced scalars (object arrays).
 
-    Gaussian elimination without pivoting (a traced value has no magnitude to
+    2 x 2 and 3 x 3: Cramer's rule (:func:`liefi.engine.cramer.cramer_solve`).  Larger: Gaussian
+    elimination without pivoting (a traced value has no magnitude to
     pivot on), which is stable for the symmetric positive definite and
     diagonally dominant matrices that data functions meet (Golub & Van Loan,
     Sec. 4.2; e.g. ``orthonormalize=True``: a Cholesky factor).  ``B`` is
@@ -606,6 +609,9 @@ def _gauss_solve(A, B):
     if vec:
         X = X[:, None]
     k = A.shape[0]
+    if k in (2, 3):  # closed form: no elimination chain (each division waited for the previous one)
+        X = cramer_solve(A, X)
+        return X[:, 0] if vec else X
     for i in range(k):
         for r in range(i + 1, k):
             f = div(A[r, i], A[i, i])
