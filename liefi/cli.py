@@ -274,8 +274,18 @@ def cmd_run(args):
         if scene.figures_need_configuration:
             configuration = True
     gains = parse_gains(gains_text, scene, variant, configuration)
-    if rtol is None or dt is not None:
+    if rtol is None or dt is not None or scheme.startswith("scipy:") or scheme in scene.extra_schemes:
         check_steps(scene, args)
+    else:  # the step for the tolerance, known before the run: refuse a run of hours before it starts
+        T = scene.t_final if args.t_final is None else args.t_final
+        try:
+            step, _ = scene.step_for_tolerance(variant, scheme, T, rtol, args.atol, gains=gains,
+                                               configuration=configuration)
+            check_step_count(step, T, args.max_steps, name="rtol",
+                             advice=f"the step for rtol {rtol:g}; loosen --rtol, take a shorter --t-final, give a "
+                                    "larger --dt, or raise --max-steps")
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
     result = scene.run(
         dt=dt,
         t_final=args.t_final,

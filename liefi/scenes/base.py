@@ -479,14 +479,27 @@ class Scene:
         return result
 
     def _step_for_tolerance(self, v, scheme, gains, configuration, T, rtol, atol):
-        """``(dt, info, fi)``: the fixed step of ``scheme`` for ``rtol``/``atol`` (:func:`liefi.tolerance.choose_step`)."""
+        """``(dt, info, fi)``: the fixed step of ``scheme`` for ``rtol``/``atol`` (:meth:`step_for_tolerance`)."""
+        dt, info = self.step_for_tolerance(v, scheme, T, rtol, atol, gains=gains, configuration=configuration)
+        return dt, info, self.integrator(v, gains=gains, configuration=configuration)
+
+    def step_for_tolerance(self, variant, scheme, t_final, rtol=None, atol=None, *, gains=None, configuration=None):
+        """``(dt, info)``: the step :meth:`run` takes for ``rtol``/``atol`` (:func:`liefi.tolerance.choose_step`).
+
+        Known before the run (``liefi run`` refuses a run of too many steps with it); kept on the
+        scene for the same arguments, so that the run that follows does not repeat the pilot.
+        """
         from ..run import _fixed_step_scheme
         from ..tolerance import DEFAULT_RTOL, choose_step
 
-        fi = self.integrator(v, gains=gains, configuration=configuration)
-        dt, info = choose_step(fi, _fixed_step_scheme(scheme), fi.y0, 0.0, T,
-                               DEFAULT_RTOL if rtol is None else rtol, atol)
-        return dt, info, fi
+        v = self.variant(variant) if not isinstance(variant, Variant) else variant
+        rtol = DEFAULT_RTOL if rtol is None else rtol
+        key = (v.name, str(scheme), repr(gains), configuration, float(t_final), repr(rtol), repr(atol))
+        cache = self.__dict__.setdefault("_stepcache", {})
+        if key not in cache:
+            fi = self.integrator(v, gains=gains, configuration=configuration)
+            cache[key] = choose_step(fi, _fixed_step_scheme(scheme), fi.y0, 0.0, float(t_final), rtol, atol)
+        return cache[key]
 
     def _check_start(self, fi, v, rtol=1e-9):
         """The reference solution is the *constrained* motion: the start must be on ``J = 0``."""
