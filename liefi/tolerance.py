@@ -33,7 +33,7 @@ alone, once, before the run:
    feedback keeps the invariants, and with them the actions, at rounding, so
    the error is a phase error that grows linearly in ``t``): the global
    error is about ``T C dt^p``.  The step is ``dt = SAFETY (1/(T C))^{1/p}``,
-   halved while the stability guard finds that it does not resolve the
+   shortened while the stability guard finds that it does not resolve the
    unforced motion (:func:`resolved_step`: a motion that RK4 integrates
    nearly exactly would otherwise get a step too long for it), then rounded down
    to ``T / N`` for a whole number ``N`` of steps.  The estimate is an upper
@@ -198,7 +198,7 @@ def choose_step(fi, sch, y0, t0, t_end, rtol, atol=None):
 
 
 def resolved_step(fi, tab, Y, dt):
-    """``dt``, halved until it resolves the unforced motion (the stability guard's test).
+    """``dt``, shortened until it resolves the unforced motion (the stability guard's test).
 
     The guard (:func:`liefi.stability.estimate`) warns past ``dt omega >``
     :data:`~liefi.stability.RESOLUTION_LIMIT` and refuses when the tableau
@@ -206,14 +206,15 @@ def resolved_step(fi, tab, Y, dt):
     a step; a step chosen for a loose tolerance on a motion the tableau
     integrates (nearly) exactly would otherwise cross them.
     """
-    from .stability import estimate
+    from .stability import RESOLUTION_LIMIT, estimate
 
     for _ in range(60):
         with np.errstate(all="ignore"):
             est = estimate(fi, dt, tab, y0=Y.reshape(fi.batch + (fi.n,)) if fi.batch else Y[0])
         if not (est.under_resolved or est.unresolvable):
             break
-        dt *= 0.5
+        # the rate scales with dt: straight to just inside its limit; past the growth limit 0.8x a time
+        dt *= 0.8 if est.unresolvable or not est.rate > 0 else min(0.98, 0.98 * RESOLUTION_LIMIT / est.rate)
     return dt
 
 

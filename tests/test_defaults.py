@@ -51,13 +51,14 @@ def test_the_step_for_a_tolerance_is_unit_invariant():
     assert b.dt == pytest.approx(s_t * a.dt, rel=1e-9)
 
 
-@pytest.mark.parametrize("name", ["knife-edge", "oscillator", "rigid-body"])
+@pytest.mark.parametrize("name", ["knife-edge", "vertical-disk", "rigid-body"])
 def test_achieved_error_follows_the_tolerance(name):
     sc = scenes.get(name)
     errs = []
     for rtol in (1e-4, 1e-7):
-        r = sc.run(scheme="imex-rk4", gains="auto", t_final=20.0, rtol=rtol, backend="numpy")
-        rel = max(r.max_error[k] / np.max(np.abs(r[k])) for k in r.max_error)
+        r = sc.run(scheme="imex-rk4", gains="auto", t_final=10.0, rtol=rtol, backend="numpy")
+        sizes = {k: np.max(np.abs(r[k])) for k in r.max_error}
+        rel = max(r.max_error[k] / sizes[k] for k in r.max_error if sizes[k] > 0)
         assert rel <= 10 * rtol, (name, rtol, rel)
         assert max(r.max_drift.values()) <= 1e-10
         assert r.method["rtol"] == rtol
