@@ -4,7 +4,8 @@
 
     liefi --version
     liefi list [-v]
-    liefi run SCENE [--dt DT] [--t-final T] [--scheme euler|heun|rk4|dla|scipy:METHOD]
+    liefi run SCENE [--rtol R] [--atol A] [--paper] [--dt DT] [--t-final T]
+                    [--scheme imex-rk4|euler|heun|rk4|dla|scipy:METHOD]
                     [--gains K | --gains K1,K2,... | --gains name=K,...] [--variant NAME]
                     [--configuration] [--save-every N] [--no-check-stability] [--adaptive]
                     [--json] [--out FILE.png|DIR]
@@ -12,9 +13,12 @@
     liefi stability SCENE [--scheme S] [--gains K1,K2,...] [--out FILE.png] [--estimate] [--json]
     liefi bench SCENE|all [--t-final T] [--out DIR] [--scheduler ADDR] [--quick] [--long-horizon T]
 
-``liefi run`` runs one scene at the paper's settings unless told otherwise and
+``liefi run`` runs one scene with liefi's best method unless told otherwise
+(``imex-rk4``, gains ``auto``, the step chosen for ``--rtol``, default 1e-6:
+:mod:`liefi.tolerance`; ``--paper``: the paper's scheme, gains and step) and
 reports its error against the exact (or numerical reference) solution, the
-drift of every invariant and its CPU time; ``--json`` prints one JSON object.
+drift of every invariant and its CPU time; ``--json`` prints one JSON object,
+whose ``method`` entry says which method ran and why.
 ``liefi reproduce`` is :mod:`liefi.reproduce`.
 
 Errors (unknown scene, variant or scheme, malformed gains, a diverging run, an
@@ -231,22 +235,63 @@ def check_steps(scene, args):
         raise UsageError(str(exc)) from None
 
 
+def run_settings(scene, args):
+    """``(scheme, gains_text, dt, rtol, atol, why)`` of ``liefi run``: the best method unless ``--paper``.
+
+    Default: :data:`liefi.tolerance.DEFAULT_SCHEME` with ``gains auto`` at the
+    step chosen for ``--rtol`` (default :data:`liefi.tolerance.DEFAULT_RTOL`);
+    ``--paper``: the scene's paper settings (scheme, gains, dt).  What is given
+    explicitly is kept either way.
+    """
+    from . import tolerance as _tol
+
+    if args.dt is not None and (args.rtol is not None or args.atol is not None):
+        raise UsageError("rtol: give --dt or --rtol/--atol, not both (without --dt the step is chosen for the "
+                         "tolerance)")
+    if args.paper:
+        if args.rtol is not None or args.atol is not None:
+            raise UsageError("rtol: --paper runs at the paper's step; drop --rtol/--atol or --paper")
+        return args.scheme, args.gains, args.dt, None, None, "--paper: the paper's settings of the scene"
+    scheme = _tol.DEFAULT_SCHEME if args.scheme is None else args.scheme
+    gains = "auto" if args.gains is None else args.gains
+    fixed = scheme in _schemes.names("explicit") + _schemes.names("split")
+    rtol, atol = args.rtol, args.atol
+    if fixed and args.dt is None and rtol is None:
+        rtol = _tol.DEFAULT_RTOL
+    why = "liefi's default method (imex-rk4, gains auto, the step for the tolerance; --paper: the paper's settings)"
+    if args.scheme is not None or args.gains is not None or args.dt is not None:
+        why = "as asked, liefi's defaults for the rest (imex-rk4, gains auto, the step for the tolerance)"
+    return scheme, gains, args.dt, rtol, atol, why
+
+
 def cmd_run(args):
     scene = _scenes.get(args.scene)
     variant = scene.variant(args.variant)
     check_scheme(args.scheme, scene)
+    scheme, gains_text, dt, rtol, atol, why = run_settings(scene, args)
     configuration = True if args.configuration else None
     path = None
     if args.out:
         path = plot_path(args.out, scene, variant.name)  # before any work
         if scene.figures_need_configuration:
             configuration = True
-    gains = parse_gains(args.gains, scene, variant, configuration)
-    check_steps(scene, args)
+    gains = parse_gains(gains_text, scene, variant, configuration)
+    if rtol is None or dt is not None or scheme.startswith("scipy:") or scheme in scene.extra_schemes:
+        check_steps(scene, args)
+    else:  # the step for the tolerance, known before the run: refuse a run of hours before it starts
+        T = scene.t_final if args.t_final is None else args.t_final
+        try:
+            step, _ = scene.step_for_tolerance(variant, scheme, T, rtol, args.atol, gains=gains,
+                                               configuration=configuration)
+            check_step_count(step, T, args.max_steps, name="rtol",
+                             advice=f"the step for rtol {rtol:g}; loosen --rtol, take a shorter --t-final, give a "
+                                    "larger --dt, or raise --max-steps")
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
     result = scene.run(
-        dt=args.dt,
+        dt=dt,
         t_final=args.t_final,
-        scheme=args.scheme,
+        scheme=scheme,
         gains=gains,
         variant=variant,
         configuration=configuration,
@@ -254,6 +299,8 @@ def cmd_run(args):
         save_every=args.save_every,
         check_stability=args.check_stability,
         adaptive=True if args.adaptive else None,
+        rtol=rtol,
+        atol=atol,
     )
     if not all(math.isfinite(v) for v in list(result.max_error.values()) + list(result.max_drift.values())):
         raise IntegrationError(
@@ -265,6 +312,11 @@ def cmd_run(args):
     out["reference_method"] = scene.reference_method()
     out["configuration"] = bool(configuration) if configuration is not None else scene.needs_configuration()
     out["warnings"] = list(getattr(args, "warnings_seen", []))
+    method = dict(result.method) if result.method else {
+        "scheme": result.scheme, "dt": result.dt, "gains": "auto" if gains == "auto" else "fixed",
+        "backend": result.backend, "why": f"scheme {result.scheme} as asked"}
+    method["why"] = why + "; " + method["why"]
+    out["method"] = method
     if path:
         from . import plotting
 
@@ -344,9 +396,10 @@ def build_parser():
 
     pr = sub.add_parser(
         "run",
-        help="run one scene at the paper's settings unless told otherwise",
+        help="run one scene with liefi's best method (--paper: the paper's settings)",
         description=(
-            "Run one scene at the paper's settings unless told otherwise; report the error against the "
+            "Run one scene with liefi's best method unless told otherwise (imex-rk4, gains auto, the step "
+            "chosen for --rtol, default 1e-6; --paper: the paper's scheme, gains and step); report the error against the "
             "exact (or numerical reference) solution, the drift of every invariant and the CPU time."
         ),
         epilog=(
@@ -359,14 +412,23 @@ def build_parser():
         ),
     )
     pr.add_argument("scene", metavar="SCENE", help="scene name (see 'liefi list')")
-    pr.add_argument("--dt", type=_positive_float("dt"), default=None, help="step (default: the paper's)")
+    pr.add_argument("--dt", type=_positive_float("dt"), default=None,
+                    help="step (default: chosen for --rtol; with --paper the paper's)")
+    pr.add_argument("--rtol", type=_positive_float("rtol"), default=None,
+                    help="relative tolerance of the state: the step is chosen for it (default 1e-6; "
+                         "with scipy:METHOD its rtol)")
+    pr.add_argument("--atol", type=float, default=None,
+                    help="absolute tolerance (default 0: relative to each component's size)")
+    pr.add_argument("--paper", action="store_true",
+                    help="the paper's settings of the scene (scheme, gains, dt) instead of the best method")
     pr.add_argument("--t-final", type=_positive_float("t-final"), default=None, dest="t_final",
                     help="final time (default: the paper's)")
     pr.add_argument("--scheme", default=None,
                     help="|".join(_schemes.names("explicit") + _schemes.names("split")) + "|dla (oscillator)|"
-                         "scipy:METHOD (METHOD: " + "|".join(SCIPY_METHODS) + "; default: the paper's)")
+                         "scipy:METHOD (METHOD: " + "|".join(SCIPY_METHODS) + "; default: imex-rk4, "
+                         "with --paper the paper's)")
     pr.add_argument("--gains", default=None, metavar="K|K1,K2,...|name=K,...|auto",
-                    help="feedback gains (default: the paper's); order: the integrator's invariant_names, see below")
+                    help="feedback gains (default: auto; with --paper the paper's); order: the integrator's invariant_names, see below")
     pr.add_argument("--variant", default=None, help="variant name (default: the scene's first)")
     pr.add_argument("--configuration", action="store_true", help="integrate the group element too")
     pr.add_argument("--backend", default=None, choices=("auto", "numba", "numpy"),

@@ -128,7 +128,7 @@ class FeedbackIntegrator:
         Which invariants ``V`` penalizes: ``"constraints"`` (every ``J_i``, target 0),
         ``"energy"`` (``h~`` or ``h`` by ``energy=``), and :class:`Invariant` objects.
     gains : float, dict or "auto"
-        One number for every gain, or ``{name: k}`` with names ``"J_1"``...,
+        Default ``"auto"``.  One number for every gain, or ``{name: k}`` with names ``"J_1"``...,
         ``"energy"``, ``"penalty"``, the invariants' names; ``"constraints"`` sets every ``J_i``.
         For an ensemble a gain may differ between members: an array of shape
         ``y0.shape[:-1]`` (e.g. ``{"energy": [10.0, 100.0, 1000.0]}``).
@@ -177,7 +177,7 @@ class FeedbackIntegrator:
         y0,
         *,
         invariants=("constraints", "energy"),
-        gains=1.0,
+        gains="auto",
         energy="extended",
         configuration=True,
         field="extended",
@@ -655,8 +655,8 @@ class FeedbackIntegrator:
 
     # --- running ------------------------------------------------------------------
     def run(self, t_span=None, *args, dt=None, scheme=None, t_eval=None, events=None, dense_output=False, y0=None,
-            save_every=None, check_every=1, backend="numpy", check_stability=True, adaptive=None, monitor_every=None,
-            progress=None, drop_exact=True, errors="raise", t_final=None):
+            save_every=None, check_every=1, backend=None, check_stability=True, adaptive=None, monitor_every=None,
+            progress=None, drop_exact=True, errors="raise", t_final=None, rtol=None, atol=None):
         """Integrate from ``y0`` (default: the one given at construction) over ``t_span``, as ``solve_ivp``.
 
         ``fi.run(t_span, dt=..., scheme=...)``: ``t_span`` is the final time
@@ -671,9 +671,13 @@ class FeedbackIntegrator:
         (``errors="return"``: returns the run up to there with ``success=False``,
         ``status=-1`` and the error as ``message``).
 
-        ``dt`` (required today; a step chosen from a tolerance will make it
-        optional) must divide ``t_final - t0`` (the message gives the nearest
-        one that does).  ``scheme``: default ``"euler"``.  The old form
+        The default method is the best one (:mod:`liefi.tolerance`): ``scheme``
+        ``"imex-rk4"``, compiled, with the gains of the constructor (``"auto"``
+        by default), at the step :func:`liefi.tolerance.choose_step` picks for
+        ``rtol`` (default ``1e-6``) and ``atol`` (default 0: relative to each
+        component's size) when ``dt`` is not given; ``solution.method`` says
+        which method ran and why.  A given ``dt`` must divide ``t_final - t0``
+        (the message gives the nearest one that does).  The old form
         ``run(dt, t_final, scheme)`` still works and warns
         (:class:`DeprecationWarning`).
 
@@ -687,7 +691,8 @@ class FeedbackIntegrator:
         ``progress``: progress on stderr (default: for runs expected to take
         more than a few seconds, when stderr is a terminal).
 
-        ``backend``: ``"numpy"`` (default, the reference implementation),
+        ``backend``: ``None`` (default: ``"auto"`` when numba is installed, else
+        ``"numpy"``, silently), ``"numpy"`` (the reference implementation),
         ``"numba"`` or ``"auto"``: the same field generated as scalar code from
         the system's data and the whole loop compiled (:mod:`liefi.engine`;
         agrees with numpy to 1e-12).  When numba is missing or a datum cannot
@@ -738,5 +743,5 @@ class FeedbackIntegrator:
             self, t_span, dt=dt, scheme=scheme, t_eval=t_eval, events=events, dense_output=dense_output,
             errors=errors, y0=y0, save_every=save_every, check_every=check_every, backend=backend,
             check_stability=check_stability, adaptive=adaptive, monitor_every=monitor_every, progress=progress,
-            drop_exact=drop_exact,
+            drop_exact=drop_exact, rtol=rtol, atol=atol,
         )

@@ -221,11 +221,13 @@ def exact_drops(fi, sch, y0, *, rtol=1e-12):
     return out
 
 
-#: The message of a run without ``dt=`` (until a step is chosen from a tolerance).
-DT_MISSING = (
-    "dt: pass the step as dt=..., e.g. fi.run(10.0, dt=1e-3, scheme='rk4') (t_span = 10.0 or (t0, t_final)); "
-    "liefi's fixed-step schemes need it"
-)
+def _span_length(t0, t_end):
+    """``t_end - t0`` when it is a positive finite number, else ``1.0`` (:func:`steps_for` then names the fault)."""
+    try:
+        length = float(t_end) - float(t0)
+    except (TypeError, ValueError):
+        return 1.0
+    return length if math.isfinite(length) and length > 0 else 1.0
 
 
 def legacy_call(t_span, args, *, dt, t_final, scheme):
@@ -273,8 +275,9 @@ def deprecation_message(t_span, dt, scheme):
 
 
 def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, dense_output=False, errors="raise",
-                 y0=None, save_every=None, check_every=1, backend="numpy", check_stability=True, adaptive=None,
-                 monitor_every=None, progress=None, max_saved_bytes=None, drop_exact=True, stacklevel=3) -> Solution:
+                 y0=None, save_every=None, check_every=1, backend=None, check_stability=True, adaptive=None,
+                 monitor_every=None, progress=None, max_saved_bytes=None, drop_exact=True, rtol=None, atol=None,
+                 stacklevel=3) -> Solution:
     """Integrate the feedback integrator ``fi`` over ``t_span`` with a fixed step (module docstring).
 
     The parameters are those of :meth:`liefi.FeedbackIntegrator.run`;
@@ -287,8 +290,13 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
     ``solve_ivp``'s, on the cubic Hermite interpolant of :mod:`liefi.dense`.
     ``errors``: ``"raise"`` (default) or ``"return"``: a failed run returns the
     states up to the failure with ``success=False``, ``status=-1``.
+    ``scheme=None``: :data:`liefi.tolerance.DEFAULT_SCHEME`; ``backend=None``:
+    compiled when numba is installed, else numpy; ``dt=None``: the step of
+    :func:`liefi.tolerance.choose_step` for ``rtol`` (default
+    :data:`liefi.tolerance.DEFAULT_RTOL`) and ``atol``.
 
-    Returns the :class:`~liefi.schemes.Solution` with ``stability`` (the
+    Returns the :class:`~liefi.schemes.Solution` with ``method`` (which method
+    ran and why: :func:`liefi.tolerance.describe`), ``stability`` (the
     guard's :class:`~liefi.guard.RunReport`), ``plan`` (:class:`RunPlan`),
     ``cpu_seconds`` (integration) and ``overhead_seconds``.
     """
@@ -297,12 +305,32 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
     from .schemes.core import MESSAGE_EVENT
     from .stability import StabilityError
 
+    from . import tolerance as _tol
+
     start_all = time.process_time()
     t_start, t_end = _dense.parse_span(t_span)
-    if dt is None:
-        raise ValueError(DT_MISSING)
+    if dt is not None and (rtol is not None or atol is not None):
+        raise ValueError("rtol: give a step (dt=) or a tolerance (rtol=, atol=), not both; without dt the step is "
+                         "chosen for the tolerance")
     if errors not in ("raise", "return"):
         raise ValueError(f"errors: expected 'raise' or 'return', got {errors!r}")
+    scheme_given, dt_given = scheme is not None, dt is not None
+    sch = _fixed_step_scheme(scheme if scheme_given else _tol.DEFAULT_SCHEME)
+    backend = _tol.default_backend() if backend is None else backend
+    chosen = None
+    if dt is None:
+        rtol = _tol.DEFAULT_RTOL if rtol is None else rtol
+        _tol.check_tolerance(rtol, atol)
+        t_end = steps_for(_span_length(t_start, t_end), t_end, t0=t_start)[1]  # the span checked first
+        y_pilot = fi.y0 if y0 is None else np.asarray(y0, dtype=float)
+        if np.shape(y_pilot)[-1:] == (fi.n,) and np.all(np.isfinite(y_pilot)):
+            dt, chosen = _tol.choose_step(fi.for_batch(np.shape(y_pilot)[:-1]), sch, y_pilot, t_start, t_end,
+                                          rtol, atol)
+            if (t_end - t_start) / dt > MAX_RUN_STEPS:
+                raise ValueError(f"rtol: {rtol!r} needs {(t_end - t_start) / dt:.3g} steps over t in [{t_start:g}, "
+                                 f"{t_end:g}], more than the {MAX_RUN_STEPS:.0e} allowed; loosen rtol or atol")
+        else:
+            dt = t_end - t_start  # y0 is refused below, naming what is wrong
     dt, t_end, n_steps, _, check_every = steps_for(dt, t_end, check_every=check_every, t0=t_start)
     t_eval = _dense.check_t_eval(t_eval, t_start, t_end)
     evs = _dense.check_events(events)
@@ -320,7 +348,6 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
         raise ValueError(f"events: only for a single trajectory (y0 of shape ({fi.n},)), got a batch of shape "
                          f"{y0.shape}; run the members one by one to locate their events")
     fi = fi.for_batch(y0.shape[:-1])  # an integrator built on one state, run on a batch: common values
-    sch = _fixed_step_scheme(scheme if scheme is not None else "euler")
     user_fi = fi
     drops = exact_drops(fi, sch, y0) if drop_exact else {}
     if drops:
@@ -439,6 +466,8 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
     sol.stability = guard.report
     sol.dropped = list(run_fi.dropped)
     sol.plan = pl
+    sol.method = _tol.describe(sch.name, dt, getattr(user_fi, "gains_mode", "fixed"), sol.backend, chosen=chosen,
+                               scheme_given=scheme_given, dt_given=dt_given)
     sol.overhead_seconds = max(0.0, time.process_time() - start_all - cpu)
     return sol
 

@@ -166,11 +166,11 @@ def test_start_off_the_constraint_set_where_the_scene_needs_it_on():
         sus.run(t_final=0.01)
 
 
-@pytest.mark.parametrize("dt", [0.0, -1e-3, np.nan, np.inf, "a", None])
+@pytest.mark.parametrize("dt", [0.0, -1e-3, np.nan, np.inf, "a"])
 def test_non_positive_or_non_finite_step(knife, dt):
     fi = knife.integrator()
     with pytest.raises(ValueError, match="^dt: "):
-        fi.run(0.01, dt=dt)
+        fi.run(0.01, dt=dt, backend="numpy")  # (dt=None: the step chosen for rtol, tests/test_defaults.py)
 
 
 @pytest.mark.parametrize("T", [0.0, -1.0, np.nan, "a"])

@@ -47,7 +47,7 @@ def test_list_names_every_scene(capsys):
 
 
 def test_run_json_keys_and_values(capsys):
-    d = run_json(capsys, "suslov", "--t-final", "0.5")
+    d = run_json(capsys, "suslov", "--t-final", "0.5", "--paper")  # the paper's settings
     assert REQUIRED_KEYS <= set(d)
     assert d["scene"] == "suslov" and d["scheme"] == "euler" and d["reference"] == "exact"
     assert d["dt"] == 1e-3 and d["t_final"] == 0.5 and d["steps"] == 500
@@ -126,7 +126,7 @@ def test_gains_error_shows_the_order(capsys):
 def test_diverging_run_exits_2(capsys):
     # Euler far beyond its stability limit: refused up front or stopped when it
     # blows up -- either way one line, no traceback
-    code, out, err = run_cli(capsys, "run", "suslov", "--t-final", "1", "--gains", "1e7")
+    code, out, err = run_cli(capsys, "run", "suslov", "--paper", "--t-final", "1", "--gains", "1e7")
     assert code == 2
     assert err.startswith("liefi: error:") and len(err.strip().splitlines()) == 1
 
@@ -200,7 +200,7 @@ def test_run_json_does_not_import_matplotlib():
 
 def test_python_dash_m_liefi():
     r = subprocess.run(
-        [sys.executable, "-m", "liefi", "run", "suslov", "--t-final", "0.1", "--json"],
+        [sys.executable, "-m", "liefi", "run", "suslov", "--paper", "--t-final", "0.1", "--json"],
         capture_output=True, text=True, cwd=ROOT, timeout=60,
     )
     assert r.returncode == 0, r.stderr
@@ -232,7 +232,7 @@ def test_stability_warning_is_printed_before_the_run(capsys):
     """Issue 5's must-show: past the limit liefi warns on stderr *before* running, with the safe dt."""
     from liefi.cli import main
 
-    code = main(["run", "knife-edge", "--gains", "1100", "--t-final", "10", "--json"])
+    code = main(["run", "knife-edge", "--paper", "--gains", "1100", "--t-final", "10", "--json"])
     err = capsys.readouterr().err
     lines = [ln for ln in err.splitlines() if ln.strip()]
     assert lines and "LiefiStabilityWarning" in lines[0]

@@ -253,7 +253,7 @@ def test_out_everywhere_and_jobs_refused(capsys):
 
 
 def test_flags_for_what_the_messages_advise(capsys):
-    code, out, err = run_cli(capsys, "run", "suslov", "--t-final", "0.1", "--save-every", "10", "--json")
+    code, out, err = run_cli(capsys, "run", "suslov", "--paper", "--t-final", "0.1", "--save-every", "10", "--json")
     assert code == 0, err
     d = json.loads(out)
     assert d["steps"] == 100
@@ -312,8 +312,8 @@ def test_readme_run_example_with_a_figure_works(capsys, tmp_path, monkeypatch):
 def test_advice_names_flags_that_exist(capsys):
     """Past the stability limit (the README's example without --gains auto) the warning and the
     error advise ``liefi`` flags, and every flag they name exists."""
-    code, out, err = run_cli(capsys, "run", "knife-edge", "--variant", "original", "--scheme", "rk4", "--dt", "1e-2",
-                             "--t-final", "1")
+    code, out, err = run_cli(capsys, "run", "knife-edge", "--paper", "--variant", "original", "--scheme", "rk4",
+                             "--dt", "1e-2", "--t-final", "1")
     assert code == 2 and "--gains auto" in err
     assert "gains='auto'" not in err and "adaptive=True" not in err
     run_parser = cli.build_parser()._subparsers._group_actions[0].choices["run"]
@@ -334,9 +334,9 @@ def test_runs_of_hours_are_refused_before_they_start(capsys, monkeypatch, argv):
 
 
 def test_max_steps_lets_a_long_run_through(capsys):
-    code, out, err = run_cli(capsys, "run", "suslov", "--t-final", "0.2", "--max-steps", "100")
+    code, out, err = run_cli(capsys, "run", "suslov", "--paper", "--t-final", "0.2", "--max-steps", "100")
     assert code == 2 and "--max-steps" in err
-    code, out, err = run_cli(capsys, "run", "suslov", "--t-final", "0.2", "--max-steps", "1000", "--json")
+    code, out, err = run_cli(capsys, "run", "suslov", "--paper", "--t-final", "0.2", "--max-steps", "1000", "--json")
     assert code == 0 and json.loads(out)["steps"] == 200
 
 

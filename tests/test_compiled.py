@@ -208,7 +208,7 @@ def test_compiled_run_equals_numpy_run(name, cfg, scheme):
     """``run(backend="numba")`` reproduces the numpy run: same saved times, states to 1e-12."""
     sc = scenes.get(name)
     fi = sc.integrator(None, configuration=cfg)
-    a = fi.run(500 * sc.dt, dt=sc.dt, scheme=scheme, save_every=7)
+    a = fi.run(500 * sc.dt, dt=sc.dt, scheme=scheme, save_every=7, backend="numpy")
     b = fi.run(500 * sc.dt, dt=sc.dt, scheme=scheme, save_every=7, backend="numba")
     assert b.y.shape == a.y.shape
     np.testing.assert_array_equal(a.t, b.t)
@@ -225,7 +225,7 @@ def test_compiled_split_run_equals_numpy_run(name, cfg, scheme):
     sc = scenes.get(name)
     for gains in (3.0, 1e6):
         fi = sc.integrator(None, configuration=cfg).with_gains(gains)
-        a = fi.run(300 * sc.dt, dt=sc.dt, scheme=scheme, save_every=7, check_stability=False)
+        a = fi.run(300 * sc.dt, dt=sc.dt, scheme=scheme, save_every=7, check_stability=False, backend="numpy")
         b = fi.run(300 * sc.dt, dt=sc.dt, scheme=scheme, save_every=7, backend="numba", check_stability=False)
         assert b.backend == "numba" and a.backend == "numpy"
         np.testing.assert_array_equal(a.t, b.t)
@@ -241,7 +241,7 @@ def test_compiled_split_ensemble_equals_numpy():
     Y0 = np.repeat(base.y0[None], 4, 0)
     Y0[:, 9:] = sc.system.project(base.y0[9:] + 0.3 * rng.normal(size=(4, 3)))
     fi = FeedbackIntegrator(sc.system, Y0, gains=50.0)
-    a = fi.run(1.0, dt=1e-2, scheme="imex-rk4", save_every=10, check_stability=False)
+    a = fi.run(1.0, dt=1e-2, scheme="imex-rk4", save_every=10, check_stability=False, backend="numpy")
     b = fi.run(1.0, dt=1e-2, scheme="imex-rk4", save_every=10, backend="numba", check_stability=False)
     assert rel(b.y, a.y) < TOL
 
@@ -256,7 +256,7 @@ def test_compiled_ensemble_equals_numpy_batch():
     Y0 = np.repeat(base.y0[None], 6, 0)
     Y0[:, 9:] = sc.system.project(base.y0[9:] + 0.3 * rng.normal(size=(6, 3)))
     fi = FeedbackIntegrator(sc.system, Y0.reshape(2, 3, 12), gains=sc.gains)
-    a = fi.run(0.3, dt=1e-3, scheme="heun", save_every=50)
+    a = fi.run(0.3, dt=1e-3, scheme="heun", save_every=50, backend="numpy")
     b = fi.run(0.3, dt=1e-3, scheme="heun", save_every=50, backend="numba")
     assert b.y.shape == a.y.shape == (2, 3, 12, 7)
     assert rel(b.y, a.y) < TOL
@@ -269,7 +269,7 @@ def test_compiled_divergence_raises_like_numpy():
     sc = scenes.get("knife-edge")
     fi = sc.integrator(None, gains=4000.0)
     with pytest.raises(IntegrationError) as a:
-        fi.run(1.0, dt=1e-3, scheme="euler")
+        fi.run(1.0, dt=1e-3, scheme="euler", backend="numpy")
     with pytest.raises(IntegrationError) as b:
         fi.run(1.0, dt=1e-3, scheme="euler", backend="numba")
     assert a.value.step == b.value.step
@@ -320,7 +320,7 @@ def test_backend_numba_without_numba_falls_back(monkeypatch):
     monkeypatch.setattr(kernels, "_WARNED", set())
     sc = scenes.get("suslov")
     fi = sc.integrator()
-    want = fi.run(0.05, dt=1e-3)
+    want = fi.run(0.05, dt=1e-3, backend="numpy")
     with pytest.warns(compiled.CompilationWarning, match="numba is not available"):
         got = fi.run(0.05, dt=1e-3, backend="numba")
     np.testing.assert_array_equal(got.y, want.y)
@@ -335,7 +335,7 @@ def test_backend_auto_falls_back_for_untraceable_data(monkeypatch):
 
     sys_ = liefi.NonholonomicSystem(liefi.CotangentBundle(2), np.eye(2), [[1.0, 1.0]], potential, check=False)
     fi = FeedbackIntegrator(sys_, np.array([0.1, 0.2, 0.3, -0.3]))
-    want = fi.run(0.01, dt=1e-3)
+    want = fi.run(0.01, dt=1e-3, backend="numpy")
     with warnings.catch_warnings(record=True) as w:
         warnings.simplefilter("always")
         got = fi.run(0.01, dt=1e-3, backend="auto")
@@ -440,7 +440,7 @@ def test_untraceable_group_override_falls_back_under_auto(monkeypatch):
     """backend='auto' with an untraceable group method: a CompilationWarning and the numpy run."""
     monkeypatch.setattr(kernels, "_WARNED", set())
     fi = _rigid_body_with(_OrientedSO3())
-    want = fi.run(0.2, dt=1e-2)
+    want = fi.run(0.2, dt=1e-2, backend="numpy")
     if not compiled.available():
         pytest.skip("numba is not installed (auto runs numpy without tracing)")
     with pytest.warns(compiled.CompilationWarning, match="penalty"):
@@ -577,7 +577,7 @@ def test_read_only_cache_falls_back(kernel_env, monkeypatch):
     monkeypatch.setattr(_cache, "_make_dir", read_only)
     monkeypatch.setattr(tempfile, "mkdtemp", read_only)
     fi = _fresh_knife_edge_fi()
-    want = fi.run(0.2, dt=1e-2, check_stability=False)
+    want = fi.run(0.2, dt=1e-2, check_stability=False, backend="numpy")
     with pytest.warns(compiled.KernelCacheWarning, match="in memory"):
         got = fi.run(0.2, dt=1e-2, backend="auto", check_stability=False)
     assert rel(got.y, want.y) < TOL
@@ -593,7 +593,7 @@ def test_any_compile_failure_falls_back_under_auto(kernel_env, monkeypatch):
 
     monkeypatch.setattr(_cache, "load", broken)
     fi = _fresh_knife_edge_fi()
-    want = fi.run(0.2, dt=1e-2, check_stability=False)
+    want = fi.run(0.2, dt=1e-2, check_stability=False, backend="numpy")
     if not compiled.available():
         pytest.skip("numba is not installed (auto runs numpy without compiling)")
     with pytest.warns(compiled.CompilationWarning, match="Read-only file system"):

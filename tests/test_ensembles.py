@@ -179,10 +179,10 @@ def test_the_second_orthogonal_block_is_penalized_and_monitored(group):
 
     # monitored: a system on this group reports the penalty's drift from the second block
     sys_ = liefi.NonholonomicSystem(liefi.LieGroupPhaseSpace(group), np.diag([1.0, 2.0, 3.0, 1.5]))
-    fi = liefi.FeedbackIntegrator(sys_, np.concatenate([g, [0.1, 0.2, 0.3, 0.4]]), invariants=["energy"])
+    fi = liefi.FeedbackIntegrator(sys_, np.concatenate([g, [0.1, 0.2, 0.3, 0.4]]), invariants=["energy"], gains=1.0)
     assert fi.invariant_values(fi.y0)["penalty"] == pytest.approx(group.penalty(g), rel=1e-12)
     assert liefi.stability.drift(fi, fi.y0)[1] == "penalty"
-    sol = _quiet(fi.run, 1.0, dt=1e-2, scheme="heun")
+    sol = _quiet(fi.run, 1.0, dt=1e-2, scheme="heun", backend="numpy")
     assert group.penalty(sol.y[: group.config_dim, -1]) < 0.5 * group.penalty(g)  # the feedback repairs it
 
 
@@ -197,9 +197,9 @@ def test_not_dropped_off_target_on_a_field_where_it_is_a_first_integral():
     sc = scenes.get("vertical-disk")
     fi = sc.integrator()
     off = liefi.FeedbackIntegrator(sc.system, fi.y0, invariants=fi.user, targets={"Pi_x": fi.targets["Pi_x"] + 0.1},
-                                   configuration=fi.configuration, field=fi.field)
+                                   configuration=fi.configuration, field=fi.field, gains=1.0)
     assert "Pi_x" in exactly_kept(off, "rk4")  # the condition under test is the target, nothing else
-    sol = _quiet(off.run, 0.1, dt=1e-3, scheme="rk4")
+    sol = _quiet(off.run, 0.1, dt=1e-3, scheme="rk4", backend="numpy")
     dropped = [d["name"] for d in sol.dropped]
     assert "Pi_x" not in dropped and "Pi_y" in dropped
     r0 = 0.1

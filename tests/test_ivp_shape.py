@@ -48,10 +48,12 @@ def test_bad_t_span_is_named(knife, span, word):
         fi.run(span, dt=1e-2)
 
 
-def test_missing_dt_says_to_pass_it(knife):
+def test_missing_dt_chooses_the_step_for_the_tolerance(knife):
     _, fi = knife
-    with pytest.raises(ValueError, match=r"^dt: pass the step as dt="):
-        fi.run(1.0, scheme="rk4")
+    sol = fi.run(1.0, scheme="rk4", backend="numpy")
+    assert sol.method["rtol"] == 1e-6 and sol.steps * sol.dt == pytest.approx(1.0)
+    with pytest.raises(ValueError, match=r"^rtol: give a step"):
+        fi.run(1.0, dt=1e-2, rtol=1e-6, backend="numpy")
     with pytest.raises(TypeError, match="missing t_span"):
         fi.run(dt=1e-2)
 

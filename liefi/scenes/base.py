@@ -112,6 +112,8 @@ class RunResult:
     backend: str | None = None
     #: invariants left out of ``V`` (kept exactly by the scheme): ``[{"name", "reason"}]``
     dropped: list = _field(default_factory=list)
+    #: which method ran and why (:func:`liefi.tolerance.describe`; ``None`` outside the fixed-step loop)
+    method: dict = None
 
     def __getitem__(self, name):
         return self.y[self.names.index(name)]
@@ -135,6 +137,7 @@ class RunResult:
             "reference_seconds": self.reference_seconds,
             "backend": self.backend,
             "dropped": [dict(d) for d in self.dropped],
+            "method": None if self.method is None else dict(self.method),
         }
 
 
@@ -369,8 +372,8 @@ class Scene:
         configuration=None,
         save_every=None,
         max_saved=20000,
-        rtol=1e-9,
-        atol=1e-12,
+        rtol=None,
+        atol=None,
         check_stability=True,
         adaptive=None,
         backend=None,
@@ -379,7 +382,7 @@ class Scene:
 
         ``scheme`` is a liefi scheme name (``euler``, ``heun``, ``rk4``...), a
         stiff-safe split scheme (``imex-euler``, ``imex-rk4``: :mod:`liefi.schemes.split`),
-        ``"scipy:METHOD"`` (``solve_ivp`` with ``rtol``/``atol``), or one of the
+        ``"scipy:METHOD"`` (``solve_ivp`` with ``rtol``/``atol``, default 1e-9/1e-12), or one of the
         scene's ``extra_schemes`` (e.g. ``"dla"``).  ``gains="auto"``: chosen for accuracy
         from the scheme, ``dt`` and the horizon (:mod:`liefi.gains`; see
         :class:`~liefi.FeedbackIntegrator`).  ``RunResult.dropped``: the
@@ -388,6 +391,9 @@ class Scene:
         :meth:`liefi.FeedbackIntegrator.run` (:mod:`liefi.stability`).
         ``backend``: ``"numpy"``, ``"numba"`` or ``"auto"`` (:mod:`liefi.engine`);
         default ``"auto"`` when numba is installed (``liefi[fast]``), else ``"numpy"``.
+        ``rtol``/``atol`` without ``dt`` on a fixed-step scheme: the step is chosen for the
+        tolerance (:func:`liefi.tolerance.choose_step`) instead of the scene's; ``RunResult.method``
+        says which method ran and why.
         """
         import importlib.util
 
@@ -397,9 +403,13 @@ class Scene:
         from ..stability import positive_number
 
         v = self.variant(variant) if not isinstance(variant, Variant) else variant
-        dt = positive_number(self.dt if dt is None else dt, "dt", "the step must be a positive number")
         T = positive_number(self.t_final if t_final is None else t_final, "t_final", "must be a positive number")
         scheme = self.scheme if scheme is None else scheme
+        fixed_step = scheme not in self.extra_schemes and not str(scheme).lower().startswith("scipy:")
+        chosen = None
+        if fixed_step and dt is None and (rtol is not None or atol is not None):
+            dt, chosen, fi = self._step_for_tolerance(v, scheme, gains, configuration, T, rtol, atol)
+        dt = positive_number(self.dt if dt is None else dt, "dt", "the step must be a positive number")
         if T / dt > 1e10:
             raise ValueError(
                 f"dt: {dt!r} with t_final = {T!r} means {T / dt:.3g} steps (more than 1e10); take a larger dt"
@@ -407,7 +417,8 @@ class Scene:
         n_steps = int(round(T / dt))
         if save_every is None:
             save_every = max(1, n_steps // max_saved)
-        fi = self.integrator(v, gains=gains, configuration=configuration)
+        if chosen is None:
+            fi = self.integrator(v, gains=gains, configuration=configuration)
         self._check_start(fi, v)
 
         dropped = []  # invariants the fixed-step run left out of V
@@ -431,7 +442,8 @@ class Scene:
 
                 check_ivp(fi, ivp, T)  # an explicit method on a stiff field would run for minutes
             t_eval = np.linspace(0.0, T, min(n_steps, max_saved) + 1)
-            sol, cpu = ivp.solve(fi.fun, T, fi.y0, t_eval=t_eval, rtol=rtol, atol=atol)
+            sol, cpu = ivp.solve(fi.fun, T, fi.y0, t_eval=t_eval, rtol=1e-9 if rtol is None else rtol,
+                                 atol=1e-12 if atol is None else atol)
             if not sol.success:
                 raise RuntimeError(f"solve_ivp({method}) failed on {self.name!r}: {sol.message}")
             if not np.all(np.isfinite(sol.y)):
@@ -442,6 +454,12 @@ class Scene:
                 T, dt=dt, scheme=scheme, save_every=save_every, check_stability=check_stability, adaptive=adaptive,
                 backend=backend,
             )
+            method = sol.method
+            if chosen is not None:
+                from ..tolerance import describe
+
+                method = describe(method["scheme"], dt, fi.gains_mode, method["backend"], chosen=chosen,
+                                  scheme_given=True)
             dropped = list(getattr(sol, "dropped", []))
             if getattr(sol, "stability", None) is not None and (sol.stability.gains or dropped):
                 # report the gains the run started with (0 for the invariants left out of V)
@@ -456,7 +474,32 @@ class Scene:
         result = self._result(v, str(scheme), dt, T, fi, t, Y, names, cpu, steps, nfev, clock=clock)
         result.backend = ran
         result.dropped = dropped
+        if "method" in locals():
+            result.method = method
         return result
+
+    def _step_for_tolerance(self, v, scheme, gains, configuration, T, rtol, atol):
+        """``(dt, info, fi)``: the fixed step of ``scheme`` for ``rtol``/``atol`` (:meth:`step_for_tolerance`)."""
+        dt, info = self.step_for_tolerance(v, scheme, T, rtol, atol, gains=gains, configuration=configuration)
+        return dt, info, self.integrator(v, gains=gains, configuration=configuration)
+
+    def step_for_tolerance(self, variant, scheme, t_final, rtol=None, atol=None, *, gains=None, configuration=None):
+        """``(dt, info)``: the step :meth:`run` takes for ``rtol``/``atol`` (:func:`liefi.tolerance.choose_step`).
+
+        Known before the run (``liefi run`` refuses a run of too many steps with it); kept on the
+        scene for the same arguments, so that the run that follows does not repeat the pilot.
+        """
+        from ..run import _fixed_step_scheme
+        from ..tolerance import DEFAULT_RTOL, choose_step
+
+        v = self.variant(variant) if not isinstance(variant, Variant) else variant
+        rtol = DEFAULT_RTOL if rtol is None else rtol
+        key = (v.name, str(scheme), repr(gains), configuration, float(t_final), repr(rtol), repr(atol))
+        cache = self.__dict__.setdefault("_stepcache", {})
+        if key not in cache:
+            fi = self.integrator(v, gains=gains, configuration=configuration)
+            cache[key] = choose_step(fi, _fixed_step_scheme(scheme), fi.y0, 0.0, float(t_final), rtol, atol)
+        return cache[key]
 
     def _check_start(self, fi, v, rtol=1e-9):
         """The reference solution is the *constrained* motion: the start must be on ``J = 0``."""

@@ -1,0 +1,96 @@
+"""The best method by default and runs driven by a tolerance (liefi.tolerance)."""
+
+import json
+import warnings
+
+import numpy as np
+import pytest
+
+import liefi
+from liefi import scenes
+from liefi.groups import SO3
+from liefi.phase_space import LieGroupPhaseSpace
+from liefi.scenes import exact as _exact
+
+
+def _suslov_in_other_units(s_inertia=1e6, s_time=1e3):
+    """Suslov with inertia x s_inertia and time x s_time: Pi -> (s_inertia / s_time) Pi, t -> s_time t."""
+    inertia = s_inertia * np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 1.0], [0.0, 1.0, 2.0]])
+    a = np.array([0.0, 0.0, 1.0])
+    Ia = np.linalg.solve(inertia, a)
+    system = liefi.NonholonomicSystem(LieGroupPhaseSpace(SO3()), inertia, Ia / np.sqrt(a @ Ia))
+    y0 = np.concatenate([np.eye(3).ravel(), (s_inertia / s_time) * np.array([0.0, 1.0, 1.0])])
+    return system, y0, s_inertia / s_time, s_time
+
+
+def test_plain_run_keeps_every_invariant_in_other_units():
+    system, y0, s_p, s_t = _suslov_in_other_units()
+    fi = liefi.FeedbackIntegrator(system, y0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no warning, no flag
+        sol = fi.run(10.0 * s_t)
+    assert sol.method["scheme"] == "imex-rk4" and sol.method["gains"] == "auto" and "rtol" in sol.method
+    Y = np.moveaxis(sol.y, -1, 0)
+    R = Y[:, :9].reshape(-1, 3, 3)
+    assert np.max(np.linalg.norm(np.swapaxes(R, -1, -2) @ R - np.eye(3), axis=(1, 2))) <= 1e-10
+    vals = fi.invariant_values(Y)
+    assert np.max(np.abs(vals["J_1"])) / s_p <= 1e-10
+    assert np.max(np.abs(vals["energy"] - vals["energy"][0])) / abs(vals["energy"][0]) <= 1e-10
+    ref = _exact.suslov(sol.t / s_t, Pi0=np.array([0.0, 1.0, 1.0]))
+    err = max(np.max(np.abs(Y[:, 9 + i] / s_p - ref[f"Pi_{i + 1}"])) for i in range(3))
+    assert err <= 1e-6  # within the default tolerance
+
+
+def test_the_step_for_a_tolerance_is_unit_invariant():
+    system, y0, _, s_t = _suslov_in_other_units()
+    sc = scenes.get("suslov")
+    fi1 = sc.integrator(gains="auto", configuration=True)
+    fi2 = liefi.FeedbackIntegrator(system, y0)
+    a = fi1.run(10.0, rtol=1e-6, backend="numpy", save_every=1000)
+    b = fi2.run(10.0 * s_t, rtol=1e-6, backend="numpy", save_every=1000)
+    assert b.dt == pytest.approx(s_t * a.dt, rel=1e-9)
+
+
+@pytest.mark.parametrize("name", ["knife-edge", "vertical-disk", "rigid-body"])
+def test_achieved_error_follows_the_tolerance(name):
+    sc = scenes.get(name)
+    errs = []
+    for rtol in (1e-4, 1e-7):
+        r = sc.run(scheme="imex-rk4", gains="auto", t_final=10.0, rtol=rtol, backend="numpy")
+        sizes = {k: np.max(np.abs(r[k])) for k in r.max_error}
+        rel = max(r.max_error[k] / sizes[k] for k in r.max_error if sizes[k] > 0)
+        assert rel <= 10 * rtol, (name, rtol, rel)
+        assert max(r.max_drift.values()) <= 1e-10
+        assert r.method["rtol"] == rtol
+        errs.append(rel)
+    assert errs[1] < errs[0] / 100  # the error falls with the tolerance
+
+
+def test_bad_tolerance_names_the_parameter():
+    fi = scenes.get("knife-edge").integrator()
+    with pytest.raises(ValueError, match=r"^rtol:"):
+        fi.run(1.0, rtol=0.0, backend="numpy")
+    with pytest.raises(ValueError, match=r"^atol:"):
+        fi.run(1.0, rtol=1e-6, atol=-1.0, backend="numpy")
+
+
+@pytest.mark.parametrize("name", scenes.names())
+def test_cli_defaults_keep_every_invariant(name, capsys):
+    """`liefi run SCENE` at its defaults (short horizon): the best method, every invariant within 1e-10."""
+    from liefi.cli import main
+
+    assert main(["run", name, "--t-final", "2", "--backend", "numpy", "--json"]) in (0, None)
+    d = json.loads(capsys.readouterr().out)
+    assert d["scheme"] == "imex-rk4" and d["method"]["gains"] == "auto" and "default" in d["method"]["why"]
+    assert max(d["max_drift"].values(), default=0.0) <= 1e-10, d["max_drift"]
+
+
+def test_cli_paper_keeps_the_paper_settings(capsys):
+    from liefi.cli import main
+
+    sc = scenes.get("suslov")
+    assert main(["run", "suslov", "--paper", "--t-final", "1", "--backend", "numpy", "--json"]) in (0, None)
+    d = json.loads(capsys.readouterr().out)
+    assert (d["scheme"], d["dt"]) == (sc.scheme, sc.dt) and "--paper" in d["method"]["why"]
+    assert main(["run", "suslov", "--paper", "--rtol", "1e-6"]) == 2
+    assert main(["run", "suslov", "--dt", "0.01", "--rtol", "1e-6"]) == 2
