@@ -298,6 +298,7 @@ def generic(result, fig=None, *, title=None, tag=""):
     if result.invariants:
         a1.legend(fontsize=8, ncol=2)
     head = title or f"{result.scene}"
+    tag = "" if f"variant {result.variant}" in tag else tag  # the title names the variant once
     fig.suptitle(f"{head}, variant {result.variant} (no figure in the paper){tag}\n{run_caption(result)}", fontsize=10)
     return fig
 

@@ -257,7 +257,7 @@ def _run_one(scene, variant, spec, scale, count):
         for m in msgs:
             _log(f"  warning: {m}")
     worst = max(result.max_error.values(), default=float("nan"))
-    _log(f"{tag} done: CPU {result.cpu_seconds:.2f} s, wall {wall:.2f} s, max |error| {worst:.3e}")
+    _log(f"{tag} done: CPU {_seconds(result.cpu_seconds)} s, wall {wall:.2f} s, max |error| {worst:.3e}")
     return result, row
 
 
@@ -277,6 +277,10 @@ def _scene_job(task):
         _log(f"{name}: FAILED to load: {row['error']}")
         return done
     output = Output(out_path)
+
+    def snapshot():  # what finished so far, for a summary written while this scene is cut short
+        output.write_text(_partial_name(name), _json.dumps(done, default=_json_default))
+
     variants = list(scene.variants) or [None]
     default_variant = variants[0]
     plans = {v: scene.paper_runs(scene.variant(v)) for v in variants}
@@ -306,6 +310,7 @@ def _scene_job(task):
                 rows.append(row)
                 if result is None:
                     failures.append(row)
+                snapshot()
                 if spec.variant_independent:
                     shared[spec.label] = (result, row)
             if result is not None:
@@ -327,6 +332,7 @@ def _scene_job(task):
                 for r in used_rows:
                     if filename not in r["figures"]:
                         r["figures"].append(filename)
+                snapshot()
     return done
 
 
@@ -389,6 +395,7 @@ def reproduce(out="./liefi-out", *, only=None, t_final_scale=1.0, jobs=None, all
 
     def finished(done):
         state["results"][done["scene"]] = done
+        _drop_partial(output, done["scene"])
         _write_summary(output, names, state, scale)
         bar.update(failed=bool(done["failures"]))
 
@@ -461,10 +468,34 @@ def _parallel(tasks, jobs, finished):
         pool.join()
 
 
+def _partial_name(scene):
+    """The file where a scene's job keeps what it finished so far (removed when the scene ends)."""
+    return f".{scene}.partial.json"
+
+
+def _read_partial(output, scene):
+    """What a scene's job that has not returned (still running, interrupted or killed) had finished."""
+    try:
+        with open(os.path.join(output.path, _partial_name(scene))) as f:
+            return json.load(f)
+    except (OSError, ValueError):
+        return None
+
+
+def _drop_partial(output, scene):
+    try:
+        os.remove(os.path.join(output.path, _partial_name(scene)))
+    except OSError:
+        pass
+
+
 def _write_summary(output, names, state, scale):
+    """``summary.json`` and ``summary.md``: the scenes that finished, and the runs and figures that
+    finished in a scene that did not (its job's partial record, :func:`_partial_name`), which stays
+    listed in ``not_run``."""
     rows, failures, figures, references = [], [], [], []
     for n in names:
-        done = state["results"].get(n)
+        done = state["results"].get(n) or _read_partial(output, n)
         if done is None:
             continue
         rows += done["rows"]
@@ -498,6 +529,11 @@ def _json_default(o):
         return str(o)
 
 
+def _seconds(x):
+    """A time in seconds with three significant digits (``0.00123``, ``12.3``): a run of a few ms is not ``0.00``."""
+    return f"{x:.3g}" if x >= 1e-4 else f"{x:.1e}"
+
+
 def _fmt_map(d):
     return ", ".join(f"{k} {v:.2e}" for k, v in d.items()) if d else "-"
 
@@ -519,7 +555,7 @@ def markdown_table(summary):
         exp = r.get("experiment", "paper")
         lines.append(
             f"| {r['scene']} | {r['variant']} | {exp} | {r['scheme']} | {r['dt']:g} | {r['t_final']:g} | {r['steps']} "
-            f"| {r['cpu_seconds']:.2f} | {r['reference']} | {_fmt_map(r['max_error'])} | {_fmt_map(r['max_drift'])} |"
+            f"| {_seconds(r['cpu_seconds'])} | {r['reference']} | {_fmt_map(r['max_error'])} | {_fmt_map(r['max_drift'])} |"
         )
     lines.append("")
     lines.append(

@@ -45,9 +45,13 @@ def add_arguments(parser):
                         help="integrate the reduced state only")
     parser.add_argument("--methods", default=None, metavar="M[,M]",
                         help=f"method families (default: all that apply): {','.join(METHODS)}")
+    from ..schemes import names as _scheme_names
+
     parser.add_argument("--schemes", default=None, metavar="S[,S]",
-                        help=f"schemes (default: {','.join(FIXED_SCHEMES + IVP_METHODS)}): any explicit tableau of "
-                        "the scheme registry (`liefi list`) or a solve_ivp method")
+                        help=f"schemes (default: {','.join(FIXED_SCHEMES + IVP_METHODS)}): any of "
+                        f"{','.join(_scheme_names('explicit') + _scheme_names('split'))} (the scheme registry, "
+                        "liefi.schemes.names()) or a solve_ivp method "
+                        f"({','.join(n.split(':', 1)[1] for n in _scheme_names('scipy'))})")
     parser.add_argument("--gains", default=None, metavar="K[,K]",
                         help="gains of the FI rows, 'scene' for the scene's own (default: scene,0.1,1,10)")
     parser.add_argument("--max-steps", type=float, default=None, dest="max_steps", metavar="N",
@@ -211,8 +215,7 @@ def run_from_args(args, log=None):
     from ..sweep import open_executor
 
     log = log or (lambda m: print(m, file=sys.stderr, flush=True))
-    if args.scene != "all" and args.scene not in _scenes.REGISTRY:
-        raise ValueError(f"scene: unknown scene {args.scene!r}; choose one of {_scenes.names()} or 'all'")
+    _scenes.check_name(args.scene, extra=("all",))
     if args.t_final is not None:
         positive("--t-final", args.t_final)
     if args.long_horizon is not None:
