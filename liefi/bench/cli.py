@@ -37,7 +37,8 @@ def add_arguments(parser):
                         help="output directory; a rerun into the same DIR resumes (results.sqlite)")
     parser.add_argument("--variant", default=None, help="variant (default: the scene's first)")
     parser.add_argument("--scheduler", default=None, metavar="ADDR",
-                        help="serial (default), processes[:N], threads[:N], dask[:N] or tcp://host:8786")
+                        help="processes[:N] (default: one worker process per core, as `liefi reproduce`), serial, "
+                        "threads[:N], dask[:N] or tcp://host:8786")
     parser.add_argument("--quick", action="store_true", help="a small grid (3 steps, 2 tolerances)")
     parser.add_argument("--long-horizon", type=float, default=None, dest="long_horizon", metavar="T",
                         help="also the drift against time up to T at matched cost (e.g. 1e4)")
@@ -58,7 +59,8 @@ def add_arguments(parser):
                         help="refuse runs of more than N steps (t_final / dt) before any work, as `liefi run` "
                         "(default 1e8)")
     parser.add_argument("--progress", action=argparse_bool(), default=None,
-                        help="progress on stderr (default: when stderr is a terminal)")
+                        help="progress on stderr: done/total, rate, time left (default: live on a terminal, "
+                        "else a line every 5 %% or 30 s)")
     return parser
 
 
@@ -212,7 +214,7 @@ def run_from_args(args, log=None):
     writes is claimed, and a file of that name that liefi did not write is refused).
     """
     from ..reproduce import OutputError, prepare_output
-    from ..sweep import open_executor
+    from ..sweep import default_scheduler, open_executor
 
     log = log or (lambda m: print(m, file=sys.stderr, flush=True))
     _scenes.check_name(args.scene, extra=("all",))
@@ -254,7 +256,7 @@ def run_from_args(args, log=None):
     expected, errors = {sc.name: tasks for sc, _, tasks in plan}, 0
     arguments = _arguments(args)
     try:
-        with open_executor(args.scheduler) as ex:
+        with open_executor(args.scheduler or default_scheduler()) as ex:
             for sc, kw, _ in plan:
                 rows = work_precision(sc, args.t_final, args.out, ex, log=log,
                                       progress=getattr(args, "progress", None), **kw)
