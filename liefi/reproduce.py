@@ -19,7 +19,8 @@ What is written to ``out``:
 * ``summary.json`` (every run: settings, steps, CPU time, max errors, max drifts,
   figures, status; strict JSON, a number that is not finite written as ``null``) and ``summary.md`` (the same as a markdown table), rewritten
   after every scene, so an interrupted or killed reproduction leaves a
-  consistent summary of what finished;
+  consistent summary of what finished (a scene cut short contributes the runs
+  and figures it finished and is listed in ``unfinished``);
 * ``liefi-manifest.json``: the files liefi wrote there.
 
 The output folder is checked before any work (:func:`prepare_output`): liefi
@@ -492,17 +493,20 @@ def _drop_partial(output, scene):
 def _write_summary(output, names, state, scale):
     """``summary.json`` and ``summary.md``: the scenes that finished, and the runs and figures that
     finished in a scene that did not (its job's partial record, :func:`_partial_name`), which stays
-    listed in ``not_run``."""
-    rows, failures, figures, references = [], [], [], []
+    listed in ``unfinished`` (a scene with nothing finished is in ``not_run``)."""
+    rows, failures, figures, references, unfinished = [], [], [], [], []
     for n in names:
-        done = state["results"].get(n) or _read_partial(output, n)
+        done = state["results"].get(n)
         if done is None:
-            continue
+            done = _read_partial(output, n)
+            if done is None:
+                continue
+            unfinished.append(n)
         rows += done["rows"]
         failures += done["failures"]
         figures += done["figures"]
         references += done.get("references", [])
-    pending = [n for n in names if n not in state["results"]]
+    pending = [n for n in names if n not in state["results"] and n not in unfinished]
     summary = {
         "liefi_version": __version__,
         "out": output.path,
@@ -512,6 +516,7 @@ def _write_summary(output, names, state, scale):
         "interrupted": state["interrupted"],
         "scenes": names,
         "not_run": pending if (state["interrupted"] or pending) else [],
+        "unfinished": unfinished,
         "runs": rows,
         "references": references,
         "figures": figures,
@@ -564,11 +569,13 @@ def markdown_table(summary):
         + (f", t_final scaled by {summary['t_final_scale']:g}" if summary["t_final_scale"] != 1 else "")
         + "."
     )
-    if summary.get("interrupted") or summary.get("not_run"):
+    if summary.get("interrupted") or summary.get("not_run") or summary.get("unfinished"):
         lines.append("")
         lines.append(
             ("**Interrupted**: " if summary.get("interrupted") else "")
-            + "not run (or not finished): " + (", ".join(summary.get("not_run", ())) or "-") + "."
+            + "not run (or nothing finished): " + (", ".join(summary.get("not_run", ())) or "-") + "."
+            + (f" Cut short (the runs and figures that finished are listed): {', '.join(summary['unfinished'])}."
+               if summary.get("unfinished") else "")
         )
     refs = summary.get("references") or []
     if refs:

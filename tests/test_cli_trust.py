@@ -353,7 +353,8 @@ def test_stability_out_is_checked_before_any_work(capsys, tmp_path, monkeypatch)
         raise AssertionError("the map was computed before its output was checked")
 
     monkeypatch.setattr(stability_cli, "command", boom)
-    code, _, err = run_cli(capsys, "stability", "suslov", "--out", str(tmp_path / "missing" / "map.png"))
+    (tmp_path / "afile").write_text("x")  # a folder that cannot be made (a missing one is created)
+    code, _, err = run_cli(capsys, "stability", "suslov", "--out", str(tmp_path / "afile" / "map.png"))
     assert code == 2
     _one_error_line(err, "out")
     seen = {}

@@ -147,11 +147,11 @@ def test_reproduce_interrupted_inside_a_scene_summarizes_its_finished_runs(capsy
                            "--t-final-scale", "0.01", "--jobs", "1")
     assert code == 130
     summary = json.loads((d / "summary.json").read_text())
-    assert summary["interrupted"] is True and summary["not_run"] == ["knife-edge"]
+    assert summary["interrupted"] is True and summary["not_run"] == [] and summary["unfinished"] == ["knife-edge"]
     assert [(r["scene"], r["variant"], r["status"]) for r in summary["runs"]] == [("knife-edge", "extended", "ok")]
     assert len(summary["figures"]) == 3 and all((d / f).exists() for f in summary["figures"])
     md = (d / "summary.md").read_text()
-    assert "1 runs, 3 figures" in md and "Interrupted" in md
+    assert "1 runs, 3 figures" in md and "Interrupted" in md and "Cut short" in md
     # a finished reproduction leaves no partial record behind
     monkeypatch.setattr(reproduce, "_run_one", real)
     code, _, _ = run_cli(capsys, "reproduce", "--only", "heisenberg", "--out", str(d / "again"),
