@@ -155,7 +155,7 @@ def test_planted_pickle_does_not_run_in_feedback_integrator_run(kernel_env, tmp_
     """FeedbackIntegrator.run(backend='numba') in a process whose kernel cache holds a planted
     index and data file: the payload does not run, the run is compiled and equals the first."""
     fi = _fresh_fi()
-    want = fi.run(1e-2, 0.2, backend="numba", check_stability=False)
+    want = fi.run(0.2, dt=1e-2, backend="numba", check_stability=False)
     assert want.backend == "numba"
     files = _cache_files(kernel_env)
     assert files
@@ -165,7 +165,7 @@ def test_planted_pickle_does_not_run_in_feedback_integrator_run(kernel_env, tmp_
     kernels._KERNELS.clear()
     _cache.clear_memory()
     with pytest.warns(compiled.KernelCacheWarning, match="not trusted"):
-        got = _fresh_fi().run(1e-2, 0.2, backend="numba", check_stability=False)
+        got = _fresh_fi().run(0.2, dt=1e-2, backend="numba", check_stability=False)
     assert not marker.exists()
     assert got.backend == "numba"
     np.testing.assert_array_equal(got.y, want.y)
@@ -372,10 +372,10 @@ def test_full_disk_while_numba_writes_keeps_the_compiled_run(kernel_env, monkeyp
 
     monkeypatch.setattr(caching.IndexDataCacheFile, "_open_for_write", full)
     fi = _fresh_fi()
-    want = fi.run(1e-2, 0.2, check_stability=False)
+    want = fi.run(0.2, dt=1e-2, check_stability=False)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        got = fi.run(1e-2, 0.2, backend="numba", check_stability=False)
+        got = fi.run(0.2, dt=1e-2, backend="numba", check_stability=False)
     assert got.backend == "numba"
     assert not [w for w in caught if issubclass(w.category, compiled.CompilationWarning)]
     assert any(issubclass(w.category, compiled.KernelCacheWarning) and "No space left" in str(w.message)
