@@ -3,7 +3,7 @@
 ::
 
     liefi --version
-    liefi list [-v]
+    liefi list [-v] [--schemes]
     liefi run SCENE [--dt DT] [--t-final T] [--scheme euler|heun|rk4|dla|scipy:METHOD]
                     [--gains K | --gains K1,K2,... | --gains name=K,...] [--variant NAME]
                     [--configuration] [--save-every N] [--no-check-stability] [--adaptive]
@@ -180,6 +180,9 @@ def report(result, file=None):
 # commands
 # --------------------------------------------------------------------------------------
 def cmd_list(args):
+    if getattr(args, "schemes", False):  # the scheme registry: name, kind, order, stability
+        print(_schemes.describe())
+        return 0
     rows = []
     for name in _scenes.names():
         try:
@@ -385,6 +388,8 @@ def build_parser():
 
     pl = sub.add_parser("list", help="the scenes, one line each (name, title, paper section, variants)")
     pl.add_argument("-v", "--verbose", action="store_true", help="also the paper's settings and the --gains order")
+    pl.add_argument("--schemes", action="store_true",
+                    help="list the schemes instead (name, kind, order, stability), as --scheme and bench --schemes take")
 
     pr = sub.add_parser(
         "run",

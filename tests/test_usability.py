@@ -74,9 +74,13 @@ def test_bench_help_names_the_schemes_it_accepts(capsys):
     code, out, _ = run_cli(capsys, "bench", "--help")
     assert code == 0
     text = " ".join(out.split()).replace("- ", "-")  # argparse wraps at hyphens
-    assert "liefi list" not in text  # `liefi list` lists scenes, not schemes
     for name in scheme_names("explicit") + scheme_names("split"):
         assert name in text, name
+    assert "liefi list --schemes" in text  # and the command it names lists them
+    code, out, _ = run_cli(capsys, "list", "--schemes")
+    assert code == 0
+    listed = {ln.split()[0] for ln in out.splitlines() if ln.strip()}
+    assert set(scheme_names("explicit") + scheme_names("split")) <= listed
 
 
 def test_plain_run_says_which_gain_was_dropped(capsys):

@@ -50,8 +50,8 @@ def add_arguments(parser):
 
     parser.add_argument("--schemes", default=None, metavar="S[,S]",
                         help=f"schemes (default: {','.join(FIXED_SCHEMES + IVP_METHODS)}): any of "
-                        f"{','.join(_scheme_names('explicit') + _scheme_names('split'))} (the scheme registry, "
-                        "liefi.schemes.names()) or a solve_ivp method "
+                        f"{','.join(_scheme_names('explicit') + _scheme_names('split'))} (`liefi list --schemes`) "
+                        "or a solve_ivp method "
                         f"({','.join(n.split(':', 1)[1] for n in _scheme_names('scipy'))})")
     parser.add_argument("--gains", default=None, metavar="K[,K]",
                         help="gains of the FI rows, 'scene' for the scene's own (default: scene,0.1,1,10)")
