@@ -159,7 +159,7 @@ class DataFunction:
         """Named error if the complex step of the datum is exactly zero where finite differences are not."""
         try:
             with np.errstate(all="ignore"):
-                _, jc = _diff.jacobian(self.fun, x)
+                _, jc = _diff.probe_jacobian(self.fun, x)
                 h = 1e-6 * np.maximum(1.0, np.abs(x))
                 jf = np.stack(
                     [(np.asarray(self.fun(x + h[k] * e), float) - np.asarray(self.fun(x - h[k] * e), float)) / (2 * h[k])

@@ -1,15 +1,22 @@
 """Progress on stderr for long work: one implementation for runs, sweeps, reproduce and maps.
 
 ``tqdm`` draws the bar when it is installed (the ``liefi[progress]`` extra); without
-it one line is rewritten in place at most once a second.  Progress is shown only
-when stderr is a terminal, unless forced with ``enabled=True``: output redirected
-to a file (``liefi run --json > out.json``, CI logs) stays quiet.
+it one line is rewritten in place at most once a second.  Both show done/total, the
+rate and an estimate of the time left.  Progress is shown only when stderr is a
+terminal, unless forced with ``enabled=True``: output redirected to a file
+(``liefi run --json > out.json``, CI logs) stays quiet -- except for work that
+asks for ``lines=True`` (sweeps, ``liefi bench``): off a terminal it writes a
+whole line (done/total, rate, time left) each time another 5 % is done (at most
+once a second) or at least every 30 s while something finishes, and one at the end.
 """
 
 from __future__ import annotations
 
 import sys
 import time
+
+#: ``lines`` mode: a line when this fraction more is done, or after this many seconds
+LINE_FRACTION, LINE_SECONDS, LINE_MIN_SECONDS = 0.05, 30.0, 1.0
 
 
 def stderr_is_terminal():
@@ -29,22 +36,47 @@ class Progress:
         ``None``: shown when stderr is a terminal and there is more than one unit.
     unit : str
         The unit counted (``"step"``, ``"task"``, ``"run"``).
+    lines : bool
+        With ``enabled=None`` and stderr not a terminal: periodic whole lines
+        instead of silence (see the module docstring).
+    initial : int
+        Units already done before this display started (a resumed sweep): counted
+        in done/total, not in the rate.
     """
 
-    def __init__(self, total, desc, enabled=None, unit="step"):
+    def __init__(self, total, desc, enabled=None, unit="step", *, lines=False, initial=0):
+        self.lines = False
         if enabled is None:
             enabled = total > 1 and stderr_is_terminal()
-        self.total, self.desc, self.unit, self.enabled = int(total), desc, unit, bool(enabled)
-        self.done, self.failed, self.bar, self._last = 0, 0, None, 0.0
-        if not self.enabled:
+            self.lines = bool(lines) and total > 0 and not enabled
+        self.total, self.desc, self.unit, self.enabled = int(total), desc, unit, bool(enabled) or self.lines
+        self.done, self.failed, self.bar, self._last = int(initial), 0, None, 0.0
+        self._start, self._initial, self._line_done = time.monotonic(), int(initial), int(initial)
+        if self.lines:
+            self._last = self._start  # the first line after 5 % or 30 s, not at the first unit
+        if not self.enabled or self.lines:
             return
         try:
             from tqdm import tqdm
 
             self.bar = tqdm(total=self.total, desc=desc, unit=unit, unit_scale=unit == "step", leave=False,
-                            file=sys.stderr)
+                            file=sys.stderr, initial=int(initial))
         except ImportError:
             pass
+
+    def status(self):
+        """``"DESC: done/total units (P %)[, F failed], R units/s, about T left"``: the line shown."""
+        fail = f", {self.failed} failed" if self.failed else ""
+        pct = 100 * self.done / max(self.total, 1)
+        text = f"{self.desc}: {self.done}/{self.total} {self.unit}s ({pct:.0f} %){fail}"
+        elapsed = time.monotonic() - self._start
+        new = self.done - self._initial
+        if new > 0 and elapsed > 0:
+            rate = new / elapsed
+            text += f", {rate:.3g} {self.unit}s/s" if rate >= 1 else f", {1 / rate:.3g} s/{self.unit}"
+            text += f", about {duration(max(self.total - self.done, 0) / rate)} left" if self.done < self.total \
+                else f", {duration(elapsed)} in all"
+        return text
 
     def update(self, n=1, *, failed=False):
         """``n`` more units done (``failed``: one of them failed, counted in the line)."""
@@ -56,11 +88,17 @@ class Progress:
             self.bar.update(n)
             if failed:
                 self.bar.set_postfix(failed=self.failed)
+        elif self.lines:
+            now = time.monotonic()
+            more = (self.done - self._line_done) / max(self.total, 1)
+            if self.done >= self.total or (more >= LINE_FRACTION and now - self._last >= LINE_MIN_SECONDS) \
+                    or (self.done > self._line_done and now - self._last >= LINE_SECONDS):
+                self._last, self._line_done = now, self.done
+                sys.stderr.write(self.status() + "\n")
+                sys.stderr.flush()
         elif time.monotonic() - self._last > 1.0 or self.done >= self.total:
             self._last = time.monotonic()
-            fail = f", {self.failed} failed" if self.failed else ""
-            pct = 100 * self.done / max(self.total, 1)
-            sys.stderr.write(f"\r{self.desc}: {self.done}/{self.total} {self.unit}s ({pct:.0f} %){fail}")
+            sys.stderr.write(f"\r{self.status()}\033[K")
             sys.stderr.flush()
 
     def close(self):
@@ -68,7 +106,7 @@ class Progress:
             return
         if self.bar is not None:
             self.bar.close()
-        elif self.done:
+        elif self.done and not self.lines:
             sys.stderr.write("\n")
             sys.stderr.flush()
 
@@ -77,3 +115,13 @@ class Progress:
 
     def __exit__(self, *exc):
         self.close()
+
+
+def duration(seconds):
+    """``"42 s"``, ``"3 min 5 s"``, ``"1 h 20 min"``: a time for a person."""
+    s = int(round(seconds))
+    if s < 60:
+        return f"{max(s, 0)} s"
+    if s < 3600:
+        return f"{s // 60} min {s % 60} s"
+    return f"{s // 3600} h {s % 3600 // 60} min"

@@ -3,7 +3,7 @@
 ::
 
     liefi --version
-    liefi list [-v]
+    liefi list [-v] [--schemes]
     liefi run SCENE [--rtol R] [--atol A] [--paper] [--dt DT] [--t-final T]
                     [--scheme imex-rk4|euler|heun|rk4|dla|scipy:METHOD]
                     [--gains K | --gains K1,K2,... | --gains name=K,...] [--variant NAME]
@@ -61,6 +61,33 @@ class _Parser(argparse.ArgumentParser):
 
     def error(self, message):
         raise UsageError(f"{message} (see '{self.prog} --help')")
+
+    def parse_known_args(self, args=None, namespace=None):
+        return super().parse_known_args(self._join_negative(sys.argv[1:] if args is None else args), namespace)
+
+    def _join_negative(self, args):
+        """``--dt -1e-3`` -> ``--dt=-1e-3`` for this parser's options that take one value.
+
+        argparse reads ``-1e-3`` as an option (its negative-number pattern has no exponent), so
+        the option would get "expected one argument"; joined, the value reaches the option's
+        ``type``, which refuses it with a message naming the option (e.g. "dt must be a
+        positive number")."""
+        out, args = [], list(args)
+        i = 0
+        while i < len(args):
+            a = args[i]
+            act = self._option_string_actions.get(a) if isinstance(a, str) and a.startswith("--") else None
+            if act is not None and act.nargs is None and i + 1 < len(args) and _NEGATIVE.match(str(args[i + 1])):
+                out.append(f"{a}={args[i + 1]}")
+                i += 2
+                continue
+            out.append(a)
+            i += 1
+        return out
+
+
+#: a negative number as a command-line token, exponent included (``-1e-3``, ``-.5``, ``-inf``)
+_NEGATIVE = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-(inf|infinity|nan)$", re.IGNORECASE)
 
 
 # --------------------------------------------------------------------------------------
@@ -141,7 +168,10 @@ def report(result, file=None):
     )
     w(f"  CPU time {result.cpu_seconds:.3f} s\n")
     if result.gains and result.scheme != "dla":
-        w("  gains " + ", ".join(f"{k}={v:g}" for k, v in result.gains.items()) + "\n")
+        dropped = {d["name"] for d in getattr(result, "dropped", ())}
+        w("  gains " + ", ".join(f"{k}={v:g}" + (f" (kept exactly by {result.scheme}; dropped from V)"
+                                                if k in dropped else "")
+                                 for k, v in result.gains.items()) + "\n")
     ref = "exact solution" if result.reference == "exact" else "numerical reference (DOP853)"
     w(f"  max |error| against the {ref}:\n")
     width = max([len(k) for k in list(result.max_error) + list(result.max_drift)] + [4])
@@ -156,6 +186,9 @@ def report(result, file=None):
 # commands
 # --------------------------------------------------------------------------------------
 def cmd_list(args):
+    if getattr(args, "schemes", False):  # the scheme registry: name, kind, order, stability
+        print(_schemes.describe())
+        return 0
     rows = []
     for name in _scenes.names():
         try:
@@ -190,7 +223,9 @@ def plot_path(path, scene, variant=None, *, suffix=""):
     """The file ``liefi run --out`` writes, checked before the run.
 
     A folder gets ``SCENE.png`` (``SCENE-VARIANT.png`` for another variant than the
-    first) inside it; a name without a suffix gets ``.png``.  Raises
+    first) inside it; a name without a suffix gets ``.png``.  A missing folder (``DIR/``,
+    or the folder of ``DIR/FILE.png``) is created, with its parents, as ``liefi bench``
+    and ``liefi reproduce`` create theirs.  Raises
     :class:`UsageError` (naming ``out``) when the file cannot be written or its
     suffix is not a format matplotlib writes (:func:`liefi.plotting.check_format`), and an
     ``ImportError`` with the install hint when matplotlib is missing.
@@ -200,8 +235,8 @@ def plot_path(path, scene, variant=None, *, suffix=""):
     from . import plotting
 
     plotting.require_matplotlib()
-    if path.endswith(("/", os.sep)) and not os.path.isdir(path):
-        raise UsageError(f"out: the folder {path!r} does not exist; create it (mkdir -p {path}) or choose another --out")
+    if path.endswith(("/", os.sep)):
+        _make_folder(path)
     if os.path.isdir(path):
         first = next(iter(scene.variants), None)
         name = scene.name + ("" if variant in (None, first) else f"-{variant}") + suffix
@@ -209,14 +244,26 @@ def plot_path(path, scene, variant=None, *, suffix=""):
     elif not os.path.splitext(path)[1]:
         path += ".png"
     folder = os.path.dirname(os.path.abspath(path))
-    if not os.path.isdir(folder):
-        raise UsageError(f"out: the folder {folder!r} of {path!r} does not exist; create it or choose another --out")
+    _make_folder(folder)
     if os.path.isdir(path) or (os.path.exists(path) and not os.access(path, os.W_OK)) or not os.access(folder, os.W_OK):
         raise UsageError(f"out: cannot write {path!r} (not writable); choose another --out")
     try:
         return plotting.check_format(path, "out")
     except ValueError as exc:
         raise UsageError(str(exc)) from None
+
+
+def _make_folder(folder):
+    """Create ``folder`` (with its parents) if missing, as ``liefi bench`` and ``liefi reproduce`` do."""
+    import os
+
+    if os.path.lexists(folder) and not os.path.isdir(folder):
+        raise UsageError(f"out: {folder!r} exists and is not a folder; choose another --out")
+    try:
+        os.makedirs(folder, exist_ok=True)
+    except OSError as exc:
+        raise UsageError(f"out: cannot create the folder {folder!r} ({exc.strerror or exc}); choose another --out") \
+            from None
 
 
 #: ``liefi run`` refuses more steps than this unless ``--max-steps`` says otherwise
@@ -337,9 +384,11 @@ def cmd_reproduce(args):
     only = None
     if args.only:
         only = [s.strip() for s in args.only.split(",") if s.strip()]
-        unknown = [s for s in only if s not in _scenes.REGISTRY]
-        if unknown:
-            raise UsageError(f"only: unknown scene(s) {unknown}; choose from {_scenes.names()}")
+        for s in only:
+            try:
+                _scenes.check_name(s)
+            except ValueError as exc:
+                raise UsageError(f"only: {exc}") from None
     if not (math.isfinite(args.t_final_scale) and args.t_final_scale > 0):
         raise UsageError(f"t-final-scale: must be a positive number, got {args.t_final_scale!r}")
     from . import plotting
@@ -393,6 +442,8 @@ def build_parser():
 
     pl = sub.add_parser("list", help="the scenes, one line each (name, title, paper section, variants)")
     pl.add_argument("-v", "--verbose", action="store_true", help="also the paper's settings and the --gains order")
+    pl.add_argument("--schemes", action="store_true",
+                    help="list the schemes instead (name, kind, order, stability), as --scheme and bench --schemes take")
 
     pr = sub.add_parser(
         "run",
@@ -443,8 +494,8 @@ def build_parser():
                     help="adapt the gains along the run to the stability limit (liefi.stability)")
     pr.add_argument("--json", action="store_true", help="print one JSON object")
     pr.add_argument("--out", "--plot", default=None, metavar="FILE.png|DIR", dest="out",
-                    help="write the scene's figure(s) to FILE.png (into DIR: DIR/SCENE.png); checked before the "
-                         "run; integrates the configuration if the figures need it (--plot: the same)")
+                    help="write the scene's figure(s) to FILE.png (into DIR/: DIR/SCENE.png; a missing folder is "
+                         "created); checked before the run; integrates the configuration if the figures need it (--plot: the same)")
 
     pp = sub.add_parser(
         "reproduce",

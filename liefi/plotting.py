@@ -154,16 +154,39 @@ def panel_grid(n, *, ncols=3, width=4.6, height=3.6, legend_width=2.0):
     return fig, cells[:n]
 
 
-def finish_panel_grid(fig, axes, title, path, *, legend_fontsize=7):
-    """One legend for every panel on the right (each label once), the title, a tight layout; saves to ``path``."""
-    entries = {}
-    for ax in axes:
-        for h, lab in zip(*ax.get_legend_handles_labels()):
-            entries.setdefault(lab, h)
-    fig.legend(list(entries.values()), list(entries), loc="center right", fontsize=legend_fontsize)
+def finish_panel_grid(fig, axes, title, path, *, legend_fontsize=7, legends=None):
+    """One legend for every panel on the right (each label once), the title, a tight layout; saves to ``path``.
+
+    ``legends``: instead, grouped legends in columns (:func:`legend_columns`)."""
+    if legends is not None:
+        legend_columns(fig, legends, fontsize=legend_fontsize)
+    else:
+        entries = {}
+        for ax in axes:
+            for h, lab in zip(*ax.get_legend_handles_labels()):
+                entries.setdefault(lab, h)
+        fig.legend(list(entries.values()), list(entries), loc="center right", fontsize=legend_fontsize)
     fig.suptitle(title)
     fig.tight_layout(rect=(0, 0, 1 - fig.liefi_legend_width / fig.get_figwidth(), 0.95))
     return save(fig, path)
+
+
+def legend_columns(fig, columns, *, fontsize=7):
+    """Grouped legends in the right margin of ``fig`` (``fig.liefi_legend_width`` inches, see
+    :func:`panel_grid`), side by side: each column a list of one or two blocks
+    ``(title, handles, labels)``, the first hung from the top, the second stood on the bottom.
+
+    For many similar series (a work-precision diagram): one block per attribute (colour: the
+    method family; marker and line: the scheme; lightness: the gain) instead of one entry per
+    series, so the legend stays shorter than the figure."""
+    width = fig.liefi_legend_width / fig.get_figwidth()
+    x0 = 1 - width
+    for i, blocks in enumerate(columns):
+        for j, (title, handles, labels) in enumerate(blocks[:2]):
+            top = j == 0
+            fig.legend(handles, labels, title=title, loc="upper left" if top else "lower left",
+                       bbox_to_anchor=(x0 + i * width / len(columns), 0.98 if top else 0.02), fontsize=fontsize,
+                       title_fontsize=fontsize + 1, frameon=False, alignment="left")
 
 
 def figure(fig, width, height):
@@ -301,6 +324,7 @@ def generic(result, fig=None, *, title=None, tag=""):
     if result.invariants:
         a1.legend(fontsize=8, ncol=2)
     head = title or f"{result.scene}"
+    tag = "" if f"variant {result.variant}" in tag else tag  # the title names the variant once
     fig.suptitle(f"{head}, variant {result.variant} (no figure in the paper){tag}\n{run_caption(result)}", fontsize=10)
     return fig
 

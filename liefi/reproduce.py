@@ -19,7 +19,8 @@ What is written to ``out``:
 * ``summary.json`` (every run: settings, steps, CPU time, max errors, max drifts,
   figures, status; strict JSON, a number that is not finite written as ``null``) and ``summary.md`` (the same as a markdown table), rewritten
   after every scene, so an interrupted or killed reproduction leaves a
-  consistent summary of what finished;
+  consistent summary of what finished (a scene cut short contributes the runs
+  and figures it finished and is listed in ``unfinished``);
 * ``liefi-manifest.json``: the files liefi wrote there.
 
 The output folder is checked before any work (:func:`prepare_output`): liefi
@@ -267,7 +268,7 @@ def _run_one(scene, variant, spec, scale, count):
         for m in msgs:
             _log(f"  warning: {m}")
     worst = max(result.max_error.values(), default=float("nan"))
-    _log(f"{tag} done: CPU {result.cpu_seconds:.2f} s, wall {wall:.2f} s, max |error| {worst:.3e}")
+    _log(f"{tag} done: CPU {_seconds(result.cpu_seconds)} s, wall {wall:.2f} s, max |error| {worst:.3e}")
     return result, row
 
 
@@ -287,6 +288,10 @@ def _scene_job(task):
         _log(f"{name}: FAILED to load: {row['error']}")
         return done
     output = Output(out_path)
+
+    def snapshot():  # what finished so far, for a summary written while this scene is cut short
+        output.write_text(_partial_name(name), _json.dumps(done, default=_json_default))
+
     variants = list(scene.variants) or [None]
     default_variant = variants[0]
     plans = {v: scene.paper_runs(scene.variant(v)) for v in variants}
@@ -316,6 +321,7 @@ def _scene_job(task):
                 rows.append(row)
                 if result is None:
                     failures.append(row)
+                snapshot()
                 if spec.variant_independent:
                     shared[spec.label] = (result, row)
             if result is not None:
@@ -337,6 +343,7 @@ def _scene_job(task):
                 for r in used_rows:
                     if filename not in r["figures"]:
                         r["figures"].append(filename)
+                snapshot()
     return done
 
 
@@ -393,6 +400,7 @@ def reproduce(out="./liefi-out", *, only=None, t_final_scale=1.0, jobs=None, all
 
     def finished(done):
         state["results"][done["scene"]] = done
+        _drop_partial(output, done["scene"])
         _write_summary(output, names, state, scale)
         bar.update(failed=bool(done["failures"]))
 
@@ -490,17 +498,44 @@ def _remove_partial_files(path, pids):
                 pass
 
 
+def _partial_name(scene):
+    """The file where a scene's job keeps what it finished so far (removed when the scene ends)."""
+    return f".{scene}.partial.json"
+
+
+def _read_partial(output, scene):
+    """What a scene's job that has not returned (still running, interrupted or killed) had finished."""
+    try:
+        with open(os.path.join(output.path, _partial_name(scene))) as f:
+            return json.load(f)
+    except (OSError, ValueError):
+        return None
+
+
+def _drop_partial(output, scene):
+    try:
+        os.remove(os.path.join(output.path, _partial_name(scene)))
+    except OSError:
+        pass
+
+
 def _write_summary(output, names, state, scale):
-    rows, failures, figures, references = [], [], [], []
+    """``summary.json`` and ``summary.md``: the scenes that finished, and the runs and figures that
+    finished in a scene that did not (its job's partial record, :func:`_partial_name`), which stays
+    listed in ``unfinished`` (a scene with nothing finished is in ``not_run``)."""
+    rows, failures, figures, references, unfinished = [], [], [], [], []
     for n in names:
         done = state["results"].get(n)
         if done is None:
-            continue
+            done = _read_partial(output, n)
+            if done is None:
+                continue
+            unfinished.append(n)
         rows += done["rows"]
         failures += done["failures"]
         figures += done["figures"]
         references += done.get("references", [])
-    pending = [n for n in names if n not in state["results"]]
+    pending = [n for n in names if n not in state["results"] and n not in unfinished]
     summary = {
         "liefi_version": __version__,
         "out": output.path,
@@ -510,6 +545,7 @@ def _write_summary(output, names, state, scale):
         "interrupted": state["interrupted"],
         "scenes": names,
         "not_run": pending if (state["interrupted"] or pending) else [],
+        "unfinished": unfinished,
         "runs": rows,
         "references": references,
         "figures": figures,
@@ -525,6 +561,11 @@ def _json_default(o):
         return float(o)
     except (TypeError, ValueError):
         return str(o)
+
+
+def _seconds(x):
+    """A time in seconds with three significant digits (``0.00123``, ``12.3``): a run of a few ms is not ``0.00``."""
+    return f"{x:.3g}" if x >= 1e-4 else f"{x:.1e}"
 
 
 def _fmt_map(d):
@@ -548,7 +589,7 @@ def markdown_table(summary):
         exp = r.get("experiment", "paper")
         lines.append(
             f"| {r['scene']} | {r['variant']} | {exp} | {r['scheme']} | {r['dt']:g} | {r['t_final']:g} | {r['steps']} "
-            f"| {r['cpu_seconds']:.2f} | {r['reference']} | {_fmt_map(r['max_error'])} | {_fmt_map(r['max_drift'])} |"
+            f"| {_seconds(r['cpu_seconds'])} | {r['reference']} | {_fmt_map(r['max_error'])} | {_fmt_map(r['max_drift'])} |"
         )
     lines.append("")
     lines.append(
@@ -557,11 +598,13 @@ def markdown_table(summary):
         + (f", t_final scaled by {summary['t_final_scale']:g}" if summary["t_final_scale"] != 1 else "")
         + "."
     )
-    if summary.get("interrupted") or summary.get("not_run"):
+    if summary.get("interrupted") or summary.get("not_run") or summary.get("unfinished"):
         lines.append("")
         lines.append(
             ("**Interrupted**: " if summary.get("interrupted") else "")
-            + "not run (or not finished): " + (", ".join(summary.get("not_run", ())) or "-") + "."
+            + "not run (or nothing finished): " + (", ".join(summary.get("not_run", ())) or "-") + "."
+            + (f" Cut short (the runs and figures that finished are listed): {', '.join(summary['unfinished'])}."
+               if summary.get("unfinished") else "")
         )
     refs = summary.get("references") or []
     if refs:

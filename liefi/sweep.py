@@ -367,7 +367,8 @@ def run_sweep(fn, tasks, executor: Executor | None = None, *, store=None, conver
         instance to reduce a trajectory to a row of numbers).  An exception in
         it makes that task's value a :class:`TaskError`.
     progress : bool, optional
-        Progress on stderr; default: when stderr is a terminal.
+        Progress on stderr (done/total, rate, time left); default: live on a terminal,
+        else a line every 5 % or 30 s (:class:`liefi._progress.Progress`, ``lines=True``).
     label : str
         Names the sweep in the progress line.
     max_in_flight : int, optional
@@ -396,9 +397,7 @@ def run_sweep(fn, tasks, executor: Executor | None = None, *, store=None, conver
             todo.append(i)
         else:
             results[i] = v
-    bar = Progress(len(tasks), label or "sweep", progress, unit="task")
-    if len(todo) < len(tasks):
-        bar.update(len(tasks) - len(todo))
+    bar = Progress(len(tasks), label or "sweep", progress, unit="task", lines=True, initial=len(tasks) - len(todo))
 
     def record(i, value, seconds=None):
         if convert is not None and not isinstance(value, TaskError):
@@ -526,6 +525,13 @@ def _count(spec, default):
             raise ValueError(f"scheduler: the number of workers in {spec!r} must be at least 1")
         return n
     return default
+
+
+def default_scheduler():
+    """``"processes"`` (one worker process per core) on a machine with more than one core, else
+    ``"serial"``: what ``liefi bench`` runs on unless ``--scheduler`` says otherwise, as ``liefi
+    reproduce`` runs its scenes on every core."""
+    return "processes" if (os.cpu_count() or 1) > 1 else "serial"
 
 
 @contextlib.contextmanager

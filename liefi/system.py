@@ -204,8 +204,10 @@ class NonholonomicSystem:
             self.metric_inverse = _checked_inverse(self.metric.value, "metric")
         if self.constant:
             E, m = self.constraints.value, self.metric.value
-            self.flat_constraints = E @ m
-            self.gram_inverse = _gram_inverse(self.flat_constraints @ E.T)
+            with np.errstate(over="ignore", invalid="ignore"):  # an overflow is named by _gram_inverse
+                self.flat_constraints = E @ m
+                C = self.flat_constraints @ E.T
+            self.gram_inverse = _gram_inverse(C)
         if check:
             space.group.check()  # the group's differentiated methods (liefi.groups.LieGroup.check)
             self.check(np.zeros(n) if sample is None else sample)
@@ -353,6 +355,11 @@ class NonholonomicSystem:
             raise ValueError(f"x: expected {what} of shape (..., {self.space.data_dim}), got {x.shape}")
         if not np.all(np.isfinite(x)):
             raise ValueError("x: contains non-finite numbers")
+        data = [self.metric, self.constraints, self.potential]
+        if self.vector_potential is not None:
+            data.append(self.vector_potential)
+        for datum in data:  # first: a complex value is named, not cast to real with a ComplexWarning
+            datum.check_real(x)
         m = np.asarray(self.metric(x), float)
         if not np.all(np.isfinite(m)):
             raise ValueError(f"metric: non-finite values at x = {x}")
@@ -372,18 +379,15 @@ class NonholonomicSystem:
             E = np.asarray(self.constraints(x), float)
             if not np.all(np.isfinite(E)):
                 raise ValueError(f"constraints: non-finite values at x = {x}")
-            C = E @ m @ np.swapaxes(E, -1, -2)
+            with np.errstate(over="ignore", invalid="ignore"):  # an overflow is named by _gram_inverse
+                C = E @ m @ np.swapaxes(E, -1, -2)
             _gram_inverse(C)
         U = np.asarray(self.potential(x), float)
         if not np.all(np.isfinite(U)):
             raise ValueError(f"potential: non-finite value at x = {x}")
-        data = [self.metric, self.constraints, self.potential]
         if self.vector_potential is not None:
-            data.append(self.vector_potential)
             if not np.all(np.isfinite(np.asarray(self.vector_potential(x), float))):
                 raise ValueError(f"vector_potential: non-finite values at x = {x}")
-        for datum in data:
-            datum.check_real(x)
         if self.space.data_dim:
             for datum in data:
                 datum.check_differentiable(x)

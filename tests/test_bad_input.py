@@ -70,6 +70,7 @@ def test_complex_step_unsafe_datum_with_zero_derivative_at_the_sample_is_caught(
         NonholonomicSystem(space, _racer_metric_filled_in_place, rows, metric_derivative=dm)
 
 
+@pytest.mark.filterwarnings("error")  # named, without a numpy warning on the way
 @pytest.mark.parametrize("unsafe", ["real", "astype"])
 def test_other_complex_step_unsafe_potentials_are_caught(unsafe):
     def potential(x):
@@ -80,6 +81,7 @@ def test_other_complex_step_unsafe_potentials_are_caught(unsafe):
         NonholonomicSystem(CotangentBundle(1), np.eye(1), None, potential)
 
 
+@pytest.mark.filterwarnings("error")  # named, without a numpy warning on the way
 def test_complex_constant_metric_is_refused():
     """Issue 10 item 10: a complex constant metric was taken with its imaginary part dropped."""
     with pytest.raises(ValueError, match="metric: complex values"):
@@ -363,6 +365,7 @@ def test_fuzz_integrator_options(data):
         assert "t=" in str(exc)
 
 
+@pytest.mark.filterwarnings("error")  # named, without a numpy warning on the way
 def test_overflowing_gram_matrix_is_named():
     """Constraint rows so large that E m E^T overflows: a named error, not LinAlgError from an SVD."""
     space = CotangentBundle(3)

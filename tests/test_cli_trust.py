@@ -116,21 +116,26 @@ def test_reproduce_never_overwrites_a_file_it_did_not_write(tmp_path):
 
 
 def test_run_out_is_checked_before_the_run(capsys, tmp_path, monkeypatch):
+    """A folder that cannot be made (a file stands in its way) is refused before any work."""
     pytest.importorskip("matplotlib")
     _no_run(monkeypatch)
-    code, _, err = run_cli(capsys, "run", "suslov", "--out", str(tmp_path / "missing" / "x.png"))
+    (tmp_path / "afile").write_text("x")
+    code, _, err = run_cli(capsys, "run", "suslov", "--out", str(tmp_path / "afile" / "x.png"))
     assert code == 2
     _one_error_line(err, "out")
+    assert "not a folder" in err
 
 
-def test_run_out_naming_a_missing_folder_says_so(capsys, tmp_path, monkeypatch):
-    """``--out figs/`` (a folder, by its slash) that does not exist: named, not taken for ``figs/.png``."""
+@pytest.mark.parametrize("form", ["folder/", "folder/fig.png"])
+def test_run_out_creates_a_missing_folder_as_bench_and_reproduce_do(capsys, tmp_path, form):
+    """``--out figs/`` or ``--out figs/x.png`` whose folder does not exist: created (with its parents),
+    as ``liefi bench`` and ``liefi reproduce`` create theirs; not taken for ``figs/.png``."""
     pytest.importorskip("matplotlib")
-    _no_run(monkeypatch)
-    code, _, err = run_cli(capsys, "run", "suslov", "--out", str(tmp_path / "figs") + "/")
-    assert code == 2
-    _one_error_line(err, "out")
-    assert "does not exist" in err and ".png" not in err
+    target = str(tmp_path / "new" / "deeper") + "/" + form
+    code, out, err = run_cli(capsys, "run", "knife-edge", "--t-final", "0.05", "--out", target)
+    assert code == 0, err
+    written = tmp_path / "new" / "deeper" / ("folder/knife-edge.png" if form.endswith("/") else form)
+    assert written.is_file() and str(written) in out
 
 
 def test_run_out_into_a_folder_writes_and_reports_the_file(capsys, tmp_path):
@@ -348,7 +353,8 @@ def test_stability_out_is_checked_before_any_work(capsys, tmp_path, monkeypatch)
         raise AssertionError("the map was computed before its output was checked")
 
     monkeypatch.setattr(stability_cli, "command", boom)
-    code, _, err = run_cli(capsys, "stability", "suslov", "--out", str(tmp_path / "missing" / "map.png"))
+    (tmp_path / "afile").write_text("x")  # a folder that cannot be made (a missing one is created)
+    code, _, err = run_cli(capsys, "stability", "suslov", "--out", str(tmp_path / "afile" / "map.png"))
     assert code == 2
     _one_error_line(err, "out")
     seen = {}

@@ -29,7 +29,8 @@ from liefi.bench.core import build_tasks, summarize
 from liefi.sweep import ResultStore, TaskError
 
 #: the smallest real bench: 3 runs of the oscillator (FI, Euler, the scene's gains, --quick)
-TINY = ["oscillator", "--quick", "--methods", "FI", "--schemes", "euler", "--gains", "scene"]
+#: serial: the fixtures below replace bench's runs in this process (a process pool would not see them)
+TINY = ["oscillator", "--quick", "--methods", "FI", "--schemes", "euler", "--gains", "scene", "--scheduler", "serial"]
 
 
 @pytest.fixture(autouse=True)

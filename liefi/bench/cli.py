@@ -44,7 +44,8 @@ def add_arguments(parser):
                         help="output directory; a rerun into the same DIR resumes (results.sqlite)")
     parser.add_argument("--variant", default=None, help="variant (default: the scene's first)")
     parser.add_argument("--scheduler", default=None, metavar="ADDR",
-                        help="serial (default), processes[:N], threads[:N], dask[:N] or tcp://host:8786")
+                        help="processes[:N] (default: one worker process per core, as `liefi reproduce`), serial, "
+                        "threads[:N], dask[:N] or tcp://host:8786")
     parser.add_argument("--quick", action="store_true", help="a small grid (3 steps, 2 tolerances)")
     parser.add_argument("--long-horizon", type=float, default=None, dest="long_horizon", metavar="T",
                         help="also the drift against time up to T at matched cost (e.g. 1e4)")
@@ -52,16 +53,21 @@ def add_arguments(parser):
                         help="integrate the reduced state only")
     parser.add_argument("--methods", default=None, metavar="M[,M]",
                         help=f"method families (default: all that apply): {','.join(METHODS)}")
+    from ..schemes import names as _scheme_names
+
     parser.add_argument("--schemes", default=None, metavar="S[,S]",
-                        help=f"schemes (default: {','.join(FIXED_SCHEMES + IVP_METHODS)}): any explicit tableau of "
-                        "the scheme registry (`liefi list`) or a solve_ivp method")
+                        help=f"schemes (default: {','.join(FIXED_SCHEMES + IVP_METHODS)}): any of "
+                        f"{','.join(_scheme_names('explicit') + _scheme_names('split'))} (`liefi list --schemes`) "
+                        "or a solve_ivp method "
+                        f"({','.join(n.split(':', 1)[1] for n in _scheme_names('scipy'))})")
     parser.add_argument("--gains", default=None, metavar="K[,K]",
                         help="gains of the FI rows, 'scene' for the scene's own (default: scene,0.1,1,10)")
     parser.add_argument("--max-steps", type=float, default=None, dest="max_steps", metavar="N",
                         help="refuse runs of more than N steps (t_final / dt) before any work, as `liefi run` "
                         "(default 1e8)")
     parser.add_argument("--progress", action=argparse_bool(), default=None,
-                        help="progress on stderr (default: when stderr is a terminal)")
+                        help="progress on stderr: done/total, rate, time left (default: live on a terminal, "
+                        "else a line every 5 %% or 30 s)")
     return parser
 
 
@@ -283,8 +289,7 @@ def run_from_args(args, log=None):
     from ..reproduce import OutputError, prepare_output
 
     log = log or (lambda m: print(m, file=sys.stderr, flush=True))
-    if args.scene != "all" and args.scene not in _scenes.REGISTRY:
-        raise ValueError(f"scene: unknown scene {args.scene!r}; choose one of {_scenes.names()} or 'all'")
+    _scenes.check_name(args.scene, extra=("all",))
     if args.t_final is not None:
         positive("--t-final", args.t_final)
     if args.long_horizon is not None:
@@ -326,7 +331,7 @@ def run_from_args(args, log=None):
 
 
 def _run(args, log, plan):
-    from ..sweep import open_executor
+    from ..sweep import default_scheduler, open_executor
 
     if not _engine.available():
         log(f"liefi bench: numba is not available ({_engine.NUMBA_ERROR}); the generated code runs as plain "
@@ -334,7 +339,7 @@ def _run(args, log, plan):
     expected, errors = {sc.name: tasks for sc, _, tasks in plan}, 0
     arguments = _arguments(args)
     try:
-        with open_executor(args.scheduler) as ex:
+        with open_executor(args.scheduler or default_scheduler()) as ex:
             for sc, kw, _ in plan:
                 rows = work_precision(sc, args.t_final, args.out, ex, log=log,
                                       progress=getattr(args, "progress", None), **kw)

@@ -7,15 +7,21 @@ import os
 import numpy as np
 
 from .._files import writing
-from ..plotting import finish_panel_grid, panel_grid
+from ..plotting import finish_panel_grid, legend_columns, panel_grid
 
 # ======================================================================================
 # plots
 # ======================================================================================
 
 _COLORS = {"FI": "C3", "FI-tuned": "C6", "FI-accurate": "C5", "FI/solve_ivp": "C1", "no-feedback": "C7", "constrained": "C0", "projection": "C2", "projection-1": "C8", "DLA": "C4"}
-_STYLES = {"euler": ("o", "-"), "heun": ("s", "-"), "rk4": ("^", "-"), "RK45": ("o", "--"), "DOP853": ("D", "--"),
-           "LSODA": ("v", ":"), "dla": ("x", "-")}
+#: scheme -> (marker, line): the marker by the order's base scheme, the line by the kind
+#: (explicit solid, split ``imex-*`` dash-dot, adaptive solve_ivp dashed, implicit dotted)
+_STYLES = {"euler": ("o", "-"), "heun": ("s", "-"), "midpoint": ("P", "-"), "rk3": ("h", "-"), "rk4": ("^", "-"),
+           "imex-euler": ("o", "-."), "imex-heun": ("s", "-."), "imex-rk4": ("^", "-."),
+           "RK23": ("<", "--"), "RK45": ("v", "--"), "DOP853": ("D", "--"), "LSODA": ("X", ":"), "Radau": ("*", ":"),
+           "BDF": ("p", ":"), "dla": ("x", "-")}
+#: inches on the right of a work-precision figure for its grouped legends
+_LEGEND_WIDTH = 3.0
 
 
 def _alpha(gain):
@@ -30,6 +36,27 @@ def _series(rows):
             continue
         groups.setdefault((r["method"], r["scheme"], r.get("gain")), []).append(r)
     return groups
+
+
+def _legends(rows):
+    """The grouped legends of a work-precision figure (:func:`liefi.plotting.legend_columns`): the
+    method families by colour with the FI gains by lightness below them, the schemes by marker
+    and line -- one entry per family, scheme and gain, not one per series."""
+    from matplotlib.lines import Line2D
+
+    ok = [r for r in rows if r["status"] == "ok"]
+    fams = [m for m in dict.fromkeys([*_COLORS, *(r["method"] for r in ok)]) if any(r["method"] == m for r in ok)]
+    schemes = list(dict.fromkeys(r["scheme"] for r in ok))
+    gains = list(dict.fromkeys(r.get("gain") for r in ok if str(r["method"]).startswith("FI")))
+    gains.sort(key=lambda k: -1.0 if k is None else k)
+    fam = ("method", [Line2D([], [], color=_COLORS.get(m, "k"), lw=2.5) for m in fams], fams)
+    sch = ("scheme", [Line2D([], [], color="k", marker=_STYLES.get(s, ("o", "-"))[0], ls=_STYLES.get(s, ("o", "-"))[1],
+                             ms=4, lw=1) for s in schemes], schemes)
+    blocks = [[fam], [sch]]
+    if len(gains) > 1:
+        blocks[0].append(("FI gain k", [Line2D([], [], color=_COLORS["FI"], lw=2.5, alpha=_alpha(k)) for k in gains],
+                          ["the scene's" if k is None else f"{k:g}" for k in gains]))
+    return blocks
 
 
 def _draw(ax, rows, xkey, ykey):
@@ -56,7 +83,7 @@ def plot(rows, out_dir, name):
 
     T = rows[0]["t_final"] if rows else float("nan")
     paths = []
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4.8))
+    fig, axes = plt.subplots(1, 2, figsize=(12 + _LEGEND_WIDTH, 4.8))
     _draw(axes[0], rows, "cpu_seconds", "max_error")
     axes[0].set_xlabel("CPU time [s]")
     axes[0].set_ylabel("max error vs reference")
@@ -64,9 +91,9 @@ def plot(rows, out_dir, name):
     axes[1].set_xlabel("right-hand-side evaluations")
     axes[0].set_title(f"{name}: error vs CPU time, t in [0, {T:g}]")
     axes[1].set_title("error vs work (engine independent)")
-    h, lab = axes[0].get_legend_handles_labels()
-    fig.legend(h, lab, loc="center right", fontsize=7)
-    fig.tight_layout(rect=(0, 0, 0.84, 1))
+    fig.liefi_legend_width = _LEGEND_WIDTH
+    legend_columns(fig, _legends(rows))
+    fig.tight_layout(rect=(0, 0, 1 - _LEGEND_WIDTH / fig.get_figwidth(), 1))
     p = os.path.join(out_dir, f"{name}-error.png")
     with writing(p):
         fig.savefig(p, dpi=110)
@@ -77,14 +104,15 @@ def plot(rows, out_dir, name):
     if all(not r.get("drift_orthogonality") for r in rows):  # no embedded rotation (older CSVs have zeros)
         drifts = [k for k in drifts if k != "drift_orthogonality"]
     if drifts:
-        fig, axes = panel_grid(len(drifts), legend_width=2.0)
+        fig, axes = panel_grid(len(drifts), legend_width=_LEGEND_WIDTH)
         for ax, k in zip(axes, drifts):
             _draw(ax, rows, "cpu_seconds", k)
             ax.axhline(1e-8, color="k", lw=0.6, ls=":")
             ax.set_title(f"max |{k[6:]} drift|", fontsize=9)
             ax.set_xlabel("CPU time [s]", fontsize=8)
         p = finish_panel_grid(fig, axes, f"{name}: max drift of each invariant over t in [0, {T:g}] vs CPU time "
-                              "(dotted: 1e-8; exact zeros drawn at 1e-17)", os.path.join(out_dir, f"{name}-drift.png"))
+                              "(dotted: 1e-8; exact zeros drawn at 1e-17)", os.path.join(out_dir, f"{name}-drift.png"),
+                              legends=_legends(rows))
         paths.append(p)
     return paths
 

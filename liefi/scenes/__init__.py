@@ -36,10 +36,26 @@ def names():
     return list(REGISTRY)
 
 
+def check_name(name, *, extra=()):
+    """Raise a ``ValueError`` naming the closest scene names unless ``name`` is a scene (or in ``extra``).
+
+    The one place an unknown scene name is reported: :func:`get`, ``liefi run``,
+    ``liefi bench`` (``extra=("all",)``) and ``liefi reproduce --only`` use it.
+    """
+    if name in REGISTRY or name in extra:
+        return
+    import difflib
+
+    close = difflib.get_close_matches(str(name), names() + list(extra), n=3, cutoff=0.6)
+    hint = f"did you mean {' or '.join(repr(c) for c in close)}? " if close else ""
+    more = "".join(f" or {e!r}" for e in extra)
+    raise ValueError(f"scene: unknown scene {name!r}; {hint}choose one of {names()}{more}")
+
+
 def get(name: str) -> Scene:
-    """The scene called ``name`` (see :func:`names`)."""
-    if name not in REGISTRY:
-        raise ValueError(f"scene: unknown scene {name!r}; choose one of {names()}")
+    """The scene called ``name`` (see :func:`names`); an unknown name is a ``ValueError`` with the
+    closest names (:func:`check_name`)."""
+    check_name(name)
     mod = importlib.import_module(f"{__name__}.{REGISTRY[name]}")
     scenes = getattr(mod, "SCENES", None)
     if scenes is not None:
@@ -47,4 +63,4 @@ def get(name: str) -> Scene:
     return mod.SCENE
 
 
-__all__ = ["Scene", "Variant", "RunResult", "PaperRun", "REGISTRY", "names", "get"]
+__all__ = ["Scene", "Variant", "RunResult", "PaperRun", "REGISTRY", "names", "get", "check_name"]

@@ -146,7 +146,7 @@ def cycloid_figure(result, fig=None, *, tag=""):
     ax.set_ylabel("$x$")
     ax.grid(alpha=0.3)
     fig.suptitle(
-        r"Fig. figure:knife_cycloid: knife edge trajectory $(x(t), y(t))$ ($y$ and $x$ swapped), "
+        r"Knife edge trajectory $(x(t), y(t))$ ($y$ and $x$ swapped), "
         r"exact $x = (1-\cos t)/2$, $y = (t - \sin t)/2$" "\n"
         r"(the paper prints $x = 1-\cos t$, $\varphi = t$: docs/paper_notes.md, item 1)" + tag + "\n"
         + plotting.run_caption(result),
@@ -161,7 +161,7 @@ def errors_figure(result, fig=None, *, tag=""):
               for k in ("x", "y", "phi")]
     return plotting.panel_row(
         fig, result, panels,
-        title=r"Fig. figure:knife_exact: error of $(x, y, \varphi)$ of the knife edge against the exact solution" + tag,
+        title=r"Error of $(x, y, \varphi)$ of the knife edge against the exact solution" + tag,
     )
 
 
@@ -174,7 +174,7 @@ def integrals_figure(result, fig=None, *, tag=""):
         panels.append((f"no {k}" if vals is None else plotting.drift(k, vals), ylabel, "log"))
     return plotting.panel_row(
         fig, result, panels,
-        title=r"Fig. figure:knife_integrals: constraint momentum error $|\Delta J_1|$, momentum error "
+        title=r"Constraint momentum error $|\Delta J_1|$, momentum error "
         r"$|\Delta p_\varphi|$ and energy error $|\Delta H|$ (original $H$) of the knife edge" + tag,
     )
 

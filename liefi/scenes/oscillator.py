@@ -260,7 +260,7 @@ def integrals_figure(runs, fig=None, *, tag=""):
         axes[0, j].set_title(f"{what}\n{plotting.run_caption(r)}", fontsize=9)
         axes[-1, j].set_xlabel("$t$")
     fig.suptitle(
-        r"Fig. figure:oscillator: energy error $\Delta H$, $y$-energy error $\Delta H_y$ and constraint $J_c$ "
+        r"Energy error $\Delta H$, $y$-energy error $\Delta H_y$ and constraint $J_c$ "
         "of the nonholonomic oscillator" + tag,
         fontsize=10,
     )
@@ -308,7 +308,7 @@ def poincare_figure(runs, fig=None, *, tag=""):
     T = max(run[0].t_final for run in runs) if runs else 0
     rows = " / ".join("DLA" if run[0].scheme == "dla" else "feedback integrator" for run in runs)
     fig.suptitle(
-        r"Fig. figure:Poincare:FI: nonholonomic oscillator, Poincaré section $y = 0$, $\dot y > 0$; "
+        r"Nonholonomic oscillator, Poincaré section $y = 0$, $\dot y > 0$; "
         + (f"rows: {rows}, " if len(runs) > 1 else "")
         + f"$0 \\leq t \\leq {T:g}$" + tag,
         fontsize=10,

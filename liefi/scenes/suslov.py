@@ -68,7 +68,7 @@ def momentum_error_figure(result, fig=None, *, tag=""):
     ]
     return plotting.panel_row(
         fig, result, panels,
-        title="Fig. figure:Suslov_Pi_exact: momentum error "
+        title="Momentum error "
         r"$\Delta\Pi = \Pi - \Pi_{\rm exact}$ of the Suslov problem" + tag,
     )
 
@@ -83,7 +83,7 @@ def integrals_figure(result, fig=None, *, tag=""):
             panels.append((f"{k} not available\n(integrate the configuration)", ylabel, "log"))
     return plotting.panel_row(
         fig, result, panels,
-        title=r"Fig. figure:Suslov_integrals: $\|R^TR-I\|$, constraint error $|\Delta J|$ and energy error "
+        title=r"$\|R^TR-I\|$, constraint error $|\Delta J|$ and energy error "
         r"$|\Delta h|$ (original $h$) of the Suslov problem" + tag,
     )
 
