@@ -9,6 +9,11 @@ __version__ = "0.1.0"
 from .feedback import FeedbackIntegrator, Invariant
 from .schemes import SCHEMES, ExplicitRungeKutta, IntegrationError, Solution, integrate
 
+#: the public names of the package (its submodules are documented on their own pages)
+__all__ = ["CotangentBundle", "LieGroupPhaseSpace", "PhaseSpace", "TrivialPrincipalBundle", "NonholonomicSystem",
+           "from_sympy", "from_mechanics", "groups", "reduction", "FeedbackIntegrator", "Invariant", "SCHEMES",
+           "ExplicitRungeKutta", "IntegrationError", "Solution", "integrate", "plot"]
+
 
 def __getattr__(name):
     # liefi.plot (figures of a run; matplotlib only when drawing) is loaded on first use

@@ -324,6 +324,7 @@ def _stop(executor):
     by :func:`open_executor`."""
     procs = list((getattr(executor, "_processes", None) or {}).values())  # no public way before Python 3.14;
     writer = getattr(getattr(executor, "_result_queue", None), "_writer", None)  # taken first: shutdown()
+    manager = getattr(executor, "_executor_manager_thread", None)
     try:  # forgets them
         executor.shutdown(wait=False, cancel_futures=True)
     except TypeError:  # Dask's ClientExecutor: shutdown(wait) only
@@ -344,6 +345,17 @@ def _stop(executor):
     if procs and writer is not None:
         with contextlib.suppress(Exception):
             writer.close()
+    # concurrent.futures' exit hook would then wake that thread through a pipe the broken pool has
+    # closed under it ("Exception ignored ... OSError: Bad file descriptor" at exit): the thread is
+    # joined here and taken off the hook's list, so the interrupt stays one line.
+    if procs and manager is not None:
+        with contextlib.suppress(Exception):
+            manager.join(10)
+        with contextlib.suppress(Exception):
+            from concurrent.futures import process as _cf_process
+
+            if not manager.is_alive():
+                _cf_process._threads_wakeups.pop(manager, None)
 
 
 def run_sweep(fn, tasks, executor: Executor | None = None, *, store=None, convert=None, progress=None,

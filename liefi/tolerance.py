@@ -145,9 +145,15 @@ def choose_step(fi, sch, y0, t0, t_end, rtol, atol=None):
             return atol + rtol * size(m)
 
         def first_error(hh):
-            y1 = tab.step(f, Y, hh)
-            yh = tab.step(f, tab.step(f, Y, hh / 2), hh / 2)
-            return float(np.max(np.abs(y1 - yh) / size(np.maximum(mag, np.abs(yh)))))
+            try:
+                y1 = tab.step(f, Y, hh)
+                yh = tab.step(f, tab.step(f, Y, hh / 2), hh / 2)
+            except (ArithmeticError, np.linalg.LinAlgError, ValueError):
+                # a trial step so long that its stages leave the data's domain (a singular metric or
+                # constraint there, e.g. a rolling body's stage far from the plane): too long, not an error
+                return math.inf
+            e = float(np.max(np.abs(y1 - yh) / size(np.maximum(mag, np.abs(yh)))))
+            return e if math.isfinite(e) else math.inf
 
         # the first pilot step: the largest T / 4^k in the asymptotic regime (its error small, and a quarter
         # of it has an error 4^(p+1) times smaller, so that no step aliases with a period of the motion)
@@ -162,8 +168,12 @@ def choose_step(fi, sch, y0, t0, t_end, rtol, atol=None):
         for _ in range(12):  # enlarge the pilot step until its error is well above rounding
             y, big, c, m = Y, 0.0, 0.0, mag
             for _k in range(PILOT_STEPS):
-                y1 = tab.step(f, y, h)
-                yh = tab.step(f, tab.step(f, y, h / 2), h / 2)
+                try:
+                    y1 = tab.step(f, y, h)
+                    yh = tab.step(f, tab.step(f, y, h / 2), h / 2)
+                except (ArithmeticError, np.linalg.LinAlgError, ValueError):  # out of the data's domain
+                    e = math.inf
+                    break
                 m = np.maximum(m, np.abs(yh))
                 err = np.abs(y1 - yh) / (1.0 - 2.0 ** -p)
                 e = float(np.max(err / scale(m)))

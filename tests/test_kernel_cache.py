@@ -372,7 +372,7 @@ def test_full_disk_while_numba_writes_keeps_the_compiled_run(kernel_env, monkeyp
 
     monkeypatch.setattr(caching.IndexDataCacheFile, "_open_for_write", full)
     fi = _fresh_fi()
-    want = fi.run(0.2, dt=1e-2, check_stability=False)
+    want = fi.run(0.2, dt=1e-2, backend="numpy", check_stability=False)  # the numpy reference
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         got = fi.run(0.2, dt=1e-2, backend="numba", check_stability=False)
