@@ -27,8 +27,8 @@ Reference: the textbook rolling rigid body
 (:func:`~liefi.scenes.rolling_reference.rolling_equations`) with the disk's
 contact point ``r = -a (Gamma_1, Gamma_2, 0) / s``, ``s = sqrt(Gamma_1^2 +
 Gamma_2^2)``, and its rate written by hand in :func:`disk_equations`, solved by
-DOP853 at ``1e-13``.  Figures: the path of the centre of mass on the plane
-and the tilt against time, with their errors.
+DOP853 at ``1e-13``.  Figures: the path of the centre of mass on the plane,
+run and reference, and the errors of the path and of the tilt against time.
 """
 
 from __future__ import annotations
@@ -116,7 +116,7 @@ class RollingDisk(RollingReferenceScene):
         return {"spin": np.sum(Omega * Gamma, -1), "axial_spin": Omega[..., 2]}
 
     def figures(self, runs, *, tag=""):
-        """The centre of mass' path and the tilt against time (run and reference); then the generic."""
+        """The centre of mass' path (run and reference) with the path's and the tilt's errors; then the generic."""
         out = []
         for r in self.as_runs(runs).values():
             out += [plotting.FigureSpec("rolling-disk-path", lambda f, r=r: path_figure(r, f, tag=tag), 11, 4.2),
@@ -126,7 +126,8 @@ class RollingDisk(RollingReferenceScene):
 
 
 def path_figure(result, fig=None, *, tag=""):
-    """The centre of mass' path ``(x(t), y(t))`` and the tilt ``Gamma_3(t)``, run against reference."""
+    """The centre of mass' path ``(x(t), y(t))``, run against reference, and the errors of the path and of
+    the tilt ``Gamma_3`` against time."""
     fig = plotting.figure(fig, 11, 4.2)
     a0, a1 = fig.subplots(1, 2)
     x, y = plotting.component(result, "r_1"), plotting.component(result, "r_2")
@@ -143,13 +144,14 @@ def path_figure(result, fig=None, *, tag=""):
     a0.set_ylabel("$y$")
     a0.set_title(f"the disk's centre on the plane{tag}", fontsize=10)
     g3, g3e = plotting.component(result, "Gamma_3"), plotting.reference_of(result, "Gamma_3")
-    if g3 is not None:
-        a1.plot(result.t, np.degrees(np.arccos(np.clip(g3, -1, 1))), lw=0.7, label="feedback integrator")
-        if g3e is not None:
-            a1.plot(result.t, np.degrees(np.arccos(np.clip(g3e, -1, 1))), lw=0.7, ls="--", label="reference")
+    if xe is not None and x is not None:
+        plotting.logplot(a1, result.t, np.hypot(x - xe, y - ye), lw=0.8, label="centre: distance to the reference")
+    if g3e is not None and g3 is not None:
+        plotting.logplot(a1, result.t, g3 - g3e, lw=0.8, label=r"tilt: error of $\Gamma_3$")
+    if a1.lines:
         a1.legend(fontsize=8)
     a1.set_xlabel("$t$")
-    a1.set_ylabel("axis against the vertical (deg; 90 = upright)")
+    a1.set_ylabel("error against the reference")
     a1.grid(alpha=0.3)
     return fig
 
