@@ -44,9 +44,10 @@ point and ``r`` the vector from the centre of mass to it,
 .. math:: \dot K = K \times \Omega + M \dot r \times (\Omega \times r) + M g\, r \times \Gamma, \qquad
           \dot R = R \hat\Omega, \qquad \dot x_i = -\langle R^T e_i, \Omega \times r \rangle,
 
-with Kane & Levinson's contact point ``r = -A^2 Gamma / |A Gamma| + h e_3``
-written out by hand, scalar by scalar, in :func:`rattleback_equations`
-(independent of liefi's derivation), solved by DOP853 at ``1e-13``; its first
+written out by hand, scalar by scalar, in
+:func:`liefi.scenes.rolling_reference.rolling_equations`, with Kane & Levinson's
+contact point ``r = -A^2 Gamma / |A Gamma| + h e_3`` and its rate by hand in
+:func:`rattleback_equations` (independent of liefi's derivation), solved by DOP853 at ``1e-13``; its first
 reversal -- the first zero of the long axis' heading rate (:func:`heading_rate`) -- is located on
 its dense output (:meth:`Rattleback.reference_reversal`).  The run's is read from its samples (:func:`first_reversal`): the
 step ``dt = 1e-4`` is the scene's because the body rocks fast (at ``1e-3``, ``imex-rk4`` is off by
