@@ -11,7 +11,7 @@ import pytest
 from liefi import bench, engine, scenes
 from liefi.reproduce import reproduce
 
-ROLLING = ("heavy-top", "chaplygin-ball", "rattleback")
+ROLLING = ("heavy-top", "chaplygin-ball", "rattleback", "rolling-disk")
 
 
 @pytest.mark.parametrize("name", ROLLING)

@@ -28,6 +28,7 @@ REGISTRY = {
     "kepler": "kepler",
     "perturbed-kepler": "kepler",
     "rattleback": "rattleback",
+    "rolling-disk": "rolling_disk",
 }
 
 

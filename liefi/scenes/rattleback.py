@@ -44,9 +44,10 @@ point and ``r`` the vector from the centre of mass to it,
 .. math:: \dot K = K \times \Omega + M \dot r \times (\Omega \times r) + M g\, r \times \Gamma, \qquad
           \dot R = R \hat\Omega, \qquad \dot x_i = -\langle R^T e_i, \Omega \times r \rangle,
 
-with Kane & Levinson's contact point ``r = -A^2 Gamma / |A Gamma| + h e_3``
-written out by hand, scalar by scalar, in :func:`rattleback_equations`
-(independent of liefi's derivation), solved by DOP853 at ``1e-13``; its first
+written out by hand, scalar by scalar, in
+:func:`liefi.scenes.rolling_reference.rolling_equations`, with Kane & Levinson's
+contact point ``r = -A^2 Gamma / |A Gamma| + h e_3`` and its rate by hand in
+:func:`rattleback_equations` (independent of liefi's derivation), solved by DOP853 at ``1e-13``; its first
 reversal -- the first zero of the long axis' heading rate (:func:`heading_rate`) -- is located on
 its dense output (:meth:`Rattleback.reference_reversal`).  The run's is read from its samples (:func:`first_reversal`): the
 step ``dt = 1e-4`` is the scene's because the body rocks fast (at ``1e-3``, ``imex-rk4`` is off by
@@ -57,14 +58,13 @@ a millisecond.
 from __future__ import annotations
 
 import math
-import time
-
 import numpy as np
 
 from .. import plotting
 from ..groups import SO3
 from ..rolling import ATTITUDE_CASIMIRS, ellipsoid, rolling_body, rolling_start
-from .base import Scene, Variant
+from .base import Variant
+from .rolling_reference import RollingReferenceScene, rolling_equations
 
 # --- Kane & Levinson (1982) in SI units (PyDy's reproduceKane1982_sim.cc) -------------------
 SEMI_AXES = (0.2, 0.03, 0.02)
@@ -93,60 +93,23 @@ def start_attitude(tilt_deg=TILT_DEG):
     return R, P @ np.array([0.0, 0.0, SPIN])
 
 
+def _sqrt(x):
+    return math.sqrt(x) if isinstance(x, float) else np.sqrt(x)
+
+
 def rattleback_equations(inertia, mass, semi_axes, h, g):
-    """The rolling rigid body's equations for an ellipsoid, ``fun(t, y)``, ``y = (R row-major, x, y, K)``
-    (reference only; module docstring).  Scalar code: a 3 x 3 solve by Cramer's rule."""
-    I = np.asarray(inertia, float)
-    i11, i12, i13, i22, i23, i33 = I[0, 0], I[0, 1], I[0, 2], I[1, 1], I[1, 2], I[2, 2]
+    """The rolling rigid body's equations (:func:`~liefi.scenes.rolling_reference.rolling_equations`) for
+    Kane & Levinson's ellipsoid, ``r = -A^2 Gamma / |A Gamma| + h e_3``, with its rate written by hand
+    (reference only; module docstring)."""
     a2, b2, c2 = (float(s) ** 2 for s in semi_axes)
-    m = float(mass)
 
-    def fun(t, y):
-        R11, R12, R13, R21, R22, R23, G1, G2, G3 = y[:9]
-        K1, K2, K3 = y[11], y[12], y[13]
-        e = math.sqrt(a2 * G1 * G1 + b2 * G2 * G2 + c2 * G3 * G3)
-        r1, r2, r3 = -a2 * G1 / e, -b2 * G2 / e, -c2 * G3 / e + h
-        rr = r1 * r1 + r2 * r2 + r3 * r3
-        # K = (I + m (|r|^2 - r r^T)) Omega
-        m11, m12, m13 = i11 + m * (rr - r1 * r1), i12 - m * r1 * r2, i13 - m * r1 * r3
-        m22, m23, m33 = i22 + m * (rr - r2 * r2), i23 - m * r2 * r3, i33 + m * (rr - r3 * r3)
-        c11, c12, c13 = m22 * m33 - m23 * m23, m13 * m23 - m12 * m33, m12 * m23 - m13 * m22
-        c22, c23, c33 = m11 * m33 - m13 * m13, m12 * m13 - m11 * m23, m11 * m22 - m12 * m12
-        det = m11 * c11 + m12 * c12 + m13 * c13
-        W1 = (c11 * K1 + c12 * K2 + c13 * K3) / det
-        W2 = (c12 * K1 + c22 * K2 + c23 * K3) / det
-        W3 = (c13 * K1 + c23 * K2 + c33 * K3) / det
-        # Gamma' = Gamma x Omega, and r' by hand
-        d1, d2, d3 = G2 * W3 - G3 * W2, G3 * W1 - G1 * W3, G1 * W2 - G2 * W1
+    def contact(G1, G2, G3, d1, d2, d3):
+        e = _sqrt(a2 * G1 * G1 + b2 * G2 * G2 + c2 * G3 * G3)
         ed = (a2 * G1 * d1 + b2 * G2 * d2 + c2 * G3 * d3) / e
-        q1, q2, q3 = -a2 * (d1 - G1 * ed / e) / e, -b2 * (d2 - G2 * ed / e) / e, -c2 * (d3 - G3 * ed / e) / e
-        v1, v2, v3 = W2 * r3 - W3 * r2, W3 * r1 - W1 * r3, W1 * r2 - W2 * r1  # Omega x r
-        Kd1 = K2 * W3 - K3 * W2 + m * (q2 * v3 - q3 * v2) + m * g * (r2 * G3 - r3 * G2)
-        Kd2 = K3 * W1 - K1 * W3 + m * (q3 * v1 - q1 * v3) + m * g * (r3 * G1 - r1 * G3)
-        Kd3 = K1 * W2 - K2 * W1 + m * (q1 * v2 - q2 * v1) + m * g * (r1 * G2 - r2 * G1)
-        out = np.empty(14)
-        for i, (a, b_, c) in enumerate(((R11, R12, R13), (R21, R22, R23), (G1, G2, G3))):
-            out[3 * i:3 * i + 3] = (b_ * W3 - c * W2, c * W1 - a * W3, a * W2 - b_ * W1)  # R Omega^
-        out[9] = -(R11 * v1 + R12 * v2 + R13 * v3)
-        out[10] = -(R21 * v1 + R22 * v2 + R23 * v3)
-        out[11:14] = (Kd1, Kd2, Kd3)
-        return out
+        return (-a2 * G1 / e, -b2 * G2 / e, -c2 * G3 / e + h,
+                -a2 * (d1 - G1 * ed / e) / e, -b2 * (d2 - G2 * ed / e) / e, -c2 * (d3 - G3 * ed / e) / e)
 
-    def omega(y):
-        """``(Omega, r)`` at ``y`` (the same algebra as ``fun``, vectorised over the last axis)."""
-        one = np.ndim(y) == 1
-        y = np.asarray(y, float).reshape(len(y), -1)
-        G = y[6:9]
-        e = np.sqrt(a2 * G[0] ** 2 + b2 * G[1] ** 2 + c2 * G[2] ** 2)
-        r = np.stack([-a2 * G[0] / e, -b2 * G[1] / e, -c2 * G[2] / e + h])
-        rr = np.sum(r * r, 0)
-        Mop = I[..., None] + m * (rr * np.eye(3)[..., None] - r[:, None] * r[None, :])
-        W = np.linalg.solve(np.moveaxis(Mop, -1, 0), np.moveaxis(y[11:14], -1, 0)[..., None])[..., 0]
-        W = np.moveaxis(W, 0, -1)
-        return (W[:, 0], r[:, 0]) if one else (W, r)
-
-    fun.omega = omega
-    return fun
+    return rolling_equations(inertia, mass, g, contact)
 
 
 def heading_rate(Omega, Gamma):
@@ -189,12 +152,11 @@ def first_reversal(t, spin):
     return float(t[k - 1] + 0.5 * (a + b) * step)
 
 
-class Rattleback(Scene):
+class Rattleback(RollingReferenceScene):
     name = "rattleback"
     in_paper = False
     title = "Rattleback (Kane & Levinson 1982) rolling without slipping: the spin reverses"
     paper = "future work of the paper: rolling bodies (semidirect-product reduction)"
-    reference = "numerical"
     dt = 1e-4
     t_final = 5.0
     scheme = "imex-rk4"
@@ -202,13 +164,10 @@ class Rattleback(Scene):
     variants = {"kane-levinson": Variant(
         "kane-levinson", "a, b, c = 0.2, 0.03, 0.02, h = 0.01, M = 1, A, B, C, D = 2e-4, 1.6e-3, 1.7e-3, -2e-5; "
                          "tilt 0.5 deg, spin -5 rad/s (Kane & Levinson's axes)")}
-    figures_need_configuration = True
-    reference_rtol = 1e-13
-    reference_atol = 1e-13
 
-    @property
-    def error_variables(self):
-        return ("r_1", "r_2") + self.system.state_names + ("spin", "heading_rate")
+    mass = MASS
+    inertia = inertia_matrix()
+    observable_names = ("spin", "heading_rate")
 
     def build_system(self):
         contact = ellipsoid(SEMI_AXES, offset=(0.0, 0.0, -H))
@@ -221,39 +180,16 @@ class Rattleback(Scene):
     def invariants(self, variant):
         return ("constraints", "energy") + ATTITUDE_CASIMIRS
 
-    def observables(self, y, names):
-        """``spin = <Omega, Gamma>``, the angular velocity about the vertical, and the heading rate of the long
-        axis (:func:`heading_rate`), from the reduced state."""
-        z = np.stack([y[names.index(n)] for n in self.system.state_names], -1)
-        m = np.asarray(self.system.metric(z[..., :9]), float)
-        W = np.linalg.solve(m, z[..., 9:][..., None])[..., 0][..., :3]
-        return {"spin": np.sum(W * z[..., 6:9], -1), "heading_rate": heading_rate(W, z[..., 6:9])}
+    def start_attitude(self):
+        return start_attitude()
 
-    def reference_method(self):
-        return (f"DOP853 (scipy solve_ivp, rtol {self.reference_rtol:g}, atol {self.reference_atol:g}) on the "
-                "rolling rigid body's equations written by hand (liefi.scenes.rattleback.rattleback_equations)")
+    def reference_equations(self):
+        return rattleback_equations(inertia_matrix(), MASS, SEMI_AXES, H, GRAVITY)
 
-    def _reference(self, t_final):
-        """The dense reference on ``[0, t_final]``, cached by horizon."""
-        from scipy.integrate import solve_ivp
-
-        cache = self.__dict__.setdefault("_refcache", {})
-        hit = cache.get("dense")
-        if hit is None or hit[0] < t_final:
-            y0 = np.asarray(self.initial_state(self.variant()), float)
-            R0, W0 = start_attitude()
-            fun = rattleback_equations(inertia_matrix(), MASS, SEMI_AXES, H, GRAVITY)
-            r0 = fun.omega(np.concatenate([y0[:11], np.zeros(3)]))[1]
-            K0 = inertia_matrix() @ W0 + MASS * np.cross(r0, np.cross(W0, r0))
-
-            start = time.process_time()
-            sol = solve_ivp(fun, (0.0, float(t_final)), np.concatenate([y0[:11], K0]), method="DOP853",
-                            rtol=self.reference_rtol, atol=self.reference_atol, dense_output=True)
-            self.reference_seconds = getattr(self, "reference_seconds", 0.0) + time.process_time() - start
-            if not sol.success:
-                raise RuntimeError(f"reference solution of {self.name!r} failed: {sol.message}")
-            hit = cache["dense"] = (float(t_final), sol.sol, None, fun.omega)
-        return hit
+    def reference_observables(self, Omega, Gamma):
+        """``spin = <Omega, Gamma>``, the angular velocity about the vertical, and the heading rate of the
+        long axis (:func:`heading_rate`), batch-first."""
+        return {"spin": np.sum(Omega * Gamma, -1), "heading_rate": heading_rate(Omega, Gamma)}
 
     def reference_reversal(self, t_final=None, spacing=1e-5):
         """The first zero of the heading rate on the reference: its dense output scanned every ``spacing``
@@ -276,25 +212,6 @@ class Rattleback(Scene):
                 k = int(idx[0])
                 return float(brentq(lambda x: rate(x)[0], t[k - 1], t[k], xtol=1e-15, rtol=1e-15))
         return float("nan")
-
-    def reference_solution(self, variant, t_final, *, backend=None):
-        """The hand-written reference on ``[0, t_final]`` (what :meth:`exact` reads; ``liefi reproduce``
-        computes it once up front), not the base class' liefi-derived constrained field."""
-        self._reference(float(t_final))
-        return lambda t: self.exact(t, variant)
-
-    def exact(self, t, variant):
-        t = np.asarray(t, float)
-        T, dense, _, omega = self._reference(float(t[-1]))
-        Y = dense(t)
-        W, r = omega(Y)
-        G = Y[6:9]
-        u = -np.stack([np.sum(Y[0:3] * np.cross(W.T, r.T).T, 0), np.sum(Y[3:6] * np.cross(W.T, r.T).T, 0)])
-        w = np.cross(G.T, r.T).T  # Gamma x r: the height's rate is <w, Omega>
-        Pi = inertia_matrix() @ W + MASS * w * np.sum(w * W, 0)
-        names = self.system.space.group.config_names + self.system.state_names + ("spin", "heading_rate")
-        vals = np.concatenate([Y[:11], Y[:9], Pi, MASS * u, np.sum(W * G, 0)[None], heading_rate(W.T, G.T)[None]])
-        return {n: vals[i] for i, n in enumerate(names)}
 
     def figures(self, runs, *, tag=""):
         """The spin about the vertical against time (run and reference), the energy drift; then the generic."""
