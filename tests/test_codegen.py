@@ -133,3 +133,21 @@ def test_scalar_loop_reads_parameters_once_and_takes_no_modulo():
     head, body = src.split("    for step in range(1, n_steps + 1):")
     assert "p_0 = p[0]" in head and "p[" not in body.split("def run_rk4_batch")[0]
     assert "%" not in src
+
+
+def test_a_field_of_more_than_30_arguments_compiles_without_inlining():
+    """numba cannot inline a call of 31+ arguments; a rolling body (25 states, 18 parameters) must still
+    run compiled, not fall back to numpy with a CompilationWarning."""
+    import warnings
+
+    pytest.importorskip("numba")
+    from liefi import scenes
+    from liefi.engine.codegen import MAX_INLINE_ARGS
+
+    sc = scenes.get("rolling-disk")
+    fi = sc.integrator(None, configuration=True)
+    assert fi.n + 18 > MAX_INLINE_ARGS  # the case this test is about
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        sol = fi.run(0.01, dt=1e-3, scheme="imex-rk4", backend="numba", check_stability=False)
+    assert sol.backend == "numba"

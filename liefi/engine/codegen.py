@@ -87,6 +87,10 @@ def scalar_names(name, size):
     return [f"{name}_{i}" for i in range(size)]
 
 
+#: the most arguments of a function numba inlines (``inline='always'``); 31 fail in numba 0.6x
+MAX_INLINE_ARGS = 30
+
+
 def scalar_function_source(name, outputs, inputs, *, wrapper=None, inline=False):
     """``def name(y_0, ..., p_0, ...)`` returning ``outputs`` (Syms) as a tuple; inputs as scalars.
 
@@ -103,6 +107,10 @@ def scalar_function_source(name, outputs, inputs, *, wrapper=None, inline=False)
     params = [a for nm, size in inputs for a in scalar_names(nm, size)]
     body, vals = _node_lines(outputs, lambda nm, i: f"{nm}_{i}")
     ret = ", ".join(vals) + ("," if len(vals) == 1 else "")
+    # numba's inliner refuses a call of 31 or more arguments (CPython passes them as one tuple, "calling a
+    # closure with *args is unsupported", and the whole kernel fails to load): larger systems (a rolling
+    # body: 25 states and 18 parameters) keep the plain call
+    inline = inline and len(params) <= MAX_INLINE_ARGS
     deco = NJIT.rstrip("\n")[:-1] + ", inline='always')" if inline else NJIT.rstrip("\n")
     lines = [deco, f"def {name}({', '.join(params)}):"] + body + [f"    return ({ret})"]
     if wrapper is not None:
