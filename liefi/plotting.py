@@ -353,3 +353,23 @@ def log_span(values):
     if a.size == 0:
         return 0.0
     return math.log10(a.max() / a.min())
+
+
+def plane_path(ax, result, reference_label, title):
+    """Draw a run's path ``(r_1, r_2)`` on the plane against its reference's (a rolling body's contact
+    point or centre); returns ``(x, y, xe, ye)`` (``None`` where the run or the reference has no path)."""
+    x, y = component(result, "r_1"), component(result, "r_2")
+    xe, ye = reference_of(result, "r_1"), reference_of(result, "r_2")
+    if x is None or y is None:
+        ax.text(0.5, 0.5, "run without the configuration: no path", transform=ax.transAxes, ha="center")
+    else:
+        ax.plot(x, y, lw=0.7, label="feedback integrator")
+        if xe is not None:
+            ax.plot(xe, ye, lw=0.7, ls="--", label=reference_label)
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.legend(fontsize=8)
+    ax.set_xlabel("$x$")
+    ax.set_ylabel("$y$")
+    ax.set_title(title, fontsize=10)
+    return x, y, xe, ye
+

@@ -130,19 +130,8 @@ def path_figure(result, fig=None, *, tag=""):
     the tilt ``Gamma_3`` against time."""
     fig = plotting.figure(fig, 11, 4.2)
     a0, a1 = fig.subplots(1, 2)
-    x, y = plotting.component(result, "r_1"), plotting.component(result, "r_2")
-    xe, ye = plotting.reference_of(result, "r_1"), plotting.reference_of(result, "r_2")
-    if x is None or y is None:
-        a0.text(0.5, 0.5, "run without the configuration: no path", transform=a0.transAxes, ha="center")
-    else:
-        a0.plot(x, y, lw=0.7, label="feedback integrator")
-        if xe is not None:
-            a0.plot(xe, ye, lw=0.7, ls="--", label="reference (rolling-body equations)")
-        a0.set_aspect("equal", adjustable="datalim")
-        a0.legend(fontsize=8)
-    a0.set_xlabel("$x$")
-    a0.set_ylabel("$y$")
-    a0.set_title(f"the disk's centre on the plane{tag}", fontsize=10)
+    x, y, xe, ye = plotting.plane_path(a0, result, "reference (rolling-body equations)",
+                                       f"the disk's centre on the plane{tag}")
     g3, g3e = plotting.component(result, "Gamma_3"), plotting.reference_of(result, "Gamma_3")
     if xe is not None and x is not None:
         plotting.logplot(a1, result.t, np.hypot(x - xe, y - ye), lw=0.8, label="centre: distance to the reference")
