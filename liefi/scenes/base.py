@@ -255,6 +255,20 @@ class Scene:
         t = np.asarray(t, float)
         return self.reference_solution(variant, float(t[-1]) if t.size else 0.0)(t)
 
+    def solve_reference(self, fun, y0, t_final, **kw):
+        """``solve_ivp(fun, (0, t_final), y0)`` by DOP853 at the scene's ``reference_rtol``/``atol``: the one
+        place a reference is solved (the liefi-derived constrained field here, or a scene's equations written
+        by hand).  Its seconds are added to ``reference_seconds``; a failure raises ``RuntimeError``."""
+        from scipy.integrate import solve_ivp
+
+        start = time.perf_counter()
+        sol = solve_ivp(fun, (0.0, float(t_final)), y0, method="DOP853", rtol=self.reference_rtol,
+                        atol=self.reference_atol, **kw)
+        self.reference_seconds = getattr(self, "reference_seconds", 0.0) + time.perf_counter() - start
+        if not sol.success:
+            raise RuntimeError(f"reference solution of {self.name!r} failed: {sol.message}")
+        return sol
+
     def reference_solution(self, variant: Variant, t_final, *, backend=None):
         """The numerical reference on ``[0, t_final]``: a callable ``t -> {name: array}``.
 
@@ -276,18 +290,10 @@ class Scene:
         key = y0.tobytes()
         hit = cache.get(key)
         if hit is None or hit[0] < T:
-            from scipy.integrate import solve_ivp
-
-            start = time.perf_counter()
             sys = self.system
             names = tuple(sys.space.group.config_names) + sys.state_names
-            fun = self._constrained_field(v, backend)
-            sol = solve_ivp(fun, (0.0, T), y0, method="DOP853", rtol=self.reference_rtol,
-                            atol=self.reference_atol, dense_output=True)
-            if not sol.success:
-                raise RuntimeError(f"reference solution of {self.name!r} failed: {sol.message}")
+            sol = self.solve_reference(self._constrained_field(v, backend), y0, T, dense_output=True)
             hit = cache[key] = (T, sol.sol, names)
-            self.reference_seconds = getattr(self, "reference_seconds", 0.0) + time.perf_counter() - start
         _, dense, names = hit
 
         def at(t):
@@ -527,7 +533,6 @@ class Scene:
         ref = self.exact(t, v)
         errors = {k: data[k] - ref[k] for k in self.error_variables if k in data and k in ref}
         # invariants along the run (the integrator's state layout)
-        nc_fi = fi.nc
         full_names = fi.names
         Yfi = np.stack([data[n] for n in full_names], -1) if all(n in data for n in full_names) else None
         invariants = {}

@@ -29,7 +29,6 @@ Figure: the contact point's path on the plane.
 
 from __future__ import annotations
 
-import time
 
 import numpy as np
 
@@ -119,8 +118,6 @@ class ChaplyginBall(Scene):
                 "Chaplygin's equations written by hand (liefi.scenes.chaplygin_ball.chaplygin_equations)")
 
     def exact(self, t, variant):
-        from scipy.integrate import solve_ivp
-
         t = np.asarray(t, float)
         key = (variant.name, float(t[-1]), len(t))
         cache = self.__dict__.setdefault("_refcache", {})
@@ -129,13 +126,8 @@ class ChaplyginBall(Scene):
             R0, pos0, V0 = y0[:9].reshape(3, 3), y0[9:11], y0[11:20]
             G0, W0 = V0[6:9], self.Omega0
             M0 = self.inertia * W0 + self.mass * self.radius**2 * np.cross(G0, np.cross(W0, G0))
-            start = time.process_time()
-            sol = solve_ivp(chaplygin_equations(self.inertia, self.mass, self.radius), (0.0, float(t[-1])),
-                            np.concatenate([R0.ravel(), pos0, V0, M0]), method="DOP853",
-                            rtol=self.reference_rtol, atol=self.reference_atol, t_eval=t)
-            self.reference_seconds = getattr(self, "reference_seconds", 0.0) + time.process_time() - start
-            if not sol.success:
-                raise RuntimeError(f"reference solution of {self.name!r} failed: {sol.message}")
+            sol = self.solve_reference(chaplygin_equations(self.inertia, self.mass, self.radius),
+                                       np.concatenate([R0.ravel(), pos0, V0, M0]), t[-1], t_eval=t)
             Y = sol.y
             G, M = Y[17:20], Y[20:23]
             ma2 = self.mass * self.radius**2

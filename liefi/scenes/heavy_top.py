@@ -217,19 +217,12 @@ class HeavyTop(Scene):
                 "textbook Euler-Poisson equations written by hand (liefi.scenes.heavy_top.euler_poisson)")
 
     def exact(self, t, variant):
-        from scipy.integrate import solve_ivp
-
         t = np.asarray(t, float)
         key = (variant.name, float(t[-1]), len(t))
         cache = self.__dict__.setdefault("_refcache", {})
         if key not in cache:
             y0 = np.asarray(self.initial_state(variant), float)
-            start = time.process_time()
-            sol = solve_ivp(euler_poisson(self.inertia, self.mg, self.chi), (0.0, float(t[-1])), y0,
-                            method="DOP853", rtol=self.reference_rtol, atol=self.reference_atol, t_eval=t)
-            self.reference_seconds = getattr(self, "reference_seconds", 0.0) + time.process_time() - start
-            if not sol.success:
-                raise RuntimeError(f"reference solution of {self.name!r} failed: {sol.message}")
+            sol = self.solve_reference(euler_poisson(self.inertia, self.mg, self.chi), y0, t[-1], t_eval=t)
             names = tuple(SO3().config_names) + self.system.state_names
             cache[key] = {n: sol.y[i] for i, n in enumerate(names)}
         return cache[key]

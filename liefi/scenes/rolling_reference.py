@@ -17,7 +17,6 @@ maps the solution to liefi's names (``rattleback``, ``rolling-disk``).
 
 from __future__ import annotations
 
-import time
 
 import numpy as np
 
@@ -117,8 +116,6 @@ class RollingReferenceScene(Scene):
 
     def _reference(self, t_final):
         """The dense reference on ``[0, t_final]``, cached by horizon: ``(T, sol.sol, None, omega)``."""
-        from scipy.integrate import solve_ivp
-
         cache = self.__dict__.setdefault("_refcache", {})
         hit = cache.get("dense")
         if hit is None or hit[0] < t_final:
@@ -127,12 +124,7 @@ class RollingReferenceScene(Scene):
             fun = self.reference_equations()
             r0 = fun.omega(np.concatenate([y0[:11], np.zeros(3)]))[1]
             K0 = self.inertia @ W0 + self.mass * np.cross(r0, np.cross(W0, r0))
-            start = time.process_time()
-            sol = solve_ivp(fun, (0.0, float(t_final)), np.concatenate([y0[:11], K0]), method="DOP853",
-                            rtol=self.reference_rtol, atol=self.reference_atol, dense_output=True)
-            self.reference_seconds = getattr(self, "reference_seconds", 0.0) + time.process_time() - start
-            if not sol.success:
-                raise RuntimeError(f"reference solution of {self.name!r} failed: {sol.message}")
+            sol = self.solve_reference(fun, np.concatenate([y0[:11], K0]), t_final, dense_output=True)
             hit = cache["dense"] = (float(t_final), sol.sol, None, fun.omega)
         return hit
 
