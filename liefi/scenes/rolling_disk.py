@@ -16,12 +16,13 @@ at ``Omega_3 = 4`` with a rocking ``Omega_1 = 0.5``.  Horizon ``t = 50``,
 ``dt = 1e-3``.
 
 Invariants in ``V``: the two constraint momenta, ``h~`` and the six attitude
-Casimirs.  The disk has two more first integrals (Chaplygin 1897, Appell
-1900: linear in the angular velocity, with coefficients that are
-hypergeometric functions of the tilt); they are not monitored.  The tests
-check, besides the reference, two special solutions derived there from the
-reference's equations: upright rolling in a straight line at constant spin,
-and steady motion on a circle at a fixed tilt.
+Casimirs.  Monitored besides (reported drift, not in ``V``): the disk's two
+first integrals beyond the energy (Chaplygin 1897, Appell 1900, Korteweg
+1899), linear in the angular velocity with coefficients that are Legendre
+(Gauss hypergeometric) functions of the tilt -- :func:`chaplygin_integrals`
+derives them.  The tests check them against the reference and at two special
+solutions derived there from the reference's equations: upright rolling in a
+straight line at constant spin, and steady motion on a circle at a fixed tilt.
 
 Reference: the textbook rolling rigid body
 (:func:`~liefi.scenes.rolling_reference.rolling_equations`) with the disk's
@@ -77,6 +78,192 @@ def disk_equations(inertia, mass, radius, g):
     return rolling_equations(inertia, mass, g, contact)
 
 
+# --- the disk's two first integrals beyond the energy (Chaplygin 1897; Appell 1900; Korteweg 1899) ---------
+
+#: ``|cos theta|`` (``|Gamma_3|``) up to which the integrals are summed: within ``acos 0.999 = 2.6`` degrees
+#: of lying flat the series need tens of thousands of terms (and the contact point is ill-defined there)
+COS_LIMIT = 0.999
+_EPS = 1e-17  # the series' tails are summed to below this (absolute: the functions are O(1))
+
+
+def axisymmetric_moments(inertia):
+    """``(I_1, I_3)`` of a diagonal inertia with ``I_1 = I_2`` (3 x 3 or 3 moments); ``ValueError`` otherwise."""
+    from .._data import as_float_array
+
+    I = as_float_array(inertia, "inertia")
+    I = np.diag(I) if I.shape == (3,) else I
+    if I.shape != (3, 3) or not np.all(np.isfinite(I)):
+        raise ValueError(f"inertia: expected 3 principal moments or a 3 x 3 matrix, got shape {I.shape}")
+    off = I - np.diag(np.diag(I))
+    if np.any(off != 0.0) or abs(I[0, 0] - I[1, 1]) > 1e-14 * abs(I[0, 0]) or np.any(np.diag(I) <= 0):
+        raise ValueError("inertia: the disk's integrals need a diagonal inertia I = diag(I_1, I_1, I_3) about the "
+                         f"disk's axes (axisymmetric, positive), got {I.tolist()}")
+    return float(I[0, 0]), float(I[2, 2])
+
+
+def legendre_parameter(inertia=None, mass=MASS, radius=RADIUS):
+    r"""``(lambda, alpha)``: ``alpha = m a^2 / (I_3 + m a^2)``, ``lambda = alpha I_3 / I_1`` (module docstring of
+    :func:`chaplygin_integrals`); the uniform thin disk has ``alpha = 2/3``, ``lambda = 4/3``."""
+    m, a = float(mass), float(radius)
+    if not (np.isfinite(m) and m > 0):
+        raise ValueError(f"mass: expected a positive number, got {mass!r}")
+    if not (np.isfinite(a) and a > 0):
+        raise ValueError(f"radius: expected a positive number, got {radius!r}")
+    I1, I3 = axisymmetric_moments(inertia_matrix(m, a) if inertia is None else inertia)
+    alpha = m * a * a / (I3 + m * a * a)
+    return alpha * I3 / I1, alpha
+
+
+_SERIES = {}
+
+
+def legendre_series(lam, X):
+    """Coefficients ``(e, o)`` with ``y_1 = sum e_k X^k``, ``y_2 = x sum o_k X^k`` (``X = x^2``) summed to
+    ``1e-17`` for ``0 <= X < 1``: ``e_{k+1}/e_k = (k^2 + k/2 + lambda/4) / ((k + 1/2)(k + 1))``, ``o_{k+1}/o_k
+    = (k^2 + 3k/2 + lambda/4 + 1/2) / ((k + 3/2)(k + 1))`` -- the Gauss series of ``2F1(p, q; 1/2; X)`` and
+    ``2F1(p + 1/2, q + 1/2; 3/2; X)`` with ``p + q = 1/2``, ``p q = lambda/4``, whose products ``(p)_k (q)_k``
+    are real even when ``p, q`` are complex.  Cached by ``(lambda, number of terms)``."""
+    X = float(X)
+    # the tails of the series and of their derivatives: once the coefficients decrease (k > lambda/4),
+    # sum_{k >= n} k c_k X^(k-1) <= c_n X^(n-1) (n/(1-X) + X/(1-X)^2)
+    n = 2
+    bound = (1.0 - X) ** -2
+    while n < 10 + lam / 4 or X ** (n - 1) * (n + 1) * bound > _EPS:
+        n += 1
+        if n > 200000:
+            raise ValueError(f"Gamma_3: |cos(tilt)| = {np.sqrt(X):.6g} is too close to 1 to sum the series")
+    n = 8 * (-(-n // 8))  # a few sizes only, for the cache
+    key = (float(lam), n)
+    if key not in _SERIES:
+        k = np.arange(n - 1, dtype=float)
+        e = np.concatenate([[1.0], np.cumprod((k * k + k / 2 + lam / 4) / ((k + 0.5) * (k + 1)))])
+        o = np.concatenate([[1.0], np.cumprod((k * k + 1.5 * k + lam / 4 + 0.5) / ((k + 1.5) * (k + 1)))])
+        _SERIES[key] = (e, o)
+    return _SERIES[key]
+
+
+def _horner(c, X):
+    """``(sum c_k X^k, sum k c_k X^(k-1))`` by Horner's scheme (plain arithmetic: complex steps and traced
+    scalars pass through)."""
+    f = 0.0 * X + c[-1]
+    d = 0.0 * X
+    for ck in c[-2::-1]:
+        d = d * X + f
+        f = f * X + float(ck)
+    return f, d
+
+
+def legendre_pair(lam, x, max_cos=None):
+    """``(y_1, y_1', y_2, y_2')`` at ``x``: the solutions of ``(1 - x^2) y'' - 2 x y' - lambda y = 0`` with
+    ``y_1(0) = 1, y_1'(0) = 0, y_2(0) = 0, y_2'(0) = 1`` (:func:`legendre_series`).  The number of terms is
+    taken from ``max |x|`` of a numeric ``x`` (``ValueError`` beyond :data:`COS_LIMIT`), else from ``max_cos``."""
+    from ..reduction.core import is_traced
+
+    if is_traced(x):
+        xm = COS_LIMIT if max_cos is None else float(max_cos)
+    else:
+        xm = float(np.max(np.abs(np.real(x)), initial=0.0))
+        if not xm <= COS_LIMIT:
+            raise ValueError(f"Gamma_3: the disk's integrals are summed for |Gamma_3| <= {COS_LIMIT} (tilted at "
+                             f"least {np.degrees(np.arccos(COS_LIMIT)):.1f} degrees from lying flat); got "
+                             f"|Gamma_3| = {xm:.6g}, where the disk (almost) lies flat and its contact point is "
+                             "not defined")
+    e, o = legendre_series(lam, xm * xm)
+    X = x * x
+    fe, de = _horner(e, X)
+    fo, do = _horner(o, X)
+    return fe, 2.0 * x * de, x * fo, fo + 2.0 * X * do
+
+
+def chaplygin_integrals(Omega, Gamma, inertia=None, mass=MASS, radius=RADIUS, *, max_cos=None):
+    r"""The thin disk's two first integrals beyond the energy, from ``(Omega, Gamma)`` (batch-first).
+
+    Body axes: ``e_3`` the disk's axis, ``Gamma = R^T e_3`` the upward vertical, ``x = cos theta =
+    Gamma_3`` (``theta`` the axis' angle to the vertical), ``s = sin theta``, ``u = (Gamma_1, Gamma_2,
+    0)/s`` the unit vector in the disk's plane from the contact point to the centre, ``t = e_3 x u``
+    (horizontal, along the rim).  With ``Omega = w_u u + w_t t + w_3 e_3`` the tilt moves at ``theta' =
+    -w_t``.  The balance of angular momentum about the contact point, ``K = I Omega + m r x (Omega x r)``
+    (:mod:`~liefi.scenes.rolling_reference`), has no gravity torque along ``e_3`` nor along ``u``; in the
+    frame ``(u, t, e_3)``, which turns at ``Omega - phi' e_3`` (``phi' = w_3 - w_u cot theta``, the spin
+    relative to it), those two components read, divided by ``theta' = -w_t``,
+
+    .. math:: (I_3 + m a^2) \frac{d w_3}{d\theta} = m a^2 w_u, \qquad
+              I_1 \frac{d w_u}{d\theta} = I_3 w_3 - I_1 \cot\theta\, w_u ,
+
+    a linear system in ``theta``.  Eliminating ``w_u`` and putting ``x = cos theta``: ``w_3`` solves
+    Legendre's equation ``(1 - x^2) y'' - 2 x y' - lambda y = 0``, ``lambda = alpha I_3 / I_1``, ``alpha =
+    m a^2 / (I_3 + m a^2)`` (the uniform disk: ``lambda = 4/3``, degree ``nu = -1/2 + i sqrt(13/12)``: conical
+    functions), and ``w_u = -(s/alpha) dw_3/dx``.  Its solutions even and odd in ``x``
+    (:func:`legendre_pair`) are Gauss hypergeometric series,
+
+    .. math:: y_1 = {}_2F_1(p, q; \tfrac12; x^2), \qquad y_2 = x\, {}_2F_1(p + \tfrac12, q + \tfrac12;
+              \tfrac32; x^2), \qquad p + q = \tfrac12,\ pq = \tfrac\lambda4,
+
+    with Wronskian ``y_1 y_2' - y_2 y_1' = 1/(1 - x^2)``.  Writing ``(w_3, w_u) = C_1 (y_1, -s y_1'/alpha) -
+    C_2 (y_2, -s y_2'/alpha)`` and solving with the Wronskian gives the constants
+
+    .. math:: C_1 = s^2 w_3\, y_2'(x) + \alpha\, \sigma\, y_2(x), \qquad
+              C_2 = s^2 w_3\, y_1'(x) + \alpha\, \sigma\, y_1(x), \qquad \sigma = s\, w_u =
+              \Omega_1 \Gamma_1 + \Omega_2 \Gamma_2 ,
+
+    ``w_3 = Omega_3`` and ``s^2 = Gamma_1^2 + Gamma_2^2``: linear in ``Omega``, regular at every tilt (not
+    lying flat).  Upright (``x = 0``): ``C_1 = Omega_3``, ``C_2 = alpha <Omega, u>``.  (Chaplygin 1897;
+    Appell 1900; Korteweg 1899; Borisov, Mamaev & Kilin, "Dynamics of rolling disk", Regul. Chaotic Dyn. 8
+    (2003) 201; O'Reilly, Nonlinear Dyn. 10 (1996) 287.)
+
+    Parameters
+    ----------
+    Omega, Gamma : array_like (..., 3)
+        Body angular velocity and upward vertical.
+    inertia : array_like, optional
+        ``diag(I_1, I_1, I_3)`` (default the uniform disk's, :func:`inertia_matrix`).
+    mass, radius : float
+    max_cos : float, optional
+        ``|Gamma_3|`` bound that fixes the series' length for traced input (default :data:`COS_LIMIT`).
+
+    Returns
+    -------
+    (C_1, C_2) : arrays (...)
+    """
+    W, G = np.asarray(Omega), np.asarray(Gamma)
+    if W.shape[-1:] != (3,) or G.shape[-1:] != (3,):
+        raise ValueError(f"Omega, Gamma: expected arrays (..., 3), got shapes {W.shape} and {G.shape}")
+    sigma = W[..., 0] * G[..., 0] + W[..., 1] * G[..., 1]
+    return _integrals(W[..., 2], sigma, G, legendre_parameter(inertia, mass, radius), max_cos)
+
+
+def _integrals(w3, sigma, G, params, max_cos):
+    """``(C_1, C_2)`` from ``w_3 = Omega_3``, ``sigma = Omega_1 Gamma_1 + Omega_2 Gamma_2`` and ``Gamma``."""
+    lam, alpha = params
+    y1, d1, y2, d2 = legendre_pair(lam, G[..., 2], max_cos)
+    s2 = G[..., 0] * G[..., 0] + G[..., 1] * G[..., 1]
+    return s2 * w3 * d2 + alpha * sigma * y2, s2 * w3 * d1 + alpha * sigma * y1
+
+
+def chaplygin_invariants(inertia=None, mass=MASS, radius=RADIUS, *, max_cos=None):
+    r"""``C_1``, ``C_2`` of :func:`chaplygin_integrals` as :class:`~liefi.Invariant` of the reduced state
+    ``z = (rho_1, rho_2, Gamma, Pi, p)`` of :func:`liefi.rolling.rolling_body` with :func:`liefi.rolling.disk`.
+
+    The momenta are ``Pi = I Omega + m w <w, Omega>`` with ``w = Gamma x r = (a Gamma_3 / s) (Gamma_2,
+    -Gamma_1, 0)`` (:mod:`liefi.rolling`): ``w`` has no axial component and is orthogonal to ``(Gamma_1,
+    Gamma_2, 0)``, so ``Omega_3 = Pi_3 / I_3`` and ``Omega_1 Gamma_1 + Omega_2 Gamma_2 = (Pi_1 Gamma_1 +
+    Pi_2 Gamma_2) / I_1`` -- all the integrals need.  First integrals of the constrained motion (on ``J =
+    0``); monitored by the scene, not penalized in ``V``.
+    """
+    from ..feedback import Invariant
+
+    I1, I3 = axisymmetric_moments(inertia_matrix(mass, radius) if inertia is None else inertia)
+    params = legendre_parameter(inertia, mass, radius)
+
+    def both(z):
+        z = np.asarray(z)
+        G = z[..., 6:9]
+        sigma = (z[..., 9] * G[..., 0] + z[..., 10] * G[..., 1]) / I1
+        return _integrals(z[..., 11] / I3, sigma, G, params, max_cos)
+
+    return (Invariant("chaplygin_1", lambda z: both(z)[0]), Invariant("chaplygin_2", lambda z: both(z)[1]))
+
+
 class RollingDisk(RollingReferenceScene):
     name = "rolling-disk"
     in_paper = False
@@ -86,9 +273,18 @@ class RollingDisk(RollingReferenceScene):
     t_final = 50.0
     scheme = "imex-rk4"
     gains = 1.0
-    variants = {"tilted": Variant(
-        "tilted", "m = a = g = 1, I = m a^2 (1/4, 1/4, 1/2); plane at 70 deg to the floor, "
-                  "Omega = (0.5, 0, 4)")}
+    variants = {
+        "tilted": Variant(
+            "tilted", "m = a = g = 1, I = m a^2 (1/4, 1/4, 1/2); plane at 70 deg to the floor, "
+                      "Omega = (0.5, 0, 4)"),
+        "integrals-in-V": Variant(
+            "integrals-in-V", "the same, with Chaplygin's two integrals C_1, C_2 penalized in V too "
+                              "(kept to rounding; about 1.3-1.4x the CPU per step)",
+            options={"integrals_in_V": True}),
+    }
+    #: ``|Gamma_3|`` bound of the compiled series of the integrals in ``V`` (the motion keeps ``Gamma_3`` in
+    #: ``[0.27, 0.43]``; the numpy evaluation sums to rounding up to :data:`COS_LIMIT` whatever this is)
+    series_max_cos = 0.6
 
     mass = MASS
     inertia = inertia_matrix()
@@ -102,7 +298,24 @@ class RollingDisk(RollingReferenceScene):
         return rolling_start(self.system, *start_attitude())
 
     def invariants(self, variant):
-        return ("constraints", "energy") + ATTITUDE_CASIMIRS
+        extra = self.monitored(variant) if variant.options.get("integrals_in_V") else ()
+        return ("constraints", "energy") + ATTITUDE_CASIMIRS + extra
+
+    def monitored(self, variant):
+        """Chaplygin's two integrals (:func:`chaplygin_invariants`): reported in ``max_drift``; penalized in
+        ``V`` only by the variant ``integrals-in-V``."""
+        return chaplygin_invariants(inertia_matrix(), MASS, RADIUS, max_cos=self.series_max_cos)
+
+    def _result(self, v, scheme, dt, T, fi, t, Y, names, *args, **kw):
+        """The base result, with the drift of :meth:`monitored` along the run added to its invariants."""
+        result = super()._result(v, scheme, dt, T, fi, t, Y, names, *args, **kw)
+        z = np.stack([np.asarray(Y[names.index(n)], float) for n in self.system.state_names], -1)
+        for inv in self.monitored(v):
+            if inv.name not in result.invariants:
+                val = np.asarray(inv.fun(z), float)
+                result.invariants[inv.name] = val
+                result.max_drift[inv.name] = float(np.max(np.abs(val - val[0])))
+        return result
 
     def start_attitude(self):
         return start_attitude()
@@ -116,10 +329,13 @@ class RollingDisk(RollingReferenceScene):
         return {"spin": np.sum(Omega * Gamma, -1), "axial_spin": Omega[..., 2]}
 
     def figures(self, runs, *, tag=""):
-        """The centre of mass' path (run and reference) with the path's and the tilt's errors; then the generic."""
+        """The centre of mass' path (run and reference) with the path's and the tilt's errors; the drift of
+        Chaplygin's two integrals next to the energy's; then the generic."""
         out = []
         for r in self.as_runs(runs).values():
             out += [plotting.FigureSpec("rolling-disk-path", lambda f, r=r: path_figure(r, f, tag=tag), 11, 4.2),
+                    plotting.FigureSpec("rolling-disk-integrals", lambda f, r=r: integrals_figure(r, f, tag=tag),
+                                        11, 4.0),
                     plotting.FigureSpec("generic", lambda f, r=r: plotting.generic(r, f, title=self.title, tag=tag),
                                         11, 4.0)]
         return out
@@ -142,6 +358,31 @@ def path_figure(result, fig=None, *, tag=""):
     a1.set_xlabel("$t$")
     a1.set_ylabel("error against the reference")
     a1.grid(alpha=0.3)
+    return fig
+
+
+def integrals_figure(result, fig=None, *, tag=""):
+    """The drift ``|C_j(t) - C_j(0)|`` of the two integrals of :func:`chaplygin_integrals` (monitored, not in
+    ``V``) next to the energy's ``|h~(t) - h~(0)|`` and the no-slip violation ``|J_i|`` (held by ``V``)."""
+    fig = plotting.figure(fig, 11, 4.0)
+    a0, a1 = fig.subplots(1, 2, sharex=True)
+    inv = result.invariants
+    for i, k in enumerate(("chaplygin_1", "chaplygin_2")):
+        if k in inv:
+            plotting.logplot(a0, result.t, plotting.drift(k, inv[k]), lw=0.8, color=f"C{i}",
+                             label=f"$C_{i + 1}$ (Chaplygin; monitored, not in $V$)")
+    a0.set_title(f"the disk's integrals beyond the energy{tag}", fontsize=9)
+    for i, k in enumerate(("h~", "J_1", "J_2")):
+        if k in inv:
+            plotting.logplot(a1, result.t, plotting.drift(k, inv[k]), lw=0.8, color=f"C{i + 2}",
+                             label=plotting.label(k) + " (in $V$)")
+    a1.set_title(f"energy and no-slip violation{tag}", fontsize=9)
+    for ax in (a0, a1):
+        if ax.lines:
+            ax.legend(fontsize=8)
+        ax.set_xlabel("$t$")
+        ax.set_ylabel(r"$|I(t) - I(0)|$")
+        ax.grid(alpha=0.3)
     return fig
 
 
