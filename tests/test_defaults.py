@@ -82,7 +82,12 @@ def test_cli_defaults_keep_every_invariant(name, capsys):
     assert main(["run", name, "--t-final", "2", "--backend", "numpy", "--json"]) in (0, None)
     d = json.loads(capsys.readouterr().out)
     assert d["scheme"] == "imex-rk4" and d["method"]["gains"] == "auto" and "default" in d["method"]["why"]
-    assert max(d["max_drift"].values(), default=0.0) <= 1e-10, d["max_drift"]
+    # first integrals a scene only monitors (reported, not in V: e.g. the rolling disk's Chaplygin integrals)
+    # drift with the state error; the claim is on the invariants V keeps
+    sc = scenes.get(name)
+    monitored = {i.name for i in getattr(sc, "monitored", lambda v: ())(sc.variant())} - set(d["gains"])
+    kept = {k: v for k, v in d["max_drift"].items() if k not in monitored}
+    assert max(kept.values(), default=0.0) <= 1e-10, d["max_drift"]
 
 
 def test_cli_paper_keeps_the_paper_settings(capsys):
