@@ -358,7 +358,8 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
     names = fi.names
     runner = _segment_runner(sch, dt, backend, names, t_start)
     guard = Guard(fi, sch, dt, n_steps, backend=backend, check_stability=check_stability, adaptive=adaptive,
-                  monitor_every=monitor_every, stacklevel=stacklevel + 1, t0=t_start)
+                  monitor_every=monitor_every, stacklevel=stacklevel + 1, t0=t_start,
+                  **({"resolution_limit": chosen["resolution_limit"]} if chosen else {}))
     run_fi = guard.before(y0)
     if runner.state["backend"] == "numpy":
         pl.seconds_per_step = _step_seconds(run_fi, y0, sch)

@@ -46,7 +46,7 @@ invariant set the split step's error is the error of its tableau on ``X``
    (a fixed cost must cost less than the work it protects) and fine enough to
    be asymptotic (its error at most :data:`CHECK_ERROR` by the local model;
    a check whose two runs differ by more than :data:`CHECK_TRUST` is not
-   trusted, ``H`` is halved, up to :data:`CHECK_TRIES` times, else ``dt_0``
+   trusted, ``H`` is halved while :data:`CHECK_TRIES_BUDGET` allows, else ``dt_0``
    stands).  Then ``dt = H (1/E_H(T))^{1/p}``, at most
    :data:`CHECK_GROWTH` ``H``.  The check measures what the local model
    guesses: the average of the local error along the run, its propagation and
@@ -100,21 +100,26 @@ PART_FLOOR = 1e-2
 ORDER_CANDIDATES = {"split": ("imex-rk4", "imex-rk6", "imex-rk8"), "explicit": ("rk4", "rk6", "rk8")}
 #: The first pilot step is the largest ``T / 4^k`` whose relative local error is below this.
 FIRST_ERROR = 1e-5
-#: The chosen step is this fraction of the step the estimate allows.
-SAFETY = 1.0
+#: The chosen step aims its estimated global error at this fraction of the tolerance (``solve_ivp``'s
+#: achieved error is of the order of ``rtol``; a default run's should not exceed it).
+TARGET = 1.0 / 3.0
 #: The check's coarse step has a relative error of at most this by the local model (asymptotic regime).
 CHECK_ERROR = 1e-3
 #: ... and is at most this many local-model steps.
 CHECK_COARSEST = 64.0
 #: The check's two runs cost at most this fraction of the run the local model predicts.
 CHECK_BUDGET = 0.25
+#: ... or at most this many field evaluations when that is more (a few milliseconds of compiled loop).
+CHECK_FLOOR = 3e5
 #: Common times at which the check's two runs are compared (at least; every coarse step up to this many
 #: steps): dense enough to catch a short transient where the error peaks.
 CHECK_SAMPLES = 4096
 #: A check whose two runs differ by more than this (relative) is not trusted (not asymptotic).
 CHECK_TRUST = 1e-2
-#: Tries of the check, the coarse step halved after an untrusted one.
-CHECK_TRIES = 3
+#: An untrusted check is repeated at half the coarse step while all its tries cost at most this many budgets.
+CHECK_TRIES_BUDGET = 4.0
+#: Times a trusted check that caps the step is repeated at a 4x coarser step.
+CHECK_WIDEN = 3
 #: The step is at most this many times the check's coarse step (where the error was measured).
 CHECK_GROWTH = 2.0
 
@@ -265,25 +270,52 @@ def _local_step(C, T, p, h):
     return (1.0 / (max(T, h) * C)) ** (1.0 / p)
 
 
-def _global_check(fi, sch, y0, t0, T, dt0, rtol, atol, p, backend, coarsest=None):
-    """The measured global error of the run (step 5 of the module docstring), or ``None``.
+def _check_plan(fi, sch, tab, y0, t0, T, dt0, rtol, atol, p, backend):
+    """The check of step 5 over the whole horizon, or ``None`` for a run of too few steps to protect.
 
-    Three runs of the scheme itself, at ``H``, ``H/2`` and ``H/4`` over ``[t0, t0 + tau]``, compared at
-    up to :data:`CHECK_SAMPLES` common times.  The run at ``H/2`` has the error ``E(t) = |y_{H/2} -
-    y_{H/4}| / (1 - 2^{-p})`` (Richardson) in the scaled norm, trusted only in the asymptotic regime:
-    the difference at ``H`` at least ``2^{p-1}`` times the difference at ``H/2`` (it is ``2^p`` there).
-    ``E(T) = max_t E(t) T / tau`` when ``tau < T`` (linear growth past the prefix).  Returns
-    ``(E(T), H/2, tau)``; ``None`` when the check cannot be trusted or cannot run.
+    The three runs cost at most :data:`CHECK_BUDGET` of the run ``dt0`` predicts, or
+    :data:`CHECK_FLOOR` field evaluations when that is more (the fixed cost of a run, a few
+    milliseconds, is not worth saving below it).  The coarse step is the asymptotic one (its relative
+    error :data:`CHECK_ERROR` by the local model, at most :data:`CHECK_COARSEST` ``dt0``) when the
+    budget affords it over ``[t0, T]``, else the finest the budget affords: the whole horizon is always
+    measured, so that an error that grows late in the run (the rattleback's spin reversal) is seen;
+    a check outside the asymptotic regime is repeated at half the step while all the tries cost at most
+    :data:`CHECK_TRIES_BUDGET` budgets, and the last gives the conservative bound.
+    """
+    if T / dt0 < 256:
+        return None
+    budget = max(CHECK_BUDGET * T / dt0, CHECK_FLOOR / max(1, int(getattr(sch, "stages", 1))))
+    H = dt0 * min(max(1.0, (CHECK_ERROR / rtol) ** (1.0 / p)), CHECK_COARSEST)
+    H = min(max(H, 7.0 * T / budget), T / 64)
+    spent, chk = 0.0, None
+    while spent + 7.0 * T / H <= CHECK_TRIES_BUDGET * budget or chk is None:
+        spent += 7.0 * T / H
+        chk = _global_check(fi, sch, y0, t0, T, H, T, rtol, atol, p, backend)
+        if chk is None or chk[4]:
+            break
+        H /= 2.0  # outside the asymptotic regime: halve the coarse step while the budget allows
+    return chk
+
+
+def _global_check(fi, sch, y0, t0, T, H, tau, rtol, atol, p, backend):
+    """The measured global error over ``[t0, t0 + tau]`` (step 5 of the module docstring), or ``None``.
+
+    Three runs of the scheme itself, at ``H``, ``H/2`` and ``H/4``, compared at up to
+    :data:`CHECK_SAMPLES` common times.  Returns ``(E, E_safe, H/2, tau, trusted)``, errors in units of
+    the tolerance at the horizon ``T``:
+
+    - ``E``: the run at ``H/2`` has the error ``|y_{H/2} - y_{H/4}| / (1 - 2^{-p})`` (Richardson),
+      ``E = max_t`` of it, times ``T / tau`` when ``tau < T`` (linear growth past the prefix);
+    - ``trusted``: the asymptotic regime, the difference at ``H`` at least ``2^{p-1}`` times the
+      difference at ``H/2`` (it is ``2^p`` there) and at most :data:`CHECK_TRUST` relative;
+    - ``E_safe``: without the asymptotic regime, the bound that assumes only that halving the step does
+      not increase the error, ``err(H/4) <= |y_{H/2} - y_{H/4}|``, expressed at ``H/2`` as
+      ``2^p max_t |y_{H/2} - y_{H/4}|`` (``T / tau`` as ``E``): scaled to a step by the order it is
+      conservative wherever the convergence is slower than ``p`` at ``H/4`` only because ``H`` is
+      outside the regime.
     """
     from .schemes.core import IntegrationError
 
-    # H: coarse enough that the runs cost a fraction of the run they protect, fine enough that the
-    # coarse run is in the asymptotic regime (its relative error at most CHECK_ERROR by the local model)
-    H = dt0 * min(max(1.0, (CHECK_ERROR / rtol) ** (1.0 / p)), CHECK_COARSEST if coarsest is None else coarsest)
-    H = min(H, T / 64)
-    if T / dt0 < 256:
-        return None  # a run of a few steps: nothing to protect
-    tau = min(T, CHECK_BUDGET * (T / dt0) * H / 7.0)
     n = max(64, int(math.ceil(tau / H)))
     m = max(1, n // CHECK_SAMPLES)
     n = m * int(math.ceil(n / m))
@@ -303,13 +335,13 @@ def _global_check(fi, sch, y0, t0, T, dt0, rtol, atol, p, backend, coarsest=None
     size = _size(fi, np.max(np.abs(ys[2]), axis=0))
     d1 = float(np.max(np.abs(ys[0] - ys[2]) / size))
     d2 = float(np.max(np.abs(ys[1] - ys[2]) / size))
-    err = np.abs(ys[1] - ys[2]) / (1.0 - 2.0 ** -p) / (atol + rtol * size)
-    E = float(np.max(err)) * (T / tau)
-    if not math.isfinite(E) or d1 > CHECK_TRUST:
+    diff = np.abs(ys[1] - ys[2]) / (atol + rtol * size)
+    E = float(np.max(diff)) / (1.0 - 2.0 ** -p) * (T / tau)
+    E_safe = float(np.max(diff)) * 2.0 ** p * (T / tau)
+    if not (math.isfinite(E) and math.isfinite(E_safe)):
         return None
-    if d2 > 1e3 * np.finfo(float).eps and d1 < 2.0 ** (p - 1) * d2:
-        return None  # not asymptotic: halving the step did not divide the error by about 2^p
-    return E, H / 2, tau
+    trusted = d1 <= CHECK_TRUST and not (d2 > 1e3 * np.finfo(float).eps and d1 < 2.0 ** (p - 1) * d2)
+    return E, E_safe, H / 2, tau, trusted
 
 
 def choose_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=None, choose_order=False):
@@ -341,30 +373,38 @@ def choose_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=
     else:
         C, h, _ = _local_estimate(fi, tab, Y, T, rtol, atol, f)
         costs = None
-    dt_local = min(SAFETY * _local_step(C, T, p, h), T)
-    dt_est, est, chk = dt_local, (T * C * dt_local ** p) if C > 0 else 0.0, None
+    dt_local = min(_local_step(C / TARGET, T, p, h), T)
+    dt_est, chk, safe = dt_local, None, False
     if check and C > 0 and math.isfinite(C):
-        dt0 = resolved_step(fi, tab, Y, dt_local)
-        coarsest = CHECK_COARSEST
-        for _ in range(CHECK_TRIES):  # a coarse step out of the asymptotic regime: halve it and measure again
-            chk = _global_check(fi, sch, np.asarray(y0, float), float(t0), T, dt0, rtol, atol, p, backend,
-                                coarsest)
-            if chk is not None or coarsest <= 1.0:
+        dt0, _ = resolved_step(fi, tab, Y, dt_local, T, rtol)
+        chk = _check_plan(fi, sch, tab, np.asarray(y0, float), float(t0), T, dt0, rtol, atol, p, backend)
+        for _ in range(CHECK_WIDEN):
+            # a trusted check that caps the step (the tolerance allows more than CHECK_GROWTH x its step):
+            # measure again at a 4x coarser step, cheaper, and keep it if it is still asymptotic
+            if not (chk is not None and chk[4] and chk[0] * CHECK_GROWTH ** p < TARGET):
                 break
-            coarsest = max(1.0, min(coarsest, (CHECK_ERROR / rtol) ** (1.0 / p)) / 2.0)
+            wider = _global_check(fi, sch, np.asarray(y0, float), float(t0), T, 8.0 * chk[2], T, rtol, atol, p,
+                                  backend)
+            if wider is None or not wider[4]:
+                break
+            chk = wider
         if chk is not None:
-            E, H, _tau = chk
-            # the measured error at H, scaled to the tolerance by the order; never more than
-            # CHECK_GROWTH x H, where the error was not measured
-            dt_est = H * CHECK_GROWTH if E <= 0 else min(SAFETY * H * (1.0 / E) ** (1.0 / p), CHECK_GROWTH * H)
-            est = E * (dt_est / H) ** p
-    dt_est = resolved_step(fi, tab, Y, min(dt_est, T))
+            E, E_safe, H, _tau, trusted = chk
+            # the measured error at H scaled to the target by the order; never more than CHECK_GROWTH x H,
+            # where the error was not measured; without the asymptotic regime the conservative bound, and
+            # never longer than the local model's step
+            e = E if trusted else E_safe
+            dt_est = H * CHECK_GROWTH if e <= 0 else min(H * (TARGET / e) ** (1.0 / p), CHECK_GROWTH * H)
+            if not trusted:
+                dt_est, safe = min(dt_est, dt_local), True
+    measured = CHECK_GROWTH * chk[2] if chk is not None and chk[4] else None
+    dt_est, limit = resolved_step(fi, tab, Y, min(dt_est, T), T, rtol, measured)
     n = max(1, math.ceil(T / min(dt_est, T) - 1e-9))
     dt = T / n
     if chk is None:
         est = (T * C * dt ** p) if C > 0 else 0.0
     else:
-        est = chk[0] * (dt / chk[1]) ** p
+        est = (chk[0] if chk[4] else chk[1]) * (dt / chk[2]) ** p
     info = {
         "rtol": rtol,
         "atol": float(atol) if atol.ndim == 0 else atol.tolist(),
@@ -373,9 +413,12 @@ def choose_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=
         "pilot_step": h,
         "local_error_constant": C,
         "local_step": dt_local,
-        "check_step": None if chk is None else chk[1],
-        "check_span": None if chk is None else chk[2],
+        "check_step": None if chk is None else chk[2],
+        "check_span": None if chk is None else chk[3],
         "check_error": None if chk is None else chk[0],
+        "check_trusted": None if chk is None else bool(chk[4]),
+        "conservative": safe,
+        "resolution_limit": limit,
         "estimated_error": est,
     }
     if costs is not None:
@@ -402,32 +445,74 @@ def _cheapest_order(fi, sch, Y, T, rtol, atol, f=None):
         cand = _registry.get(name)
         tab = _tableau(cand)
         C, h, _ = _local_estimate(fi, tab, Y, T, rtol, atol, f)
-        dt = resolved_step(fi, tab, Y, min(SAFETY * _local_step(C, T, int(tab.order), h), T))
+        dt, _ = resolved_step(fi, tab, Y, min(_local_step(C / TARGET, T, int(tab.order), h), T), T, rtol)
         costs[name] = cand.stages * math.ceil(T / dt - 1e-9)
         if best is None or costs[name] < best[0]:
             best = (costs[name], cand, C, h)
     return best[1], best[2], best[3], costs
 
 
-def resolved_step(fi, tab, Y, dt):
-    """``dt``, shortened until it resolves the unforced motion (the stability guard's test).
+def resolution_limit(tab, T, omega, rtol, target=None):
+    r"""The largest ``theta = dt omega`` at which ``tab`` keeps a mode of frequency ``omega`` within the tolerance.
 
-    The guard (:func:`liefi.stability.estimate`) warns past ``dt omega >``
-    :data:`~liefi.stability.RESOLUTION_LIMIT` and refuses when the tableau
-    amplifies the unforced motion by more than :data:`~liefi.stability.GROWTH_LIMIT`
-    a step; a step chosen for a loose tolerance on a motion the tableau
-    integrates (nearly) exactly would otherwise cross them.
+    The unforced motion linearized about the trajectory has modes ``exp(mu t)``, ``|mu| <= omega``
+    (the spectral radius of ``dX/dy``); the tableau steps each by its stability polynomial ``R(dt mu)``.
+    Its relative error per step is ``|R(z) e^{-z} - 1|``, ``z = dt mu``, about ``c |z|^{p+1}``; over the
+    ``T / dt`` steps of the run the errors add up (a phase error, linear in ``t``), so the run keeps
+    the mode within ``target rtol`` (relative) when
+
+    .. math:: \frac{T \omega}{\theta} \max_{z \in \{i\theta, \theta, -\theta\}} |R(z) e^{-z} - 1|
+              \le \mathrm{target}\, \mathrm{rtol}
+
+    (a rotation, ``mu = i omega``, and its real analogue, a mode growing or decaying at ``omega``).  The
+    largest ``theta`` below the first crossing, on a grid of ``theta`` in ``[1e-4, 4]`` (``1e-4`` if the
+    grid's first point fails: a tolerance below what the mode allows at any reasonable step).  A higher
+    order allows a longer step at the same tolerance, and a looser tolerance a longer step: the guard's
+    fixed ``dt omega <= 0.2`` (:data:`liefi.stability.RESOLUTION_LIMIT`) ignores both.  ``target``:
+    default :data:`TARGET`.
+    """
+    target = TARGET if target is None else target
+    if not (omega > 0 and math.isfinite(omega) and T > 0):
+        return math.inf
+    th = np.geomspace(1e-4, 4.0, 600)
+    with np.errstate(all="ignore"):
+        err = np.zeros_like(th)
+        for z in (1j * th, th + 0j, -th + 0j):
+            err = np.maximum(err, np.abs(tab.stability_function(z) * np.exp(-z) - 1.0))
+        ok = (T * omega / th) * err <= target * rtol
+    bad = np.nonzero(~ok)[0]
+    if bad.size == 0:
+        return float(th[-1])
+    return float(th[max(bad[0] - 1, 0)])
+
+
+def resolved_step(fi, tab, Y, dt, T=None, rtol=None, measured=None):
+    """``(dt, limit)``: ``dt`` shortened until it resolves the unforced motion (the stability guard's test).
+
+    The guard (:func:`liefi.stability.estimate`) warns past ``dt omega > limit`` and refuses when the
+    tableau amplifies the unforced motion by more than :data:`~liefi.stability.GROWTH_LIMIT` a step.
+    ``limit``: :func:`resolution_limit` for the horizon ``T`` and ``rtol`` when both are given (the run
+    passes it to the guard), else :data:`~liefi.stability.RESOLUTION_LIMIT`.  ``measured``: a step at
+    which the run's global error was measured in the asymptotic regime (the check): up to it the motion
+    is resolved by measurement, whatever the bound.
     """
     from .stability import RESOLUTION_LIMIT, estimate
 
+    limit = RESOLUTION_LIMIT
     for _ in range(60):
         with np.errstate(all="ignore"):
             est = estimate(fi, dt, tab, y0=Y.reshape(fi.batch + (fi.n,)) if fi.batch else Y[0])
-        if not (est.under_resolved or est.unresolvable):
+        if T is not None and rtol is not None and est.rate > 0:
+            # never below the guard's fixed limit: shortening the step for accuracy is the measured error's
+            # job (the bound takes the fastest rate as lasting the whole run: Kepler's pericentre does not)
+            limit = max(resolution_limit(tab, T, est.rate / dt, rtol), RESOLUTION_LIMIT)
+            if measured:
+                limit = max(limit, est.rate / dt * measured)
+        if not (est.rate > limit or est.unresolvable):
             break
         # the rate scales with dt: straight to just inside its limit; past the growth limit 0.8x a time
-        dt *= 0.8 if est.unresolvable or not est.rate > 0 else min(0.98, 0.98 * RESOLUTION_LIMIT / est.rate)
-    return dt
+        dt *= 0.8 if est.unresolvable or not est.rate > 0 else min(0.98, 0.98 * limit / est.rate)
+    return dt, limit
 
 
 def describe(scheme, dt, gains_mode, backend, *, chosen=None, scheme_given=False, dt_given=False):
