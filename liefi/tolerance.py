@@ -533,6 +533,9 @@ def describe(scheme, dt, gains_mode, backend, *, chosen=None, scheme_given=False
     if chosen is not None:
         how = ("checked by two short runs at a coarse step" if chosen.get("check_error") is not None
                else "global error ~ T C dt^p")
+        if chosen.get("conservative"):
+            how = ("the check's runs were not in the asymptotic regime within its budget: the conservative bound "
+                   "2^p |y_{H/2} - y_{H/4}|, a shorter step than the estimate's")
         order = (f"; order {chosen['order']} the cheapest of {', '.join(chosen['predicted_cost'])} by predicted "
                  "evaluations" if chosen.get("predicted_cost") else "")
         parts.append(f"dt {dt:.6g} chosen for rtol {chosen['rtol']:g} (a step-doubling pilot of the order-"

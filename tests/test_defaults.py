@@ -130,3 +130,55 @@ def test_the_order_is_chosen_by_predicted_cost():
     assert picks[1e-10] >= 6
     sol = fi.run(200.0, rtol=1e-10)
     assert sol.method["scheme"] != "imex-rk4" and "order" in sol.method["why"]
+
+
+def test_the_resolution_limit_follows_the_order_and_the_tolerance():
+    """``resolution_limit``: the largest ``dt omega`` whose accumulated per-step error ``(T omega / theta)
+    |R(i theta) e^{-i theta} - 1|`` stays within ``TARGET rtol``: longer for a higher order and a looser
+    tolerance, and the bound holds at it (and fails just past it)."""
+    from liefi.schemes import registry
+    from liefi.tolerance import TARGET, resolution_limit
+
+    T, omega = 1e3, 1.0
+    lim = {(n, r): resolution_limit(registry.get(n), T, omega, r) for n in ("rk4", "rk8") for r in (1e-4, 1e-8)}
+    assert lim[("rk8", 1e-8)] > lim[("rk4", 1e-8)] and lim[("rk8", 1e-4)] > lim[("rk4", 1e-4)]
+    assert lim[("rk4", 1e-4)] > lim[("rk4", 1e-8)] and lim[("rk8", 1e-4)] > lim[("rk8", 1e-8)]
+    tab = registry.get("rk4")
+    th = lim[("rk4", 1e-8)]
+    for z, ok in ((1j * th, True), (1j * th * 1.05, False)):
+        err = abs(complex(tab.stability_function(z)) * np.exp(-z) - 1.0) * T * omega / abs(z)
+        assert (err <= TARGET * 1e-8) == ok, (z, err)
+
+
+def test_an_untrusted_check_is_conservative(monkeypatch):
+    """A check outside the asymptotic regime (the rattleback's, whose error jumps after t = 1) never
+    lengthens the step: the conservative bound, at most the local model's step, said in ``info`` and
+    in the ``why`` of the run."""
+    from liefi import tolerance as tol
+    from liefi.run import _fixed_step_scheme
+
+    fi = scenes.get("knife-edge").integrator(gains="auto")
+    sch = _fixed_step_scheme("imex-rk4")
+    dt_ok, info_ok = tol.choose_step(fi, sch, fi.y0, 0.0, 200.0, 1e-6)
+    assert info_ok["check_trusted"] and not info_ok["conservative"]
+    real = tol._global_check
+
+    def untrusted(*a, **k):
+        out = real(*a, **k)
+        return None if out is None else out[:4] + (False,)
+
+    monkeypatch.setattr(tol, "_global_check", untrusted)
+    dt, info = tol.choose_step(fi, sch, fi.y0, 0.0, 200.0, 1e-6)
+    assert info["conservative"] and not info["check_trusted"]
+    assert dt <= info["local_step"] * (1 + 1e-9) and dt <= dt_ok * (1 + 1e-9)
+    assert "conservative" in tol.describe("imex-rk4", dt, "auto", "numpy", chosen=info)["why"]
+
+
+@pytest.mark.parametrize("rtol", [1e-5, 1e-9])
+def test_the_default_order_lands_near_the_tolerance(rtol):
+    """The order chosen by cost, its step checked: the achieved error within [rtol/10, 10 rtol]."""
+    sc = scenes.get("knife-edge")
+    r = sc.run(scheme="imex-rk4", gains="auto", t_final=200.0, rtol=rtol, choose_order=True)
+    sizes = {k: np.max(np.abs(r[k] - r.errors[k])) for k in r.max_error}
+    rel = max(r.max_error[k] / sizes[k] for k in r.max_error if sizes[k] > 0)
+    assert rtol / 10 <= rel <= 10 * rtol, (rtol, rel, r.scheme, r.dt)
