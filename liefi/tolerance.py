@@ -36,22 +36,18 @@ invariant set the split step's error is the error of its tableau on ``X``
    settles), and assumes no decay of the propagated errors.  Measured over
    ``[0, 1e3]`` it made the error 3e-4 to 0.6 times ``rtol`` (up to 7x too
    many RK4 steps);
-5. **the check** (:func:`_global_check`): the scheme itself -- the split step,
-   compiled -- is run at a coarse step ``H`` and at ``H/2`` over
-   ``[t0, t0 + tau]``, and ``E_H(t) = |y_H - y_{H/2}| / (1 - 2^{-p})`` (Richardson)
-   is compared at up to :data:`CHECK_SAMPLES` common times; ``E_H(T) = max_t
-   E_H(t) T/tau`` (linear growth past the prefix, the local model's growth;
-   ``tau = T`` whenever the budget allows).  ``H`` is coarse enough that the
-   two runs cost at most :data:`CHECK_BUDGET` of the run ``dt_0`` predicts
-   (a fixed cost must cost less than the work it protects) and fine enough to
-   be asymptotic (its error at most :data:`CHECK_ERROR` by the local model;
-   a check whose two runs differ by more than :data:`CHECK_TRUST` is not
-   trusted, ``H`` is halved while :data:`CHECK_TRIES_BUDGET` allows, else ``dt_0``
-   stands).  Then ``dt = H (1/E_H(T))^{1/p}``, at most
-   :data:`CHECK_GROWTH` ``H``.  The check measures what the local model
-   guesses: the average of the local error along the run, its propagation and
-   its growth (faster than linear on the rattleback over ``[0, 1e3]``, where
-   the check shortens the step);
+5. **the check** (:func:`_check_plan`, :func:`_global_check`): the scheme itself -- the split step,
+   compiled -- is run at a coarse step ``H``, at ``H/2`` and ``H/4`` over the *whole* horizon, and the
+   Richardson error ``|y_{H/2} - y_{H/4}| / (1 - 2^{-p})`` is compared at up to
+   :data:`CHECK_SAMPLES` common times.  ``H`` is the asymptotic one (relative error
+   :data:`CHECK_ERROR` by the local model) when the three runs cost at most :data:`CHECK_BUDGET` of
+   the run (or :data:`CHECK_FLOOR` evaluations), else the finest the budget affords.  Trusted when
+   halving divides the difference by ``>= 2^{p-1}``: then ``dt = H (TARGET / E)^{1/p}``, at most
+   :data:`CHECK_GROWTH` ``H`` (a capping check is repeated 4x coarser, :data:`CHECK_WIDEN`).  An
+   untrusted check is halved while :data:`CHECK_TRIES_BUDGET` budgets allow; if still untrusted the
+   step comes from the conservative bound ``2^p max_t |y_{H/2} - y_{H/4}|``, never longer than the
+   local model's step (``info["conservative"]``).  A prefix extrapolated linearly is not safe: the
+   rattleback's error jumps 300x between t = 1 and t = 2;
 6. **the order** (``choose_order``, the default when no scheme is named): the
    candidates of :data:`ORDER_CANDIDATES` (the tableau on ``X`` at orders 4,
    6 and 8: :data:`liefi.schemes.rk.RK4`, Butcher's ``RK6``, DOP853's ``RK8``)
@@ -59,12 +55,11 @@ invariant set the split step's error is the error of its tableau on ``X``
    T/dt_0`` runs (the local model's pessimism is the motion's, about the same
    for every order, so it cancels in the comparison).
 
-The step is then shortened while the stability guard finds that it does not
-resolve the unforced motion (:func:`resolved_step`: ``dt omega`` within the
-guard's resolution limit, whatever the order), and rounded down to ``T/N``.
-That limit, not the tolerance, sets the step of the slow scenes at loose
-tolerances (their error is then far below ``rtol``, for a run of a few
-milliseconds).  The table is ``benchmarks/rtol_table.py``.
+The step aims at :data:`TARGET` ``rtol``.  It is then shortened while the stability guard finds that
+it does not resolve the unforced motion (:func:`resolved_step`), with the limit of
+:func:`resolution_limit`, derived from the tableau's stability polynomial and the tolerance (never
+below the guard's fixed 0.2; the step the check measured counts as resolved), and rounded down to
+``T/N``.  The table is ``benchmarks/rtol_table.py``.
 
 Why a fixed step rather than an embedded pair (Dormand--Prince 5(4),
 Bogacki--Shampine 3(2)) with the feedback after each accepted step: the
