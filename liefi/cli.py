@@ -329,7 +329,7 @@ def cmd_run(args):
         T = scene.t_final if args.t_final is None else args.t_final
         try:
             step, _ = scene.step_for_tolerance(variant, scheme, T, rtol, args.atol, gains=gains,
-                                               configuration=configuration)
+                                               configuration=configuration, choose_order=args.scheme is None)
             check_step_count(step, T, args.max_steps, name="rtol",
                              advice=f"the step for rtol {rtol:g}; loosen --rtol, take a shorter --t-final, give a "
                                     "larger --dt, or raise --max-steps")
@@ -348,6 +348,7 @@ def cmd_run(args):
         adaptive=True if args.adaptive else None,
         rtol=rtol,
         atol=atol,
+        choose_order=args.scheme is None and rtol is not None and dt is None,
     )
     if not all(math.isfinite(v) for v in list(result.max_error.values()) + list(result.max_drift.values())):
         raise IntegrationError(

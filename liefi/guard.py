@@ -320,8 +320,9 @@ class Guard:
     """
 
     def __init__(self, fi, scheme, dt, n_steps, *, backend, check_stability, adaptive, monitor_every, stacklevel,
-                 t0=0.0):
+                 t0=0.0, resolution_limit=RESOLUTION_LIMIT):
         self.fi = fi
+        self.resolution_limit = float(resolution_limit)  # dt omega that resolves the motion (a run's own)
         self.sch = scheme
         self.beta = float(scheme.real_stability_bound)
         self.split = scheme.kind == "split"
@@ -405,7 +406,8 @@ class Guard:
             else:
                 # the gains adapt (or the scheme is stiff-safe): only the resolution of the
                 # unforced dynamics can make the run meaningless
-                est = estimate(run_fi, dt, self.sch.explicit if self.split else self.sch, y0=y0)
+                est = estimate(run_fi, dt, self.sch.explicit if self.split else self.sch, y0=y0,
+                               resolution_limit=self.resolution_limit)
                 rep.resolution = est.rate
                 if self.adaptive:  # each member's own (its schedule of checks depends on it)
                     with np.errstate(all="ignore"):

@@ -325,7 +325,8 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
         y_pilot = fi.y0 if y0 is None else np.asarray(y0, dtype=float)
         if np.shape(y_pilot)[-1:] == (fi.n,) and np.all(np.isfinite(y_pilot)):
             dt, chosen = _tol.choose_step(fi.for_batch(np.shape(y_pilot)[:-1]), sch, y_pilot, t_start, t_end,
-                                          rtol, atol)
+                                          rtol, atol, backend=backend, choose_order=not scheme_given)
+            sch = _fixed_step_scheme(chosen["scheme"])  # the order chosen for the tolerance
             if (t_end - t_start) / dt > MAX_RUN_STEPS:
                 raise ValueError(f"rtol: {rtol!r} needs {(t_end - t_start) / dt:.3g} steps over t in [{t_start:g}, "
                                  f"{t_end:g}], more than the {MAX_RUN_STEPS:.0e} allowed; loosen rtol or atol")
@@ -357,7 +358,8 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
     names = fi.names
     runner = _segment_runner(sch, dt, backend, names, t_start)
     guard = Guard(fi, sch, dt, n_steps, backend=backend, check_stability=check_stability, adaptive=adaptive,
-                  monitor_every=monitor_every, stacklevel=stacklevel + 1, t0=t_start)
+                  monitor_every=monitor_every, stacklevel=stacklevel + 1, t0=t_start,
+                  **({"resolution_limit": chosen["resolution_limit"]} if chosen else {}))
     run_fi = guard.before(y0)
     if runner.state["backend"] == "numpy":
         pl.seconds_per_step = _step_seconds(run_fi, y0, sch)

@@ -462,6 +462,8 @@ class StabilityEstimate:
     samples: np.ndarray = field(repr=False, default=None)
     #: :func:`metric_defect` along the pilot (``""``: the metric stays positive definite)
     metric: str = ""
+    #: the largest ``rate`` that resolves the motion (a run for a tolerance passes its own)
+    limit: float = RESOLUTION_LIMIT
 
     @property
     def dt_safe(self):
@@ -498,8 +500,8 @@ class StabilityEstimate:
 
     @property
     def under_resolved(self):
-        """``dt`` times the fastest rate of ``X`` exceeds :data:`RESOLUTION_LIMIT` (a warning)."""
-        return math.isfinite(self.rate) and self.rate > RESOLUTION_LIMIT
+        """``dt`` times the fastest rate of ``X`` exceeds ``limit`` (:data:`RESOLUTION_LIMIT`; a warning)."""
+        return math.isfinite(self.rate) and self.rate > self.limit
 
     @property
     def unresolvable(self):
@@ -555,9 +557,9 @@ class StabilityEstimate:
 
     def resolution_message(self):
         s = (
-            f"dt times the fastest rate of the unforced dynamics is {self.rate:.3g} (> {RESOLUTION_LIMIT:g}): "
+            f"dt times the fastest rate of the unforced dynamics is {self.rate:.3g} (> {self.limit:g}): "
             f"the step under-resolves the motion itself, whatever the gains, so the trajectory will be "
-            f"inaccurate; take dt below {self.dt * RESOLUTION_LIMIT / self.rate:.3g}."
+            f"inaccurate; take dt below {self.dt * self.limit / self.rate:.3g}."
         )
         if self.unresolvable:
             s += (f" {self.scheme} amplifies that motion by |R(dt mu)| = {self.growth:.3g} per step: the run "
@@ -569,13 +571,15 @@ def _max_evals(n_steps, stages):
     return int(min(PILOT_MAX_EVALS, max(PILOT_MIN_EVALS, PILOT_FRACTION * n_steps * stages)))
 
 
-def estimate(fi, dt, scheme="euler", *, t_final=None, y0=None, max_evals=None, resolution=True) -> StabilityEstimate:
+def estimate(fi, dt, scheme="euler", *, t_final=None, y0=None, max_evals=None, resolution=True,
+             resolution_limit=RESOLUTION_LIMIT) -> StabilityEstimate:
     """Estimate the stability limit of ``fi.run(t_final, dt=dt, scheme=scheme)`` before running it.
 
     ``lambda_max`` is evaluated at ``y0`` and along :func:`pilot` (up to
     ``t_final``, within ``max_evals`` evaluations of ``X``; default a few
     percent of the run's work).  ``t_final=None``: at
-    ``y0`` only.  For a batch ``y0`` the pilot follows :data:`PILOT_MEMBERS`
+    ``y0`` only.  ``resolution_limit``: the estimate's ``limit`` (a run for a
+    tolerance passes the one of :func:`liefi.tolerance.resolution_limit`).  For a batch ``y0`` the pilot follows :data:`PILOT_MEMBERS`
     members, the stiffest at the start among them: its cost does not grow with
     the batch.
     """
@@ -636,7 +640,7 @@ def estimate(fi, dt, scheme="euler", *, t_final=None, y0=None, max_evals=None, r
         getattr(sch, "name", str(scheme)), beta, float(dt), lam, lam0, float(ts[i]), float(ts[-1]),
         float(t_final if t_final is not None else 0.0), dict(fi.gains), dom, ev, rate, t_cross, growth,
         _members(Ys[np.unique(np.linspace(0, len(ts) - 1, min(len(ts), 8)).astype(int))], RESOLUTION_MEMBERS),
-        metric_defect(fi, Ys[: i + 2]) if len(ts) > 1 else "",
+        metric_defect(fi, Ys[: i + 2]) if len(ts) > 1 else "", float(resolution_limit),
     )
 
 

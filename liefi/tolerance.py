@@ -13,33 +13,53 @@ for the tolerance ``rtol`` (default :data:`DEFAULT_RTOL`).
 
 **A fixed step from an error estimate** (:func:`choose_step`).  Near the
 invariant set the split step's error is the error of its tableau on ``X``
-(the two substeps nearly commute there), so the step is chosen on ``X``
-alone, once, before the run:
+(the two substeps nearly commute there), so the step is chosen on ``X``:
 
-1. an error scale per component, ``s_i = atol_i + rtol max_t |y_i(t)|`` over a
-   short pilot (``atol`` defaults to ``0``: the scale is relative to each
-   component's own size, so the choice does not depend on the units);
+1. an error scale per component, ``s_i = atol_i + rtol max_t |y_i(t)|``
+   (``atol`` defaults to ``0``: the scale is relative to each component's own
+   size, floored at :data:`PART_FLOOR` of the largest of its part, so no unit
+   enters);
 2. a first step: the largest ``h = T / 4^k`` whose step-doubling error is
-   below :data:`FIRST_ERROR` relative to the components' size (no unit
-   enters) and in the asymptotic regime (``h/4`` has an error about
-   ``4^{p+1}`` times smaller: no step aliases with a period of the motion),
-   enlarged until the local error is well above rounding;
-3. a pilot of :data:`PILOT_STEPS` steps of the tableau from ``y_0``, each with a
-   step-doubling (Richardson) estimate of its local error:
-   ``e = |Phi_h(y) - Phi_{h/2}^2(y)| / (1 - 2^{-p})``, so that
-   ``e = C h^{p+1}`` with ``C`` the largest over the pilot, in the norm
-   ``max_i |e_i| / s_i``;
-4. over ``[t0, t_final]`` of length ``T`` the local errors add up (the
-   feedback keeps the invariants, and with them the actions, at rounding, so
-   the error is a phase error that grows linearly in ``t``): the global
-   error is about ``T C dt^p``.  The step is ``dt = SAFETY (1/(T C))^{1/p}``,
-   shortened while the stability guard finds that it does not resolve the
-   unforced motion (:func:`resolved_step`: a motion that RK4 integrates
-   nearly exactly would otherwise get a step too long for it), then rounded down
-   to ``T / N`` for a whole number ``N`` of steps.  The estimate is an upper
-   bound in practice (the local error is not the largest all along, and not
-   every component's error adds up): the achieved error is 0.001--1 times
-   the tolerance on the scenes (``docs/choosing-a-method.md``).
+   below :data:`FIRST_ERROR` relative and in the asymptotic regime (``h/4``
+   has an error about ``4^{p+1}`` times smaller: no step aliases with a period
+   of the motion), enlarged until the local error is well above rounding;
+3. a pilot of :data:`PILOT_STEPS` steps of the tableau from ``y_0`` (on the
+   compiled ``X`` when there is one), each with a step-doubling estimate
+   ``e = |Phi_h(y) - Phi_{h/2}^2(y)| / (1 - 2^{-p}) = C h^{p+1}``, ``C`` the
+   largest over the pilot;
+4. **the local model**: the global error is ``E(T) = sum_n Phi'(T, t_n) e_n``;
+   with the invariants held (the feedback) the propagated local errors add up
+   as a phase error, linearly in ``t``, so ``E(T) <= T C dt^p`` and
+   ``dt_0 = (1/(T C))^{1/p}``.  This is an upper bound, and a loose one: it
+   takes the largest local error of a short pilot for the average along the
+   run (Kepler's pericentre passages, Suslov's transient before the motion
+   settles), and assumes no decay of the propagated errors.  Measured over
+   ``[0, 1e3]`` it made the error 3e-4 to 0.6 times ``rtol`` (up to 7x too
+   many RK4 steps);
+5. **the check** (:func:`_check_plan`, :func:`_global_check`): the scheme itself -- the split step,
+   compiled -- is run at a coarse step ``H``, at ``H/2`` and ``H/4`` over the *whole* horizon, and the
+   Richardson error ``|y_{H/2} - y_{H/4}| / (1 - 2^{-p})`` is compared at up to
+   :data:`CHECK_SAMPLES` common times.  ``H`` is the asymptotic one (relative error
+   :data:`CHECK_ERROR` by the local model) when the three runs cost at most :data:`CHECK_BUDGET` of
+   the run (or :data:`CHECK_FLOOR` evaluations), else the finest the budget affords.  Trusted when
+   halving divides the difference by ``>= 2^{p-1}``: then ``dt = H (TARGET / E)^{1/p}``, at most
+   :data:`CHECK_GROWTH` ``H`` (a capping check is repeated 4x coarser, :data:`CHECK_WIDEN`).  An
+   untrusted check is halved while :data:`CHECK_TRIES_BUDGET` budgets allow; if still untrusted the
+   step comes from the conservative bound ``2^p max_t |y_{H/2} - y_{H/4}|``, never longer than the
+   local model's step (``info["conservative"]``).  A prefix extrapolated linearly is not safe: the
+   rattleback's error jumps 300x between t = 1 and t = 2;
+6. **the order** (``choose_order``, the default when no scheme is named): the
+   candidates of :data:`ORDER_CANDIDATES` (the tableau on ``X`` at orders 4,
+   6 and 8: :data:`liefi.schemes.rk.RK4`, Butcher's ``RK6``, DOP853's ``RK8``)
+   each get steps 1--4; the one with the fewest field evaluations ``stages x
+   T/dt_0`` runs (the local model's pessimism is the motion's, about the same
+   for every order, so it cancels in the comparison).
+
+The step aims at :data:`TARGET` ``rtol``.  It is then shortened while the stability guard finds that
+it does not resolve the unforced motion (:func:`resolved_step`), with the limit of
+:func:`resolution_limit`, derived from the tableau's stability polynomial and the tolerance (never
+below the guard's fixed 0.2; the step the check measured counts as resolved), and rounded down to
+``T/N``.  The table is ``benchmarks/rtol_table.py``.
 
 Why a fixed step rather than an embedded pair (Dormand--Prince 5(4),
 Bogacki--Shampine 3(2)) with the feedback after each accepted step: the
@@ -69,10 +89,34 @@ DEFAULT_SCHEME = "imex-rk4"
 DEFAULT_RTOL = 1e-6
 #: Steps of the pilot (each with a step-doubling error estimate).
 PILOT_STEPS = 24
+#: A component's error scale is at least this fraction of the largest size of its part.
+PART_FLOOR = 1e-2
+#: The schemes among which ``choose_order`` picks, by kind: the same method at orders 4, 6 and 8.
+ORDER_CANDIDATES = {"split": ("imex-rk4", "imex-rk6", "imex-rk8"), "explicit": ("rk4", "rk6", "rk8")}
 #: The first pilot step is the largest ``T / 4^k`` whose relative local error is below this.
 FIRST_ERROR = 1e-5
-#: The chosen step is this fraction of the step the estimate allows.
-SAFETY = 1.0
+#: The chosen step aims its estimated global error at this fraction of the tolerance (``solve_ivp``'s
+#: achieved error is of the order of ``rtol``; a default run's should not exceed it).
+TARGET = 1.0 / 3.0
+#: The check's coarse step has a relative error of at most this by the local model (asymptotic regime).
+CHECK_ERROR = 1e-3
+#: ... and is at most this many local-model steps.
+CHECK_COARSEST = 64.0
+#: The check's two runs cost at most this fraction of the run the local model predicts.
+CHECK_BUDGET = 0.25
+#: ... or at most this many field evaluations when that is more (a few milliseconds of compiled loop).
+CHECK_FLOOR = 3e5
+#: Common times at which the check's two runs are compared (at least; every coarse step up to this many
+#: steps): dense enough to catch a short transient where the error peaks.
+CHECK_SAMPLES = 4096
+#: A check whose two runs differ by more than this (relative) is not trusted (not asymptotic).
+CHECK_TRUST = 1e-2
+#: An untrusted check is repeated at half the coarse step while all its tries cost at most this many budgets.
+CHECK_TRIES_BUDGET = 4.0
+#: Times a trusted check that caps the step is repeated at a 4x coarser step.
+CHECK_WIDEN = 3
+#: The step is at most this many times the check's coarse step (where the error was measured).
+CHECK_GROWTH = 2.0
 
 
 def default_backend():
@@ -110,39 +154,48 @@ def _parts(fi):
     return [slice(a, b) for a, b in zip(cuts, cuts[1:]) if b > a]
 
 
-def choose_step(fi, sch, y0, t0, t_end, rtol, atol=None):
-    """``(dt, info)``: the fixed step for ``rtol``/``atol`` over ``[t0, t_end]`` (module docstring).
+def unforced_field(fi, Y, backend):
+    """``f(y)``: ``X`` at a batch ``y`` of shape ``(k, n)``, compiled when ``backend`` allows and the
+    system compiles (the split kernel's ``xrhs``, the one the run loads anyway), else numpy."""
+    if backend != "numpy" and Y.shape[0] == 1:
+        try:
+            import warnings
 
-    ``fi`` the integrator, ``sch`` a scheme of the registry (explicit or split),
-    ``y0`` the start (a batch: one step for every member, the most demanding).
-    ``info``: ``{"rtol", "atol", "order", "local_error_constant", "pilot_step",
-    "estimated_error"}`` (the estimated error relative to the tolerance).
+            from .engine.kernels import compile_split
+            from .engine.trace import NotCompilable
+
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                cf = compile_split(fi)
+                p = np.ascontiguousarray(fi.parameters(), dtype=float)
+                out = np.empty(fi.n)
+                cf._first_call("xrhs", "xrhs", np.ascontiguousarray(Y[0]), p, out)
+            xrhs = cf.module.xrhs
+
+            def f(y):
+                out = np.empty(fi.n)
+                xrhs(np.ascontiguousarray(y[0]), p, out)
+                return out[None]
+
+            return f
+        except (NotCompilable, ImportError, RuntimeError, AttributeError, TypeError, ValueError):
+            pass
+    return fi.unforced_vector_field
+
+
+def _local_estimate(fi, tab, Y, T, rtol, atol, f=None):
+    """``(C, h, mag)``: the local error constant of ``tab`` on ``X`` from the step-doubling pilot.
+
+    ``C`` the largest ``e / h^{p+1}`` over :data:`PILOT_STEPS` steps of ``h`` (steps 1--3 of the module
+    docstring), in the scaled norm; ``mag`` the componentwise largest ``|y|`` seen.  ``f``: ``X``
+    (default: numpy's, :func:`unforced_field`).
     """
-    rtol, atol = check_tolerance(rtol, atol)
-    tab = _tableau(sch)
     p = int(tab.order)
-    T = float(t_end) - float(t0)
-    Y = np.asarray(y0, float).reshape(-1, fi.n)
-    if atol.ndim and atol.shape[-1:] != (fi.n,):
-        raise ValueError(f"atol: expected a number or {fi.n} numbers {fi.names}, got shape {atol.shape}")
-
-    def f(y):
-        return fi.unforced_vector_field(y)
+    if f is None:
+        f = fi.unforced_vector_field
 
     with np.errstate(all="ignore"):
         mag = np.abs(Y)
-
-        parts = _parts(fi)
-
-        def size(m):
-            # each component's size, floored at the largest of its part (group element, x, momenta): a
-            # component that starts at zero is measured against its neighbours of the same units
-            floor = np.stack([np.max(m[..., sl], axis=-1) for sl in parts], -1)
-            idx = np.concatenate([np.full(sl.stop - sl.start, j) for j, sl in enumerate(parts)])
-            return np.maximum(np.maximum(m, floor[..., idx]), 1e-300)
-
-        def scale(m):
-            return atol + rtol * size(m)
 
         def first_error(hh):
             try:
@@ -152,7 +205,7 @@ def choose_step(fi, sch, y0, t0, t_end, rtol, atol=None):
                 # a trial step so long that its stages leave the data's domain (a singular metric or
                 # constraint there, e.g. a rolling body's stage far from the plane): too long, not an error
                 return math.inf
-            e = float(np.max(np.abs(y1 - yh) / size(np.maximum(mag, np.abs(yh)))))
+            e = float(np.max(np.abs(y1 - yh) / _size(fi, np.maximum(mag, np.abs(yh)))))
             return e if math.isfinite(e) else math.inf
 
         # the first pilot step: the largest T / 4^k in the asymptotic regime (its error small, and a quarter
@@ -176,10 +229,10 @@ def choose_step(fi, sch, y0, t0, t_end, rtol, atol=None):
                     break
                 m = np.maximum(m, np.abs(yh))
                 err = np.abs(y1 - yh) / (1.0 - 2.0 ** -p)
-                e = float(np.max(err / scale(m)))
+                e = float(np.max(err / (atol + rtol * _size(fi, m))))
                 if not math.isfinite(e):
                     break
-                big = max(big, float(np.max(err / (np.finfo(float).eps * size(m)))))
+                big = max(big, float(np.max(err / (np.finfo(float).eps * _size(fi, m)))))
                 c = max(c, e / h ** (p + 1))
                 y = yh
             if not math.isfinite(e):
@@ -188,44 +241,273 @@ def choose_step(fi, sch, y0, t0, t_end, rtol, atol=None):
             if big > 1e4 or h >= T:
                 break
             h = min(8.0 * h, T)
-        h = hC
+    return C, hC, mag
+
+
+def _size(fi, m):
+    """Each component's size ``m``, floored at :data:`PART_FLOOR` times the largest of its part (group
+    element, ``x``, momenta).
+
+    A component that stays near zero is measured against its neighbours of the same units, so that the
+    error scale never vanishes; a small component beside a large one (a position beside an angle that
+    winds up over the run) keeps its own scale.
+    """
+    parts = _parts(fi)
+    floor = np.stack([np.max(m[..., sl], axis=-1) for sl in parts], -1)
+    idx = np.concatenate([np.full(sl.stop - sl.start, j) for j, sl in enumerate(parts)])
+    return np.maximum(np.maximum(m, PART_FLOOR * floor[..., idx]), 1e-300)
+
+
+def _local_step(C, T, p, h):
+    """The step of the local model, ``(1 / (T C))^{1/p}`` (``T`` if ``X`` is exact at the pilot's step)."""
     if not (C > 0 and math.isfinite(C)):
-        dt_est = T  # X is (numerically) exact at any step here, e.g. a state at rest
+        return T  # X is (numerically) exact at any step here, e.g. a state at rest
+    return (1.0 / (max(T, h) * C)) ** (1.0 / p)
+
+
+def _check_plan(fi, sch, tab, y0, t0, T, dt0, rtol, atol, p, backend):
+    """The check of step 5 over the whole horizon, or ``None`` for a run of too few steps to protect.
+
+    The three runs cost at most :data:`CHECK_BUDGET` of the run ``dt0`` predicts, or
+    :data:`CHECK_FLOOR` field evaluations when that is more (the fixed cost of a run, a few
+    milliseconds, is not worth saving below it).  The coarse step is the asymptotic one (its relative
+    error :data:`CHECK_ERROR` by the local model, at most :data:`CHECK_COARSEST` ``dt0``) when the
+    budget affords it over ``[t0, T]``, else the finest the budget affords: the whole horizon is always
+    measured, so that an error that grows late in the run (the rattleback's spin reversal) is seen;
+    a check outside the asymptotic regime is repeated at half the step while all the tries cost at most
+    :data:`CHECK_TRIES_BUDGET` budgets, and the last gives the conservative bound.
+    """
+    if T / dt0 < 256:
+        return None
+    budget = max(CHECK_BUDGET * T / dt0, CHECK_FLOOR / max(1, int(getattr(sch, "stages", 1))))
+    H = dt0 * min(max(1.0, (CHECK_ERROR / rtol) ** (1.0 / p)), CHECK_COARSEST)
+    H = min(max(H, 7.0 * T / budget), T / 64)
+    spent, chk = 0.0, None
+    while spent + 7.0 * T / H <= CHECK_TRIES_BUDGET * budget or chk is None:
+        spent += 7.0 * T / H
+        chk = _global_check(fi, sch, y0, t0, T, H, T, rtol, atol, p, backend)
+        if chk is None or chk[4]:
+            break
+        H /= 2.0  # outside the asymptotic regime: halve the coarse step while the budget allows
+    return chk
+
+
+def _global_check(fi, sch, y0, t0, T, H, tau, rtol, atol, p, backend):
+    """The measured global error over ``[t0, t0 + tau]`` (step 5 of the module docstring), or ``None``.
+
+    Three runs of the scheme itself, at ``H``, ``H/2`` and ``H/4``, compared at up to
+    :data:`CHECK_SAMPLES` common times.  Returns ``(E, E_safe, H/2, tau, trusted)``, errors in units of
+    the tolerance at the horizon ``T``:
+
+    - ``E``: the run at ``H/2`` has the error ``|y_{H/2} - y_{H/4}| / (1 - 2^{-p})`` (Richardson),
+      ``E = max_t`` of it, times ``T / tau`` when ``tau < T`` (linear growth past the prefix);
+    - ``trusted``: the asymptotic regime, the difference at ``H`` at least ``2^{p-1}`` times the
+      difference at ``H/2`` (it is ``2^p`` there) and at most :data:`CHECK_TRUST` relative;
+    - ``E_safe``: without the asymptotic regime, the bound that assumes only that halving the step does
+      not increase the error, ``err(H/4) <= |y_{H/2} - y_{H/4}|``, expressed at ``H/2`` as
+      ``2^p max_t |y_{H/2} - y_{H/4}|`` (``T / tau`` as ``E``): scaled to a step by the order it is
+      conservative wherever the convergence is slower than ``p`` at ``H/4`` only because ``H`` is
+      outside the regime.
+    """
+    from .schemes.core import IntegrationError
+
+    n = max(64, int(math.ceil(tau / H)))
+    m = max(1, n // CHECK_SAMPLES)
+    n = m * int(math.ceil(n / m))
+    H = tau / n
+    kw = dict(scheme=sch.name, progress=False, check_stability=False, backend=backend, drop_exact=True)
+    try:
+        import warnings
+
+        with warnings.catch_warnings(), np.errstate(all="ignore"):
+            warnings.simplefilter("ignore")
+            ys = [np.moveaxis(np.asarray(fi.run((t0, t0 + tau), dt=H / k, save_every=k * m, y0=y0, **kw).y), -1, 0)
+                  for k in (1, 2, 4)]
+    except (IntegrationError, ArithmeticError, np.linalg.LinAlgError, ValueError, RuntimeError):
+        return None
+    if any(y.shape != ys[0].shape or not np.all(np.isfinite(y)) for y in ys):
+        return None
+    size = _size(fi, np.max(np.abs(ys[2]), axis=0))
+    d1 = float(np.max(np.abs(ys[0] - ys[2]) / size))
+    d2 = float(np.max(np.abs(ys[1] - ys[2]) / size))
+    diff = np.abs(ys[1] - ys[2]) / (atol + rtol * size)
+    E = float(np.max(diff)) / (1.0 - 2.0 ** -p) * (T / tau)
+    E_safe = float(np.max(diff)) * 2.0 ** p * (T / tau)
+    if not (math.isfinite(E) and math.isfinite(E_safe)):
+        return None
+    trusted = d1 <= CHECK_TRUST and not (d2 > 1e3 * np.finfo(float).eps and d1 < 2.0 ** (p - 1) * d2)
+    return E, E_safe, H / 2, tau, trusted
+
+
+def choose_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=None, choose_order=False):
+    """``(dt, info)``: the fixed step for ``rtol``/``atol`` over ``[t0, t_end]`` (module docstring).
+
+    ``fi`` the integrator, ``sch`` a scheme of the registry (explicit or split),
+    ``y0`` the start (a batch: one step for every member, the most demanding).
+    ``check``: measure the global error of the local model's step by the two short runs of step 5
+    (``backend`` as :meth:`liefi.FeedbackIntegrator.run`'s).  ``choose_order``: ``sch`` is only the
+    kind; the order is the one of :data:`ORDER_CANDIDATES` with the least predicted cost (step 6),
+    named by ``info["scheme"]``.
+    ``info``: ``{"rtol", "atol", "scheme", "order", "local_error_constant", "pilot_step",
+    "local_step", "check_step", "check_span", "check_error", "estimated_error"}`` (errors relative
+    to the tolerance; ``check_*`` ``None`` without the check).
+    """
+    rtol, atol = check_tolerance(rtol, atol)
+    tab = _tableau(sch)
+    p = int(tab.order)
+    T = float(t_end) - float(t0)
+    Y = np.asarray(y0, float).reshape(-1, fi.n)
+    if atol.ndim and atol.shape[-1:] != (fi.n,):
+        raise ValueError(f"atol: expected a number or {fi.n} numbers {fi.names}, got shape {atol.shape}")
+    backend = default_backend() if backend is None else backend
+    f = unforced_field(fi, Y, backend)
+    if choose_order:
+        sch, C, h, costs = _cheapest_order(fi, sch, Y, T, rtol, atol, f)
+        tab = _tableau(sch)
+        p = int(tab.order)
     else:
-        dt_est = SAFETY * (1.0 / (max(T, h) * C)) ** (1.0 / p)
-    dt_est = resolved_step(fi, tab, Y, min(dt_est, T))
+        C, h, _ = _local_estimate(fi, tab, Y, T, rtol, atol, f)
+        costs = None
+    dt_local = min(_local_step(C / TARGET, T, p, h), T)
+    dt_est, chk, safe = dt_local, None, False
+    if check and C > 0 and math.isfinite(C):
+        dt0, _ = resolved_step(fi, tab, Y, dt_local, T, rtol)
+        chk = _check_plan(fi, sch, tab, np.asarray(y0, float), float(t0), T, dt0, rtol, atol, p, backend)
+        for _ in range(CHECK_WIDEN):
+            # a trusted check that caps the step (the tolerance allows more than CHECK_GROWTH x its step):
+            # measure again at a 4x coarser step, cheaper, and keep it if it is still asymptotic
+            if not (chk is not None and chk[4] and chk[0] * CHECK_GROWTH ** p < TARGET):
+                break
+            wider = _global_check(fi, sch, np.asarray(y0, float), float(t0), T, 8.0 * chk[2], T, rtol, atol, p,
+                                  backend)
+            if wider is None or not wider[4]:
+                break
+            chk = wider
+        if chk is not None:
+            E, E_safe, H, _tau, trusted = chk
+            # the measured error at H scaled to the target by the order; never more than CHECK_GROWTH x H,
+            # where the error was not measured; without the asymptotic regime the conservative bound, and
+            # never longer than the local model's step
+            e = E if trusted else E_safe
+            dt_est = H * CHECK_GROWTH if e <= 0 else min(H * (TARGET / e) ** (1.0 / p), CHECK_GROWTH * H)
+            if not trusted:
+                dt_est, safe = min(dt_est, dt_local), True
+    measured = CHECK_GROWTH * chk[2] if chk is not None and chk[4] else None
+    dt_est, limit = resolved_step(fi, tab, Y, min(dt_est, T), T, rtol, measured)
     n = max(1, math.ceil(T / min(dt_est, T) - 1e-9))
     dt = T / n
+    if chk is None:
+        est = (T * C * dt ** p) if C > 0 else 0.0
+    else:
+        est = (chk[0] if chk[4] else chk[1]) * (dt / chk[2]) ** p
     info = {
         "rtol": rtol,
         "atol": float(atol) if atol.ndim == 0 else atol.tolist(),
+        "scheme": sch.name,
         "order": p,
         "pilot_step": h,
         "local_error_constant": C,
-        "estimated_error": (T * C * dt ** p) if C > 0 else 0.0,
+        "local_step": dt_local,
+        "check_step": None if chk is None else chk[2],
+        "check_span": None if chk is None else chk[3],
+        "check_error": None if chk is None else chk[0],
+        "check_trusted": None if chk is None else bool(chk[4]),
+        "conservative": safe,
+        "resolution_limit": limit,
+        "estimated_error": est,
     }
+    if costs is not None:
+        info["predicted_cost"] = costs
     return dt, info
 
 
-def resolved_step(fi, tab, Y, dt):
-    """``dt``, shortened until it resolves the unforced motion (the stability guard's test).
+def _cheapest_order(fi, sch, Y, T, rtol, atol, f=None):
+    """``(scheme, C, h, costs)``: the candidate of ``sch``'s kind with the least predicted cost.
 
-    The guard (:func:`liefi.stability.estimate`) warns past ``dt omega >``
-    :data:`~liefi.stability.RESOLUTION_LIMIT` and refuses when the tableau
-    amplifies the unforced motion by more than :data:`~liefi.stability.GROWTH_LIMIT`
-    a step; a step chosen for a loose tolerance on a motion the tableau
-    integrates (nearly) exactly would otherwise cross them.
+    The cost of a candidate is its evaluations per step (:attr:`stages`) times ``T / dt`` at the step of
+    its local model (:func:`_local_estimate`, :func:`resolved_step`): the local model's pessimism is
+    about the same for every order (it is the motion's, step 4), so it cancels in the comparison.
+    ``costs`` maps each candidate's name to its predicted evaluations.
+    """
+    from .schemes import registry as _registry
+
+    names = ORDER_CANDIDATES.get(sch.kind, ())
+    if sch.name not in names:
+        C, h, _ = _local_estimate(fi, _tableau(sch), Y, T, rtol, atol, f)
+        return sch, C, h, None
+    best, costs = None, {}
+    for name in names:
+        cand = _registry.get(name)
+        tab = _tableau(cand)
+        C, h, _ = _local_estimate(fi, tab, Y, T, rtol, atol, f)
+        dt, _ = resolved_step(fi, tab, Y, min(_local_step(C / TARGET, T, int(tab.order), h), T), T, rtol)
+        costs[name] = cand.stages * math.ceil(T / dt - 1e-9)
+        if best is None or costs[name] < best[0]:
+            best = (costs[name], cand, C, h)
+    return best[1], best[2], best[3], costs
+
+
+def resolution_limit(tab, T, omega, rtol, target=None):
+    r"""The largest ``theta = dt omega`` at which ``tab`` keeps a mode of frequency ``omega`` within the tolerance.
+
+    The unforced motion linearized about the trajectory has modes ``exp(mu t)``, ``|mu| <= omega``
+    (the spectral radius of ``dX/dy``); the tableau steps each by its stability polynomial ``R(dt mu)``.
+    Its relative error per step is ``|R(z) e^{-z} - 1|``, ``z = dt mu``, about ``c |z|^{p+1}``; over the
+    ``T / dt`` steps of the run the errors add up (a phase error, linear in ``t``), so the run keeps
+    the mode within ``target rtol`` (relative) when
+
+    .. math:: \frac{T \omega}{\theta} \max_{z \in \{i\theta, \theta, -\theta\}} |R(z) e^{-z} - 1|
+              \le \mathrm{target}\, \mathrm{rtol}
+
+    (a rotation, ``mu = i omega``, and its real analogue, a mode growing or decaying at ``omega``).  The
+    largest ``theta`` below the first crossing, on a grid of ``theta`` in ``[1e-4, 4]`` (``1e-4`` if the
+    grid's first point fails: a tolerance below what the mode allows at any reasonable step).  A higher
+    order allows a longer step at the same tolerance, and a looser tolerance a longer step: the guard's
+    fixed ``dt omega <= 0.2`` (:data:`liefi.stability.RESOLUTION_LIMIT`) ignores both.  ``target``:
+    default :data:`TARGET`.
+    """
+    target = TARGET if target is None else target
+    if not (omega > 0 and math.isfinite(omega) and T > 0):
+        return math.inf
+    th = np.geomspace(1e-4, 4.0, 600)
+    with np.errstate(all="ignore"):
+        err = np.zeros_like(th)
+        for z in (1j * th, th + 0j, -th + 0j):
+            err = np.maximum(err, np.abs(tab.stability_function(z) * np.exp(-z) - 1.0))
+        ok = (T * omega / th) * err <= target * rtol
+    bad = np.nonzero(~ok)[0]
+    if bad.size == 0:
+        return float(th[-1])
+    return float(th[max(bad[0] - 1, 0)])
+
+
+def resolved_step(fi, tab, Y, dt, T=None, rtol=None, measured=None):
+    """``(dt, limit)``: ``dt`` shortened until it resolves the unforced motion (the stability guard's test).
+
+    The guard (:func:`liefi.stability.estimate`) warns past ``dt omega > limit`` and refuses when the
+    tableau amplifies the unforced motion by more than :data:`~liefi.stability.GROWTH_LIMIT` a step.
+    ``limit``: :func:`resolution_limit` for the horizon ``T`` and ``rtol`` when both are given (the run
+    passes it to the guard), else :data:`~liefi.stability.RESOLUTION_LIMIT`.  ``measured``: a step at
+    which the run's global error was measured in the asymptotic regime (the check): up to it the motion
+    is resolved by measurement, whatever the bound.
     """
     from .stability import RESOLUTION_LIMIT, estimate
 
+    limit = RESOLUTION_LIMIT
     for _ in range(60):
         with np.errstate(all="ignore"):
             est = estimate(fi, dt, tab, y0=Y.reshape(fi.batch + (fi.n,)) if fi.batch else Y[0])
-        if not (est.under_resolved or est.unresolvable):
+        if T is not None and rtol is not None and est.rate > 0:
+            # never below the guard's fixed limit: shortening the step for accuracy is the measured error's
+            # job (the bound takes the fastest rate as lasting the whole run: Kepler's pericentre does not)
+            limit = max(resolution_limit(tab, T, est.rate / dt, rtol), RESOLUTION_LIMIT)
+            if measured:
+                limit = max(limit, est.rate / dt * measured)
+        if not (est.rate > limit or est.unresolvable):
             break
         # the rate scales with dt: straight to just inside its limit; past the growth limit 0.8x a time
-        dt *= 0.8 if est.unresolvable or not est.rate > 0 else min(0.98, 0.98 * RESOLUTION_LIMIT / est.rate)
-    return dt
+        dt *= 0.8 if est.unresolvable or not est.rate > 0 else min(0.98, 0.98 * limit / est.rate)
+    return dt, limit
 
 
 def describe(scheme, dt, gains_mode, backend, *, chosen=None, scheme_given=False, dt_given=False):
@@ -237,14 +519,22 @@ def describe(scheme, dt, gains_mode, backend, *, chosen=None, scheme_given=False
     if scheme_given:
         parts.append(f"scheme {scheme}")
     else:
-        parts.append(f"scheme {scheme} by default (RK4 on X plus one feedback step: the invariants at rounding)")
+        parts.append(f"scheme {scheme} by default (the tableau on X plus one feedback step: the invariants at "
+                     "rounding)")
     if gains_mode == "auto":
         parts.append("gains 'auto' (chosen for accuracy from the scheme, the step and the horizon)")
     else:
         parts.append("fixed gains as asked")
     if chosen is not None:
+        how = ("checked by two short runs at a coarse step" if chosen.get("check_error") is not None
+               else "global error ~ T C dt^p")
+        if chosen.get("conservative"):
+            how = ("the check's runs were not in the asymptotic regime within its budget: the conservative bound "
+                   "2^p |y_{H/2} - y_{H/4}|, a shorter step than the estimate's")
+        order = (f"; order {chosen['order']} the cheapest of {', '.join(chosen['predicted_cost'])} by predicted "
+                 "evaluations" if chosen.get("predicted_cost") else "")
         parts.append(f"dt {dt:.6g} chosen for rtol {chosen['rtol']:g} (a step-doubling pilot of the order-"
-                     f"{chosen['order']} tableau on X, global error ~ T C dt^{chosen['order']})")
+                     f"{chosen['order']} tableau on X, {how}{order})")
     elif dt_given:
         parts.append(f"dt {dt:.6g} as asked")
     parts.append(f"backend {backend}")

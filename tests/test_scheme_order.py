@@ -12,6 +12,8 @@ the order.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 from scipy.linalg import expm
@@ -27,6 +29,11 @@ def _slope(dts, errs):
     return np.polyfit(np.log(dts), np.log(errs), 1)[0]
 
 
+#: Steps per unit time, by order: coarse enough for the high orders to stay above rounding.
+LINEAR_STEPS = {6: [4, 6, 8, 12], 8: [2, 3, 4, 6]}
+SUSLOV_STEPS = {6: [8, 12, 16, 24], 8: [4, 6, 8, 12]}
+
+
 # ------------------------------------------------------------------------ linear ODE
 A_LIN = np.array([[-0.3, 1.0, 0.2], [-1.0, -0.1, 0.5], [0.1, -0.4, -0.2]])
 Y0_LIN = np.array([1.0, -0.5, 0.3])
@@ -37,7 +44,7 @@ def test_order_on_linear_ode(name):
     """``y' = A y``: error at ``t = 1`` ~ ``dt^order``."""
     sch = SCHEMES[name]
     exact = expm(A_LIN) @ Y0_LIN
-    Ns = [16, 32, 64, 128]
+    Ns = LINEAR_STEPS.get(sch.order, [16, 32, 64, 128])
     errs = [np.linalg.norm(integrate(lambda y: y @ A_LIN.T, Y0_LIN, 1.0 / N, N, sch).y[..., -1] - exact) for N in Ns]
     slope = _slope([1.0 / N for N in Ns], errs)
     assert abs(slope - sch.order) < 0.2, (name, slope, errs)
@@ -71,7 +78,7 @@ def test_order_on_suslov_feedback_integrator(name):
     ``Pi(1)`` against the exact solution ~ ``dt^order``."""
     sch = SCHEMES[name]
     fi = suslov_feedback()
-    Ns = [20, 40, 80, 160]
+    Ns = SUSLOV_STEPS.get(sch.order, [20, 40, 80, 160])
     errs = []
     for N in Ns:
         y = integrate(fi.vector_field, fi.y0, 1.0 / N, N, sch).y[..., -1]
@@ -145,7 +152,13 @@ def test_stability_polynomial_at_real_stability_bound(name):
     assert R(-beta * 1.001)[0] > 1.0
     z = np.array([0.3, -0.7 + 0.2j, 1.1j])
     taylor = sum(z**k / np.prod(np.arange(1, k + 1)) for k in range(sch.order + 1))
-    np.testing.assert_allclose(sch.stability_polynomial(z), taylor, rtol=1e-14)
+    if sch.stages == sch.order:
+        np.testing.assert_allclose(sch.stability_polynomial(z), taylor, rtol=1e-14)
+    else:  # more stages than the order (rk6, rk8): R agrees with e^z up to z^order
+        coef = sch.stability_coefficients[::-1]
+        np.testing.assert_allclose(coef[: sch.order + 1], [1 / math.factorial(k) for k in range(sch.order + 1)],
+                                   rtol=1e-12)
+        np.testing.assert_allclose(sch.stability_polynomial(z), sch.stability_function(z), rtol=1e-12)
 
 
 # ------------------------------------------------------------------------ the registry
@@ -176,8 +189,8 @@ def test_declared_order_is_that_of_the_stability_polynomial(name):
 
 
 def test_registry_get_and_names():
-    assert registry.names("explicit") == ["euler", "heun", "midpoint", "rk3", "rk4"]
-    assert registry.names("split") == ["imex-euler", "imex-heun", "imex-rk4"]
+    assert registry.names("explicit") == ["euler", "heun", "midpoint", "rk3", "rk4", "rk6", "rk8"]
+    assert registry.names("split") == ["imex-euler", "imex-heun", "imex-rk4", "imex-rk6", "imex-rk8"]
     assert registry.names("dla") == ["dla"]
     assert registry.names("scipy") == [f"scipy:{m}" for m in ("RK23", "RK45", "DOP853", "Radau", "BDF", "LSODA")]
     assert registry.get("RK4") is registry.get("rk4")
@@ -213,3 +226,37 @@ def test_errors_pickle_with_their_fields():
         assert type(e2) is cls and str(e2) == "boom at t=1"
         assert (e2.t, e2.step, e2.components) == (1.5, 7, ["J_1"])
         np.testing.assert_array_equal(e2.y, e.y)
+
+
+# ------------------------------------------------------------------------ the high-order tableaux
+def test_rk8_is_the_tableau_of_scipys_dop853():
+    """``RK8`` is the 12-stage order-8 tableau that ``solve_ivp(method="DOP853")`` steps with."""
+    from scipy.integrate._ivp import dop853_coefficients as d
+
+    from liefi.schemes import RK8
+
+    A = np.zeros((12, 12))
+    for i, row in enumerate(RK8.A):
+        A[i, : len(row)] = row
+    np.testing.assert_allclose(A, d.A[:12, :12], rtol=1e-15, atol=1e-16)
+    np.testing.assert_allclose(RK8.b, d.B, rtol=1e-15, atol=1e-16)
+    np.testing.assert_allclose(RK8.c, d.C[:12], rtol=1e-15, atol=1e-16)
+
+
+@pytest.mark.parametrize("name", ["rk6", "rk8"])
+def test_high_order_split_schemes_run_compiled_at_their_order(name):
+    """``imex-rk6``/``imex-rk8`` run compiled and match their numpy steps, and converge at their order
+    on the rigid body (the feedback step keeps the invariants; the error is the tableau's on ``X``)."""
+    from liefi import scenes
+
+    sc = scenes.get("rigid-body")
+    fi = sc.integrator(sc.variant(None), gains={"penalty": 1.0, "energy": 1.0, "casimir": 1.0})
+    ref = fi.run(2.0, dt=2.0 / 256, scheme="imex-rk8", backend="auto", check_stability=False).y[..., -1]
+    errs, Ns = [], [8, 12, 16]
+    for N in Ns:
+        a = fi.run(2.0, dt=2.0 / N, scheme=f"imex-{name}", backend="auto", check_stability=False)
+        b = fi.run(2.0, dt=2.0 / N, scheme=f"imex-{name}", backend="numpy", check_stability=False)
+        assert a.method["backend"] != "numpy"
+        np.testing.assert_allclose(a.y, b.y, rtol=1e-11, atol=1e-12)
+        errs.append(np.max(np.abs(a.y[..., -1] - ref)))
+    assert abs(_slope([2.0 / N for N in Ns], errs) - int(name[2:])) < 0.5, errs

@@ -380,6 +380,7 @@ class Scene:
         max_saved=20000,
         rtol=None,
         atol=None,
+        choose_order=False,
         check_stability=True,
         adaptive=None,
         backend=None,
@@ -398,8 +399,9 @@ class Scene:
         ``backend``: ``"numpy"``, ``"numba"`` or ``"auto"`` (:mod:`liefi.engine`);
         default ``"auto"`` when numba is installed (``liefi[fast]``), else ``"numpy"``.
         ``rtol``/``atol`` without ``dt`` on a fixed-step scheme: the step is chosen for the
-        tolerance (:func:`liefi.tolerance.choose_step`) instead of the scene's; ``RunResult.method``
-        says which method ran and why.
+        tolerance (:func:`liefi.tolerance.choose_step`) instead of the scene's, and with
+        ``choose_order=True`` also the order (``imex-rk4``/``6``/``8`` for a split ``scheme``);
+        ``RunResult.method`` says which method ran and why.
         """
         import importlib.util
 
@@ -414,7 +416,9 @@ class Scene:
         fixed_step = scheme not in self.extra_schemes and not str(scheme).lower().startswith("scipy:")
         chosen = None
         if fixed_step and dt is None and (rtol is not None or atol is not None):
-            dt, chosen, fi = self._step_for_tolerance(v, scheme, gains, configuration, T, rtol, atol)
+            dt, chosen, fi = self._step_for_tolerance(v, scheme, gains, configuration, T, rtol, atol,
+                                                      choose_order)
+            scheme = chosen["scheme"]
         dt = positive_number(self.dt if dt is None else dt, "dt", "the step must be a positive number")
         if T / dt > 1e10:
             raise ValueError(
@@ -484,13 +488,16 @@ class Scene:
             result.method = method
         return result
 
-    def _step_for_tolerance(self, v, scheme, gains, configuration, T, rtol, atol):
+    def _step_for_tolerance(self, v, scheme, gains, configuration, T, rtol, atol, choose_order=False):
         """``(dt, info, fi)``: the fixed step of ``scheme`` for ``rtol``/``atol`` (:meth:`step_for_tolerance`)."""
-        dt, info = self.step_for_tolerance(v, scheme, T, rtol, atol, gains=gains, configuration=configuration)
+        dt, info = self.step_for_tolerance(v, scheme, T, rtol, atol, gains=gains, configuration=configuration,
+                                           choose_order=choose_order)
         return dt, info, self.integrator(v, gains=gains, configuration=configuration)
 
-    def step_for_tolerance(self, variant, scheme, t_final, rtol=None, atol=None, *, gains=None, configuration=None):
-        """``(dt, info)``: the step :meth:`run` takes for ``rtol``/``atol`` (:func:`liefi.tolerance.choose_step`).
+    def step_for_tolerance(self, variant, scheme, t_final, rtol=None, atol=None, *, gains=None, configuration=None,
+                           choose_order=False):
+        """``(dt, info)``: the step :meth:`run` takes for ``rtol``/``atol`` (:func:`liefi.tolerance.choose_step`;
+        with ``choose_order``, ``info["scheme"]`` is the order chosen among ``scheme``'s kind).
 
         Known before the run (``liefi run`` refuses a run of too many steps with it); kept on the
         scene for the same arguments, so that the run that follows does not repeat the pilot.
@@ -500,11 +507,13 @@ class Scene:
 
         v = self.variant(variant) if not isinstance(variant, Variant) else variant
         rtol = DEFAULT_RTOL if rtol is None else rtol
-        key = (v.name, str(scheme), repr(gains), configuration, float(t_final), repr(rtol), repr(atol))
+        key = (v.name, str(scheme), repr(gains), configuration, float(t_final), repr(rtol), repr(atol),
+               bool(choose_order))
         cache = self.__dict__.setdefault("_stepcache", {})
         if key not in cache:
             fi = self.integrator(v, gains=gains, configuration=configuration)
-            cache[key] = choose_step(fi, _fixed_step_scheme(scheme), fi.y0, 0.0, float(t_final), rtol, atol)
+            cache[key] = choose_step(fi, _fixed_step_scheme(scheme), fi.y0, 0.0, float(t_final), rtol, atol,
+                                     choose_order=choose_order)
         return cache[key]
 
     def _check_start(self, fi, v, rtol=1e-9):

@@ -23,7 +23,7 @@ from .core import (  # noqa: F401
     steps_for,
 )
 from .registry import REGISTRY, describe, get, names
-from .rk import EULER, HEUN, MIDPOINT, RK3, RK4, TABLEAUX, ExplicitRungeKutta
+from .rk import EULER, HEUN, MIDPOINT, RK3, RK4, RK6, RK8, TABLEAUX, ExplicitRungeKutta
 
 #: The explicit tableaux by name (the fixed-step schemes of the compiled engine).
 SCHEMES = {s.name: s for s in TABLEAUX}
@@ -41,6 +41,6 @@ def get_scheme(scheme):
 
 
 __all__ = [
-    "EULER", "HEUN", "MIDPOINT", "RK3", "RK4", "SCHEMES", "REGISTRY", "ExplicitRungeKutta", "IntegrationError",
+    "EULER", "HEUN", "MIDPOINT", "RK3", "RK4", "RK6", "RK8", "SCHEMES", "REGISTRY", "ExplicitRungeKutta", "IntegrationError",
     "Solution", "describe", "get", "get_scheme", "integrate", "names", "run_arguments", "steps_for",
 ]

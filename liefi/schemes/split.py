@@ -73,7 +73,7 @@ import numpy as np
 
 from .. import _diff
 from ..reduction import core as _core
-from .rk import EULER, HEUN, RK4, ExplicitRungeKutta
+from .rk import EULER, HEUN, RK4, RK6, RK8, ExplicitRungeKutta
 
 
 @dataclass(frozen=True)
@@ -244,6 +244,8 @@ SPLIT_SCHEMES = {
         LinearlyImplicitSplit("imex-euler", EULER),
         LinearlyImplicitSplit("imex-heun", HEUN),
         LinearlyImplicitSplit("imex-rk4", RK4),
+        LinearlyImplicitSplit("imex-rk6", RK6),
+        LinearlyImplicitSplit("imex-rk8", RK8),
     )
 }
 
