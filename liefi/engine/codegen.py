@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-from .trace import _BINARY, _UNARY, as_sym
+from .symbolic import _BINARY, _UNARY, as_sym
 
 def _literal(v):
     if v != v:
