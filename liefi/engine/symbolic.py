@@ -57,6 +57,7 @@ class _Graph:
     def __init__(self):
         self.table = {}
         self.nodes = []
+        self.forms = {}  # node id -> its polynomial form (:func:`_form`)
 
     def node(self, op, args, value=None):
         key = (op, args if op != "const" else value.hex())
@@ -335,7 +336,7 @@ def add(a, b):
         return sub(a, b.args[0]) if b.op == "neg" else sub(b, a.args[0])
     if a.id > b.id:  # a + b == b + a exactly: one canonical order shares more nodes
         a, b = b, a
-    return _graph().node("add", (a, b))
+    return _sum_node("add", a, b)
 
 
 def sub(a, b):
@@ -353,7 +354,7 @@ def sub(a, b):
         return add(a, b.args[0])
     if a.op == "neg":
         return unary("neg", add(a.args[0], b))
-    return _graph().node("sub", (a, b))
+    return _sum_node("sub", a, b)
 
 
 def mul(a, b):
@@ -408,6 +409,198 @@ def power(a, b):
         if b.value == -1.0:
             return div(1.0, a)
     return _graph().node("pow", (a, b))
+
+
+# --- exact algebra on sums: cancellation and sin^2 + cos^2 -----------------------------
+#
+# Every node has a *polynomial form*: ``{monomial: coefficient}``, a monomial being the
+# sorted tuple of the ids of its *atoms* (inputs, transcendental functions, divisions
+# by non-constants, and nodes whose form would pass the caps below).  A sum whose
+# operands' forms cancel -- a monomial's coefficients add to zero, as in
+# ``(2 b - c) + (c - b)`` or ``P.(I^{-1} P)/2 - J^2/2`` for a metric and a constraint
+# that share terms -- or hold ``m sin(x)^2 + m cos(x)^2`` is rebuilt from its reduced
+# form, when that costs no more operations than the sum as traced.  The reduced form
+# is the same function in exact arithmetic, evaluated with fewer roundings: a
+# monomial is dropped when its coefficients cancel to within ``4 u (|c_1| + |c_2|)``
+# (the rounding of the coefficients themselves, ``u`` the unit roundoff), and
+# ``sin^2 + cos^2`` differs from 1 by a few units of rounding.  The forms are bounded
+# (:data:`FORM_TERMS`, :data:`FORM_DEGREE`), so tracing stays linear in the graph.
+
+#: the most monomials of a node's form; a larger node is an atom of the forms above it
+FORM_TERMS = 12
+#: the highest degree of a monomial of a form
+FORM_DEGREE = 4
+_CANCEL = 4.0 * np.finfo(float).eps
+
+
+def _atom(node):
+    return {(node.id,): 1.0}
+
+
+def _scaled(f, c):
+    return {m: c * v for m, v in f.items()} if c != 1.0 else f
+
+
+def _form(node):
+    """The polynomial form of ``node`` (memoized per graph)."""
+    g = _graph()
+    f = g.forms.get(node.id)
+    if f is not None:
+        return f
+    op = node.op
+    if op == "const":
+        f = {(): node.value} if node.value != 0.0 else {}
+    elif op == "neg":
+        f = _scaled(_form(node.args[0]), -1.0)
+    elif op in ("add", "sub"):
+        f, _ = _combine(_form(node.args[0]), _form(node.args[1]), 1.0 if op == "add" else -1.0)
+    elif op == "mul":
+        f = _product(*node.args)
+        if f is None:
+            f = _atom(node)
+    elif op == "div" and node.args[1].op == "const" and node.args[1].value != 0.0:
+        f = _scaled(_form(node.args[0]), 1.0 / node.args[1].value)
+    else:
+        f = _atom(node)
+    if len(f) > FORM_TERMS:
+        f = _atom(node)
+    g.forms[node.id] = f
+    return f
+
+
+def _product(a, b):
+    if a.op == "const":
+        return _scaled(_form(b), a.value)
+    if b.op == "const":
+        return _scaled(_form(a), b.value)
+    fa, fb = _form(a), _form(b)
+    if len(fa) * len(fb) > FORM_TERMS:
+        return None  # too large: an atom
+    out = {}
+    for ma, ca in fa.items():
+        for mb, cb in fb.items():
+            m = tuple(sorted(ma + mb))
+            if len(m) > FORM_DEGREE:
+                return None
+            out[m] = out.get(m, 0.0) + ca * cb
+    return out
+
+
+def _accumulate(out, m, c):
+    """``out[m] += c``; True when the coefficients cancel (the monomial is then dropped)."""
+    old = out.get(m)
+    if old is None:
+        out[m] = c
+        return False
+    s = old + c
+    if abs(s) <= _CANCEL * (abs(old) + abs(c)):
+        del out[m]
+        return True
+    out[m] = s
+    return False
+
+
+def _combine(fa, fb, sign):
+    """``fa + sign fb`` reduced, and whether anything cancelled (or ``sin^2 + cos^2`` met).
+
+    Both forms are reduced already, so a pair ``sin^2, cos^2`` has a monomial of ``fb`` in it."""
+    out = dict(fa)
+    reduced = False
+    squares = []
+    for m, c in fb.items():
+        reduced |= _accumulate(out, m, sign * c)
+        if any(m[i] == m[i + 1] for i in range(len(m) - 1)):
+            squares.append(m)
+    return out, (_pythagoras(out, squares) if squares and fa else False) or reduced
+
+
+_PARTNER = {"sin": "cos", "cos": "sin"}
+
+
+def _pythagoras(f, squares):
+    """Replace ``c m sin(x)^2 + c m cos(x)^2`` by ``c m`` in the form ``f`` (in place), for the
+    monomials ``squares`` of ``f``; True if any."""
+    g = _graph()
+    changed = False
+    for m in squares:
+        if m not in f:
+            continue
+        for i in range(len(m) - 1):
+            if m[i] != m[i + 1]:
+                continue
+            s = g.nodes[m[i]]
+            other = _PARTNER.get(s.op)
+            co = None if other is None else g.table.get((other, s.args))
+            if co is None:
+                continue
+            rest = m[:i] + m[i + 2:]
+            mc = tuple(sorted(rest + (co.id, co.id)))
+            c, cc = f[m], f.get(mc)
+            if cc is None or abs(c - cc) > _CANCEL * (abs(c) + abs(cc)):
+                continue
+            del f[m], f[mc]
+            _accumulate(f, rest, 0.5 * (c + cc))
+            changed = True
+            break
+    return changed
+
+
+def _traced_cost(roots, atoms):
+    """Operations of the graph below ``roots`` down to ``atoms`` (ids) and constants."""
+    seen, stack = set(), list(roots)
+    while stack:
+        n = stack.pop()
+        if n.id in seen or n.id in atoms or n.op in ("const", "var"):
+            continue
+        seen.add(n.id)
+        stack.extend(n.args)
+    return len(seen) + 1
+
+
+def _form_cost(f):
+    coeffs = {abs(c) for m, c in f.items() if m}
+    return (sum(max(len(m) - 1, 0) for m in f) + max(len(f) - 1, 0)
+            + len(coeffs - {1.0}) + max(len(coeffs) - 1, 0))
+
+
+def _monomial(m):
+    g = _graph()
+    if not m:
+        return const(1.0)
+    t = g.nodes[m[0]]
+    for i in m[1:]:
+        t = mul(t, g.nodes[i])
+    return t
+
+
+def _rebuild(f):
+    """A node computing the form ``f``: per coefficient ``c``, ``c (sum of its monomials)``."""
+    groups = {}
+    for m, c in f.items():
+        groups.setdefault(abs(c), []).append((c, m))
+    total = const(0.0)
+    for c, terms in groups.items():
+        plus = minus = const(0.0)
+        for ci, m in terms:
+            if ci > 0:
+                plus = add(plus, _monomial(m))
+            else:
+                minus = add(minus, _monomial(m))
+        total = add(total, mul(c, sub(plus, minus)))
+    return total
+
+
+def _sum_node(op, a, b):
+    """The node ``a + b`` or ``a - b``, or its reduced form when the operands' forms cancel."""
+    fa, fb = _form(a), _form(b)
+    f, reduced = _combine(fa, fb, 1.0 if op == "add" else -1.0)
+    if reduced:
+        atoms = {i for m in list(fa) + list(fb) for i in m}
+        if _form_cost(f) <= _traced_cost((a, b), atoms):
+            return _rebuild(f)
+    node = _graph().node(op, (a, b))
+    _graph().forms.setdefault(node.id, f if len(f) <= FORM_TERMS else _atom(node))
+    return node
 
 
 _BIN_FUN = {"add": add, "sub": sub, "mul": mul, "div": div, "pow": power}
