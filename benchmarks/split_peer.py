@@ -274,7 +274,8 @@ def liefi_run(fi, t_final, dt, save_every, guard):
     return sol.cpu_seconds, sol.y
 
 
-#: the hand kernel's last outputs, kept alive so that the allocator cannot hand their pages back
+#: the hand kernel's outputs of one :func:`measure`, kept alive so that the allocator cannot hand their
+#: pages back (up to ``2 repeat + 2`` buffers)
 _KEPT = []
 
 
@@ -283,12 +284,12 @@ def hand_run(run, y0, dt, n, save_every):
 
     liefi's loop writes into a fresh ``np.empty`` buffer allocated just before its clock starts, so a run
     that saves every step pays the first touch of every page of it (about 10 ns per step of 12 numbers);
-    the hand kernel gets the same: a fresh, untouched buffer (the previous ones kept alive, so that it is
+    the hand kernel gets the same: a fresh, untouched buffer (the earlier ones kept alive, so that it is
     not memory already touched by an earlier repeat).  Both clocks then time the same work.
     """
     ns = n // save_every + 1 + (1 if n % save_every else 0)
     out = np.empty((12, ns))
-    _KEPT[:] = _KEPT[-2:] + [out]
+    _KEPT.append(out)
     c = time.process_time()
     run(y0, dt, n, save_every, out)
     return time.process_time() - c, out
@@ -301,6 +302,7 @@ def measure(scene, name, dt, t_final, save_every, repeat):
     n = int(round(t_final / dt))
     se = n if save_every is None else save_every
     run, names = hand_kernel(name, fi, dt, t_final)
+    _KEPT.clear()
     # warm up both (compile / load), and check they take the same step
     short = min(n, 1000)
     _, yl = liefi_run(fi, short * dt, dt, 1, False)
@@ -314,6 +316,7 @@ def measure(scene, name, dt, t_final, save_every, repeat):
         best["hand"] = min(best["hand"], hand_run(run, fi.y0, dt, n, se)[0])
     _, yl = liefi_run(fi, t_final, dt, se, False)
     _, yh = hand_run(run, fi.y0, dt, n, se)
+    _KEPT.clear()
     return {
         "scene": scene, "peer": name, "invariants": names, "dt": dt, "t_final": t_final, "steps": n, "save_every": se,
         "hand_ns_per_step": 1e9 * best["hand"] / n,
