@@ -316,10 +316,10 @@ def _is_const(a, v=None):
 
 
 def _folded(a, b, ufunc):
-    """The constant ``ufunc(a, b)`` when both are constants (numpy's float semantics), else ``None``."""
+    """The constant ``ufunc(a, b)`` when both are constants (numpy's float semantics: the tracing
+    session ignores floating-point errors for its duration), else ``None``."""
     if a.op == "const" and b.op == "const":
-        with np.errstate(all="ignore"):
-            return const(ufunc(np.float64(a.value), np.float64(b.value)))
+        return const(ufunc(np.float64(a.value), np.float64(b.value)))
     return None
 
 
@@ -508,8 +508,11 @@ def _combine(fa, fb, sign):
     reduced = False
     squares = []
     for m, c in fb.items():
-        reduced |= _accumulate(out, m, sign * c)
-        if any(m[i] == m[i + 1] for i in range(len(m) - 1)):
+        if m in out:
+            reduced |= _accumulate(out, m, sign * c)
+        else:
+            out[m] = sign * c
+        if len(m) > 1 and len(set(m)) < len(m):
             squares.append(m)
     return out, (_pythagoras(out, squares) if squares and fa else False) or reduced
 
