@@ -112,7 +112,10 @@ def test_scalar_loops_take_the_array_loops_steps_bit_for_bit(split):
         assert np.array_equal(o1, o2) and np.array_equal(l1, l2)
 
 
-def test_scalar_loop_stops_at_the_first_non_finite_state_like_the_array_loop():
+@pytest.mark.parametrize("check_every", [1, 3])
+def test_scalar_loop_stops_at_the_first_non_finite_state_like_the_array_loop(check_every):
+    """Same failing step, last good step and last good state (the scalar loop keeps the previous state in
+    registers instead of storing it every step)."""
     sc = scenes.get("suslov")
     fi = sc.integrator(None, configuration=True)
     cf, mod = _module(fi, False)
@@ -122,10 +125,11 @@ def test_scalar_loop_stops_at_the_first_non_finite_state_like_the_array_loop():
     for loop in (mod.run_euler, _old_loop(mod, "run_euler_old", SCHEMES["euler"], fi.n, False)):
         out, bad, last = np.empty((fi.n, 11)), np.empty(fi.n), np.empty(fi.n)
         with np.errstate(all="ignore"):
-            r = loop(y0, fi.parameters(), 1.0, 10, 1, 1, out, bad, last, np.zeros(1), 0, 0.0)
-        res.append((tuple(r), last.copy()))
+            r = loop(y0, fi.parameters(), 1.0, 10, 1, check_every, out, bad, last, np.zeros(1), 0, 0.0)
+        res.append((tuple(r), last.copy(), bad.copy()))
     assert res[0][0] == res[1][0] and res[0][0][0] > 0
-    assert np.array_equal(res[0][1], res[1][1])
+    assert np.array_equal(res[0][1], res[1][1]) and np.all(np.isfinite(res[0][1]))
+    assert np.array_equal(res[0][2], res[1][2], equal_nan=True)
 
 
 def test_scalar_loop_reads_parameters_once_and_takes_no_modulo():

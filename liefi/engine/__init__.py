@@ -13,7 +13,10 @@ is no second copy of any formula: a change to the core changes both backends
 :mod:`liefi.engine.kernels`.
 
 The compiled and numpy paths agree to ``1e-12``: the formulas are the same,
-only the order of a few floating-point sums differs.  Without numba the
+only the order of a few floating-point sums differs, and sums that cancel in
+exact arithmetic (``(2 b - c) + (c - b) = b``, ``m sin^2 x + m cos^2 x = m``)
+are computed in their reduced form, with fewer roundings
+(:mod:`liefi.engine.symbolic`).  Without numba the
 generated code still runs as plain Python (``engine="python"``, slow: for
 debugging and tests); ``FeedbackIntegrator.run(backend="numba"/"auto")`` then
 warns (:class:`CompilationWarning`) and runs the numpy path, as it does for an
@@ -23,7 +26,9 @@ full disk) is not such a failure: the kernel is compiled in memory.
 
 Modules
 -------
-trace    -- :class:`Sym` scalars, tracing sessions, symbolic derivatives, :class:`TracedData`
+symbolic -- :class:`Sym` scalars: constant folding, exact sign rules, sharing, the exact algebra on sums,
+            symbolic derivatives
+trace    -- tracing sessions, traced solves, :class:`TracedData`
 codegen  -- straight-line source of a graph; the stepping, projection and DLA loops
 cache    -- the private kernel directory, loading, healing corrupt entries
 numba_cache -- numba's cache files of the kernels: in that directory only, signed and checked

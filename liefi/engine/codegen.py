@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-from .trace import _BINARY, _UNARY, as_sym
+from .symbolic import _BINARY, _UNARY, as_sym
 
 def _literal(v):
     if v != v:
@@ -181,10 +181,28 @@ def _step_source(scheme, N, rhs="rhs"):
         L.append(f"        for i in range({N}):")
         L.append(f"            yi[i] = y[i] + {terms}")
         L.append(f"        {rhs}(yi, p, k{i})")
-    terms = " + ".join(f"cb{j} * k{j}[i]" for j, b in enumerate(scheme.b) if b)
     L.append(f"        for i in range({N}):")
-    L.append(f"            y[i] = y[i] + {terms}")
+    L.append("            y[i] = y[i] + " + _update_terms(scheme, lambda j: f"k{j}[i]"))
     return L
+
+
+def _b_groups(scheme):
+    """The nonzero weights ``b_j`` grouped by value, in order of first appearance: ``[(b, [j, ...]), ...]``."""
+    groups = {}
+    for j, b in enumerate(scheme.b):
+        if b:
+            groups.setdefault(float(b), []).append(j)
+    return list(groups.items())
+
+
+def _update_terms(scheme, k):
+    """``cb0 * (k0 + k3) + cb1 * (k1 + k2)``: the update ``dt sum_j b_j k_j`` with equal weights summed
+    before their one multiplication (RK4: 2 products per component instead of 4)."""
+    out = []
+    for _, js in _b_groups(scheme):
+        ks = " + ".join(k(j) for j in js)
+        out.append(f"cb{js[0]} * " + (f"({ks})" if len(js) > 1 else ks))
+    return " + ".join(out)
 
 
 def _coeff_source(scheme):
@@ -193,9 +211,8 @@ def _coeff_source(scheme):
         for j, a in enumerate(scheme.A[i][:i]):
             if a:
                 L.append(f"    c{i}_{j} = dt * {a!r}")
-    for j, b in enumerate(scheme.b):
-        if b:
-            L.append(f"    cb{j} = dt * {b!r}")
+    for b, js in _b_groups(scheme):
+        L.append(f"    cb{js[0]} = dt * {b!r}")
     return L
 
 
@@ -203,7 +220,8 @@ def _scalar_step_source(scheme, N, P, split):
     """Body lines (indent 8) of one step on the scalars ``y_0..`` (:func:`scalar_loop_source`).
 
     The arithmetic of :func:`_step_source`, term for term: ``yi_i = y_i + c1_0 * k0_i + ...``,
-    ``y_i = y_i + cb0 * k0_i + ...``; a split scheme then ``y = fstep_s(y, p, dt)``.
+    ``z_i = y_i + cb0 * (k0_i + k3_i) + ...`` (:func:`_update_terms`); a split scheme then
+    ``z = fstep_s(z, p, dt)``.  The new state is ``z``; the loop checks it and copies it to ``y``.
     """
     ys, ps = ", ".join(scalar_names("y", N)), ", ".join(scalar_names("p", P))
     rhs = "xrhs_s" if split else "rhs_s"
@@ -219,9 +237,10 @@ def _scalar_step_source(scheme, N, P, split):
             L.append(f"        yi_{n} = y_{n} + " + " + ".join(f"c{i}_{j} * k{j}_{n}" for j, _ in coeffs))
         L.append(f"        {ks}{',' if N == 1 else ''} = {rhs}({', '.join(scalar_names('yi', N))}{pa})")
     for n in range(N):
-        L.append(f"        y_{n} = y_{n} + " + " + ".join(f"cb{j} * k{j}_{n}" for j, b in enumerate(scheme.b) if b))
+        L.append(f"        z_{n} = y_{n} + " + _update_terms(scheme, lambda j: f"k{j}_{n}"))
     if split:
-        L.append(f"        {ys}{',' if N == 1 else ''} = fstep_s({ys}{pa}, dt)")
+        zs = ", ".join(scalar_names("z", N))
+        L.append(f"        {zs}{',' if N == 1 else ''} = fstep_s({zs}{pa}, dt)")
     return L
 
 
@@ -233,9 +252,12 @@ def scalar_loop_source(fname, scheme, N, P, *, split=False):
     form (``rhs_s``, ``xrhs_s``, ``fstep_s`` of :func:`scalar_function_source`), so
     that the compiled loop keeps them in registers: no array is written per
     stage.  The checks and the saves count down instead of taking ``step % k``
-    (an integer division per step).
+    (an integer division per step).  A step computes the new state ``z_0..`` and
+    checks it before it replaces ``y``: with a check every step the last finite
+    state is still in ``y`` when a check fails, so nothing is stored per step
+    (``last`` is written at a failure and at the end; with ``check_every > 1``, at
+    every check, as the array loop does).
     """
-    ys = scalar_names("y", N)
     L = ["@njit(cache=CACHE, error_model='numpy')", f"def {fname}_loop({_LOOP_ARGS}):"]
     L += [f"    y_{i} = y0[{i}]" for i in range(N)]
     L += [f"    p_{i} = p[{i}]" for i in range(P)]
@@ -248,17 +270,23 @@ def scalar_loop_source(fname, scheme, N, P, *, split=False):
     L += ["        to_check -= 1",
           "        if to_check == 0 or step == n_steps:",
           "            to_check = check_every",
-          "            s = " + " + ".join(ys),
+          "            s = " + " + ".join(scalar_names("z", N)),
           "            if not (s - s == 0.0):"]
-    L += [f"                bad[{i}] = y_{i}" for i in range(N)]
-    L += ["                return step, last_step, 0"]
-    L += [f"            last[{i}] = y_{i}" for i in range(N)]
-    L += ["            last_step = step",
-          "        to_save -= 1",
+    L += [f"                bad[{i}] = z_{i}" for i in range(N)]
+    L += ["                if last_step == step - 1:"]  # the last good state is the one this step started from
+    L += [f"                    last[{i}] = y_{i}" for i in range(N)]
+    L += ["                return step, last_step, 0",
+          "            if check_every > 1:"]  # else the next check is next step's: y holds the state then
+    L += [f"                last[{i}] = z_{i}" for i in range(N)]
+    L += ["            last_step = step"]
+    L += [f"        y_{i} = z_{i}" for i in range(N)]
+    L += ["        to_save -= 1",
           "        if to_save == 0 or step == n_steps:",
           "            to_save = save_every"]
     L += [f"            out[{i}, j] = y_{i}" for i in range(N)]
-    L += ["            j += 1", "    return 0, last_step, 0", "", "", _flushing(fname, _LOOP_ARGS, f"{fname}_loop")]
+    L += ["            j += 1"]
+    L += [f"    last[{i}] = y_{i}" for i in range(N)]
+    L += ["    return 0, last_step, 0", "", "", _flushing(fname, _LOOP_ARGS, f"{fname}_loop")]
     return "\n".join(L) + "\n" + _batch_source(fname)
 
 
