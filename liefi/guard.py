@@ -77,23 +77,34 @@ def _audit(fi, ts, Ys, dt, beta, sch, scales, delta0, schedule, max_points=2000,
     times, glist = schedule
     which = np.searchsorted(np.asarray(times), tt, side="right") - 1
     gains_pt = [glist[max(w, 0)] for w in which]
+    # the start (idx 0) was measured before the run (delta0): its drift is at most delta0 there, which
+    # neither verdict of _guard_verdict can take, so only the later points are evaluated
+    k0 = 1 if len(idx) > 1 and idx[0] == 0 else 0
+    n_pt = len(idx) - k0
+    rel = np.zeros(len(idx))
+    who = np.full(len(idx), "", dtype=object)
     with np.errstate(all="ignore"):
-        lam, jet = _lam_schedule(fi, Y, gains_pt)
-        ratio = dt * lam / beta if math.isfinite(beta) else np.zeros(len(idx))
+        Yl = Y[k0:]
+        jet = fi.invariant_gradients(Yl)
         cur = drift_scales(fi, Y)
         sc = {k: max(scales.get(k, 0.0), cur.get(k, 0.0)) or 1.0 for k in cur}
-        rel = np.zeros(len(idx))
-        who = np.full(len(idx), "", dtype=object)
-        res = np.abs(jet.residual).reshape(len(idx), -1, max(len(jet.names), 1)).max(axis=1) if jet.names else None
+        rl, wl = rel[k0:], who[k0:]
+        res = np.abs(jet.residual).reshape(n_pt, -1, max(len(jet.names), 1)).max(axis=1) if jet.names else None
         for j, nm in enumerate(jet.names):
             r = res[:, j] / sc.get(nm, 1.0)
-            who = np.where(~(r <= rel), nm, who)
-            rel = np.where(~(r <= rel), r, rel)
+            wl = np.where(~(r <= rl), nm, wl)
+            rl = np.where(~(r <= rl), r, rl)
         if fi.use_penalty:
-            P = fi.system.space.group.penalty(Y[..., : fi.nc]).reshape(len(idx), -1).max(axis=1)
+            P = fi.system.space.group.penalty(Yl[..., : fi.nc]).reshape(n_pt, -1).max(axis=1)
             r = 2 * np.sqrt(np.maximum(P, 0.0))
-            who = np.where(~(r <= rel), "penalty", who)
-            rel = np.where(~(r <= rel), r, rel)
+            wl = np.where(~(r <= rl), "penalty", wl)
+            rl = np.where(~(r <= rl), r, rl)
+        rel[k0:], who[k0:] = rl, wl
+        # dt lambda_max (eigenvalues at every point) matters only where the drift is large enough for an
+        # error (_guard_verdict): a run that kept its invariants is not evaluated further
+        ratio = np.zeros(len(idx))
+        if math.isfinite(beta) and np.any(rel > max(GUARD_DRIFT, 10 * delta0)):
+            ratio = dt * _lam_schedule(fi, Y, gains_pt)[0] / beta
     beyond = np.maximum.accumulate(ratio > 1 + LIMIT_BAND)
     warn = None
     for i in range(len(idx)):

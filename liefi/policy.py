@@ -33,7 +33,7 @@ import warnings
 
 import numpy as np
 
-from .gains import accurate_setting, exactly_kept
+from .gains import accurate_setting, exactly_kept, rate_needs_omega
 from .guard import RunReport, _advice, _audit, _drift_warning, _guard_verdict, _relabel
 from .schemes import steps_for
 from .stability import (
@@ -220,12 +220,16 @@ class Policy:
         self.mask = np.full(self.batch, self.adaptive)
         # the gains to start with and the pre-run checks; O(1) calls over the batch
         fi, dt, rep = self.fi, self.dt, self.report
+        omega = None
         if self.auto:
             # the accurate rate z* (liefi.gains) for this scheme, step and horizon; adapted along
             # the run (at that rate) only when it sits near the stability limit (never for a split
             # scheme: its feedback substep is stable at every rate)
             # every member of an ensemble gets its own rate and gains: those of its single run
-            z, acc = accurate_setting(fi, dt, self.sch.name, self.n_steps * dt, y0)
+            T = self.n_steps * dt
+            if rate_needs_omega(self.sch.name, dt, T):  # the unforced rates, also the pace of adaptation below
+                omega = dynamics_rates(fi, y0)
+            z, acc = accurate_setting(fi, dt, self.sch.name, T, y0, omega=omega)
             if self._adaptive_default:
                 self.mask = np.broadcast_to(z >= AUTO_ADAPT_FRACTION * self.beta, self.batch)
                 self.adaptive = bool(np.any(self.mask))
@@ -244,6 +248,9 @@ class Policy:
             run_fi = fi
         rep.gains = dict(run_fi.gains)
         self.sched_g = [dict(run_fi.gains)]
+        if self.adaptive:  # each member's own pace of adaptation (Policy.segment_length), guard or not
+            with np.errstate(all="ignore"):
+                self.resolutions = dt * (dynamics_rates(run_fi, y0) if omega is None else omega)
         if self.check_stability:
             if not self.adaptive and not self.split:
                 T = self.n_steps * dt
@@ -258,11 +265,12 @@ class Policy:
             else:
                 # the gains adapt (or the scheme is stiff-safe): only the resolution of the
                 # unforced dynamics can make the run meaningless
-                est = estimate(run_fi, dt, self.sch.explicit if self.split else self.sch, y0=y0)
+                # (at the few members the resolution is estimated on: the stiffness is not the verdict here)
+                flat = np.asarray(y0, float).reshape(-1, run_fi.n)
+                few = np.unique(np.linspace(0, flat.shape[0] - 1, min(flat.shape[0], RESOLUTION_MEMBERS)).astype(int))
+                est = estimate(run_fi.members(few), dt, self.sch.explicit if self.split else self.sch,
+                               y0=flat[few] if self.batch else y0)
                 rep.resolution = est.rate
-                if self.adaptive:  # each member's own (its schedule of checks depends on it)
-                    with np.errstate(all="ignore"):
-                        self.resolutions = dt * dynamics_rates(run_fi, y0)
                 if est.unresolvable:
                     raise ValueError("dt: " + est.resolution_message() + " Pass check_stability=False to run it anyway.")
                 if est.under_resolved:
@@ -339,9 +347,19 @@ class Policy:
         rep, dt, beta, sch = self.report, self.dt, self.beta, self.sch
         rep.monitors += 1
         t_now = self.t0 + s0 * dt
+        y_all = y
+        sub = None
+        if self.adaptive and self.batch:
+            # an adapted ensemble: each member is checked on its own schedule (that of its single run),
+            # so only the members due now (and those not adapted, checked at every segment) are evaluated
+            due = (self.next_i == s0) | ~np.asarray(self.mask).reshape(-1)
+            sub = np.nonzero(due)[0]
+            run_fi_all, run_fi = run_fi, run_fi.members(sub)
+            y = np.asarray(y, float).reshape(-1, run_fi.n)[sub]
         with np.errstate(all="ignore"):
             jet = run_fi.invariant_gradients(y)
-            lam = float(np.max(stiffness(run_fi, y).lam, initial=0.0))
+            st = stiffness(run_fi, y)
+            lam = float(np.max(st.lam, initial=0.0))
         ratio = dt * lam / beta if math.isfinite(beta) else 0.0
         rep.max_ratio = max(rep.max_ratio, ratio)
         if ratio > 1 + LIMIT_BAND and self.beyond_at is None:
@@ -364,14 +382,14 @@ class Policy:
                 raise StabilityError(
                     f"the run became meaningless at t={t_now:g}: the drift of {who} reached {delta:.3g} x its "
                     f"scale {why}. No result is returned.",
-                    t_now, s0, y, [who],
+                    t_now, s0, y_all, [who],
                 )
             if verdict == "warn" and not self.drift_warned:
                 self.drift_warned = True
                 md = metric_defect(run_fi, y)
                 self._warn(("liefi: " + md) if md else _drift_warning(t_now, who, delta, dt, rep.resolution))
-        if self.adaptive and self.batch:
-            return self._between_members(run_fi, y, s0)
+        if sub is not None:
+            return self._between_members(run_fi_all, y, s0, sub, st)
         if self.adaptive:
             base = self.fi
             if self.auto:
@@ -401,31 +419,51 @@ class Policy:
             )
         return run_fi, N
 
-    def _between_members(self, run_fi, y, s0):
-        """The adaptation of an ensemble: the members whose own check falls at step ``s0`` (module docstring)."""
+    def _between_members(self, run_fi, y, s0, sub, st):
+        """The adaptation of an ensemble: the members whose own check falls at step ``s0`` (module docstring).
+
+        ``sub``: the flat indices of the members checked now, ``y`` their states and
+        ``st`` their :class:`~liefi.stability.Stiffness`; the others are not evaluated.
+        """
         dt, beta, rep = self.dt, self.beta, self.report
         t_now = s0 * dt
-        due = (self.next_i == s0) & np.asarray(self.mask).reshape(-1)
-        with np.errstate(all="ignore"):
-            lam = np.asarray(stiffness(run_fi, y).lam, float).reshape(-1)
+        mask = np.asarray(self.mask).reshape(-1)
+        keep = mask[sub] & (self.next_i[sub] == s0)  # of the checked members, those adapted now
+        idx = sub[keep]
+        y = y[keep]
+        lam = np.asarray(st.lam, float).reshape(-1)[keep]
         ratio = dt * lam / beta if math.isfinite(beta) else np.zeros_like(lam)
+        if not idx.size:  # a segment that ended at a saved index: no member adapts now
+            rep.gain_times.append(t_now)
+            rep.gain_history.append(dict(run_fi.gains))
+            self.sched_t.append(t_now)
+            self.sched_g.append(dict(run_fi.gains))
+            return run_fi, self._left(s0)
+        base = self.fi.members(idx)
         if self.auto:
-            new = {k: v * self.rate / dt for k, v in unit_rate_gains(self.fi, y).items()}
+            rate = self.rate if np.ndim(self.rate) == 0 else np.asarray(self.rate).reshape(-1)[idx]
+            new = {k: v * rate / dt for k, v in unit_rate_gains(base, y).items()}
         else:
-            new = self._lowered(self.fi, y)
+            new = self._lowered(base, y)
         if self.monitor_every is None:
-            rs = self.ratio_set_i
+            rs = self.ratio_set_i[idx]
             with np.errstate(invalid="ignore"):
                 off = (ratio > rs * 1.05) | (ratio < rs / 1.05)
                 near = (rs / 1.02 <= ratio) & (ratio <= rs * 1.02)
-            self.N_i = np.where(due & off, np.maximum(10, self.N_i // 2),
-                                np.where(due & near, np.minimum(2 * self.N_i, self.N_cap_i), self.N_i))
-        gains = self._merge(run_fi.gains, new, due.reshape(self.batch))
+            Ni = self.N_i[idx]
+            self.N_i[idx] = np.where(off, np.maximum(10, Ni // 2), np.where(near, np.minimum(2 * Ni, self.N_cap_i[idx]),
+                                                                              Ni))
+        B = int(np.prod(self.batch, dtype=int))
+        gains = {}
+        for k, v in new.items():  # the due members' new gains, the others' unchanged
+            g = np.array(np.broadcast_to(np.asarray(run_fi.gains[k], float), self.batch)).reshape(B)
+            g[idx] = np.broadcast_to(np.asarray(v, float), idx.shape)
+            gains[k] = g.reshape(self.batch)
         run_fi = run_fi.with_gains(gains)
         with np.errstate(all="ignore"):
-            lam2 = np.asarray(stiffness(run_fi, y).lam, float).reshape(-1)
-        self.ratio_set_i = np.where(due, dt * lam2 / beta if math.isfinite(beta) else 0.0, self.ratio_set_i)
-        for i in np.nonzero(due)[0]:
+            lam2 = np.asarray(stiffness(run_fi.members(idx), y).lam, float).reshape(-1)
+        self.ratio_set_i[idx] = dt * lam2 / beta if math.isfinite(beta) else 0.0
+        for i in idx:
             self.next_i[i] = s0 + _chunk(s0, self.total, int(self.N_i[i]), self.save_every)[0]
         rep.gain_times.append(t_now)
         rep.gain_history.append(dict(gains))
