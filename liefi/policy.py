@@ -2,8 +2,8 @@
 
 The run loop (:mod:`liefi.run`) drives; it asks one :class:`Policy`
 
-* :meth:`Policy.step` -- the step for a tolerance (:func:`liefi.tolerance.choose_step`:
-  the error estimate, shortened until the step resolves the unforced motion);
+* :meth:`Policy.step` -- the step: as given, or for a tolerance (:func:`liefi.tolerance.choose_step`:
+  the error estimate, shortened until the step resolves the unforced motion), whole steps to the end;
 * :meth:`Policy.drops` -- the invariants the scheme keeps exactly (:func:`exact_drops`:
   their gain is 0, they leave ``V``);
 * :meth:`Policy.start` -- the gains to start with (``gains="auto"``: the accurate
@@ -153,7 +153,19 @@ class Policy:
         self.chosen = None
 
     # --- the step -----------------------------------------------------------------------
-    def step(self, fi, y0, t_start, t_end, rtol, atol, *, max_steps):
+    def step(self, fi, y0, t_start, t_end, dt, rtol, atol, *, check_every=1, max_steps):
+        """``(dt, t_end, n_steps, check_every)``: the run's step, as given or chosen for ``rtol``/``atol``.
+
+        ``dt=None``: :meth:`tolerance_step`.  Then :func:`liefi.schemes.steps_for`:
+        a ``dt`` that does not divide ``[t_start, t_end]`` is refused with the
+        nearest one that does.
+        """
+        if dt is None:
+            dt, _ = self.tolerance_step(fi, y0, t_start, t_end, rtol, atol, max_steps=max_steps)
+        dt, t_end, n_steps, _, check_every = steps_for(dt, t_end, check_every=check_every, t0=t_start)
+        return dt, t_end, n_steps, check_every
+
+    def tolerance_step(self, fi, y0, t_start, t_end, rtol, atol, *, max_steps):
         """``(dt, info)``: the step for ``rtol``/``atol`` over ``[t_start, t_end]`` (:func:`liefi.tolerance.choose_step`).
 
         ``y0`` the start (a batch: one step for every member, the most

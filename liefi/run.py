@@ -3,7 +3,7 @@
 One job: given a :class:`~liefi.FeedbackIntegrator`, a step, a horizon and a
 scheme of the registry (:mod:`liefi.schemes.registry`), it
 
-1. validates the arguments once (:func:`liefi.schemes.steps_for`: a ``dt``
+1. validates the arguments once (the policy's step, :func:`liefi.schemes.steps_for`: a ``dt``
    that does not divide ``t_final`` is refused with the nearest one that does);
 2. plans the run (:class:`RunPlan`): the number of steps, the memory of the
    saved output -- refused when it would not fit in memory, and capped by
@@ -41,7 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._progress import Progress, stderr_is_terminal
-from .schemes import IntegrationError, Solution, integrate, positive_int, steps_for
+from .schemes import IntegrationError, Solution, integrate, positive_int
 from .schemes import registry as _registry
 from .schemes import split as _split
 
@@ -280,10 +280,9 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
     # the one policy of the run: its step, its gains and their checks
     policy = Policy(sch, backend=backend, check_stability=check_stability, adaptive=adaptive,
                     stacklevel=stacklevel + 1)
-    if dt is None:
-        dt, _ = policy.step(fi, y0, t_start, t_end, rtol, atol, max_steps=MAX_RUN_STEPS)
+    dt, t_end, n_steps, check_every = policy.step(fi, y0, t_start, t_end, dt, rtol, atol, check_every=check_every,
+                                                  max_steps=MAX_RUN_STEPS)
     chosen = policy.chosen
-    dt, t_end, n_steps, _, check_every = steps_for(dt, t_end, check_every=check_every, t0=t_start)
     t_eval = _dense.check_t_eval(t_eval, t_start, t_end)
     evs = _dense.check_events(events)
     if monitor_every is not None:
