@@ -4,6 +4,7 @@ Run::
 
     python benchmarks/bench_speed.py            # 1e6-step runs, 1e4-trajectory ensemble
     python benchmarks/bench_speed.py --quick    # 1e5 steps, 1e3 trajectories (a smoke test)
+    python benchmarks/bench_speed.py --guard    # the guard's cost per ensemble call, gains="auto"
 
 Prints, for the Suslov problem (R and Pi integrated, the paper's system), the
 knife edge and the roller racer (reduced, the scene's default), all with
@@ -182,6 +183,40 @@ def ensemble(B, n_steps, repeat, rng):
     return out
 
 
+def guard_cost(B, n_steps, repeat, rng, schemes=("euler", "imex-rk4")):
+    """The guard's fixed cost per ensemble call: ``B`` Suslov states near ``y0`` x ``n_steps``, ``gains="auto"``.
+
+    For each scheme, the default call (``run(..., backend="numba")``, the guard on: pre-run
+    estimate, checks between segments, audit of the saved states) and the same call with
+    ``check_stability=False``, interleaved, CPU time of the whole call (summed over threads),
+    best of ``repeat`` each, after one warm call of both (kernels loaded).  The gains and
+    their adaptation (Euler: every member adapted on its own schedule) are the run policy's
+    and the same in both calls; the ratio is the guard's share.
+    """
+    sc = scenes.get("suslov")
+    base = sc.integrator(None, configuration=True)
+    Y0 = np.repeat(base.y0[None], B, 0)
+    Y0[:, 9:] = sc.system.project(base.y0[9:] + 0.2 * rng.normal(size=(B, 3)))
+    fi = FeedbackIntegrator(sc.system, Y0, gains="auto")
+    dt = sc.dt
+    out = {"trajectories": B, "steps": n_steps}
+    for scheme in schemes:
+        kw = dict(dt=dt, scheme=scheme, save_every=n_steps, backend="numba")
+        fi.run(n_steps * dt, **kw)
+        fi.run(n_steps * dt, check_stability=False, **kw)
+        on, off = [], []
+        for _ in range(repeat):
+            c = time.process_time()
+            s = fi.run(n_steps * dt, **kw)
+            on.append(time.process_time() - c)
+            c = time.process_time()
+            fi.run(n_steps * dt, check_stability=False, **kw)
+            off.append(time.process_time() - c)
+        out[scheme] = {"guarded_cpu_seconds": min(on), "unguarded_cpu_seconds": min(off),
+                       "ratio": min(on) / min(off), "checks": s.stability.monitors}
+    return out
+
+
 def suslov_t1000():
     """What ``liefi run suslov --t-final 1000`` costs with the compiled loop (Pi only and with R):
     the run's ``cpu_seconds`` with the stability guard (default) and without."""
@@ -205,7 +240,23 @@ def main(argv=None):
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--quick", action="store_true", help="1e5 steps, 1e3 trajectories")
     ap.add_argument("--json", default=None, metavar="FILE", help="also write the results as JSON")
+    ap.add_argument("--guard", action="store_true",
+                    help="only the guard's cost per ensemble call (1e4 Suslov states x 1000 steps, gains='auto', "
+                         "euler and imex-rk4, best of 5, interleaved)")
     a = ap.parse_args(argv)
+    if a.guard:
+        B, n_steps = (1000, 200) if a.quick else (10000, 1000)
+        g = guard_cost(B, n_steps, 5, np.random.default_rng(0))
+        print(f"guard cost: {B} Suslov states x {n_steps} steps, gains='auto', CPU of the call, best of 5, "
+              f"interleaved (load average {os.getloadavg()[0]:.2f})")
+        for scheme in ("euler", "imex-rk4"):
+            r = g[scheme]
+            print(f"  {scheme:9s} guard on {r['guarded_cpu_seconds']:.3f} s, off {r['unguarded_cpu_seconds']:.3f} s: "
+                  f"{r['ratio']:.3f} x ({r['checks']} checks)")
+        if a.json:
+            with open(a.json, "w") as fh:
+                json.dump({"guard_cost": g}, fh, indent=2)
+        return
     if a.quick:
         a.steps, a.batch, a.batch_steps, a.repeat = 1e5, 1000, 500, 1
     rng = np.random.default_rng(0)

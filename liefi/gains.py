@@ -116,9 +116,9 @@ import math
 
 import numpy as np
 
-from .schemes import ExplicitRungeKutta
+from .schemes import ExplicitRungeKutta, positive_number
 from .schemes import registry as _registry
-from .stability import dynamics_rate, dynamics_rates, positive_number, real_stability_bound, unit_rate_gains
+from .stability import dynamics_rate, dynamics_rates, unit_rate_gains
 
 
 #: Rounding error injected per step, relative to the state's scale (unit roundoff of float64).
@@ -279,7 +279,7 @@ def accurate_rate(scheme, dt, omega, t_final):
     t_final = positive_number(t_final, "t_final")
     om = np.asarray(omega, dtype=float)
     om = np.where((om > 0) & np.isfinite(om), om, 1.0 / t_final)
-    beta = real_stability_bound(scheme)
+    beta = float(_tableau(scheme)[0].real_stability_bound)  # the scheme's own (inf for a split scheme)
     zmax = 0.95 * beta if math.isfinite(beta) else SPLIT_RATE_MAX
     n = max(1, int(round(t_final / dt)))
     hw = (dt * om).reshape(-1)
@@ -395,17 +395,19 @@ def exactly_kept(fi, scheme="rk4", y=None, *, n_samples=6, rel=1e-2, tol=1e-10):
     return tuple(jet.names[j] for j in kept)
 
 
-def accurate_setting(fi, dt, scheme="rk4", t_final=None, y=None):
+def accurate_setting(fi, dt, scheme="rk4", t_final=None, y=None, *, omega=None):
     """``(z*, gains)``: the accurate rate (:func:`accurate_rate`) and the gains of :func:`accurate_gains`.
 
     For an ensemble ``y`` (``(..., n)``) every member gets its own: ``z*`` from
     its own ``omega`` and the unit-rate gains at its own state (arrays of shape
-    ``y.shape[:-1]``), the values a single run of that member gets.
+    ``y.shape[:-1]``), the values a single run of that member gets.  ``omega``: the
+    unforced rates at ``y`` (:func:`unforced_rates`) when the caller has them already.
     """
     dt = positive_number(dt, "dt")
     T = 1000.0 * dt if t_final is None else positive_number(t_final, "t_final")
     y = fi.y0 if y is None else np.asarray(y, float)
-    omega = unforced_rates(fi, y) if rate_needs_omega(scheme, dt, T) else np.zeros(y.shape[:-1])
+    if omega is None:
+        omega = unforced_rates(fi, y) if rate_needs_omega(scheme, dt, T) else np.zeros(y.shape[:-1])
     z = accurate_rate(scheme, dt, omega, T)
     gains = {k: v * z / dt for k, v in unit_rate_gains(fi, y).items()}
     if np.ndim(z) == 0:

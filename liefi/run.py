@@ -3,16 +3,17 @@
 One job: given a :class:`~liefi.FeedbackIntegrator`, a step, a horizon and a
 scheme of the registry (:mod:`liefi.schemes.registry`), it
 
-1. validates the arguments once (:func:`liefi.schemes.steps_for`: a ``dt``
+1. validates the arguments once (the policy's step, :func:`liefi.schemes.steps_for`: a ``dt``
    that does not divide ``t_final`` is refused with the nearest one that does);
 2. plans the run (:class:`RunPlan`): the number of steps, the memory of the
    saved output -- refused when it would not fit in memory, and capped by
    default (``save_every=None`` keeps at most :data:`DEFAULT_SAVE_BYTES`) --
    and the expected time, from the measured cost of one step;
-3. asks the stability guard (:class:`liefi.guard.Guard`, a policy) for the
-   starting gains and the pre-run checks, then runs in segments on the chosen
-   backend (numpy, or the compiled engine :func:`liefi.engine.run_feedback`),
-   consulting the guard between segments and auditing the saved states after;
+3. asks the run's one policy (:class:`liefi.policy.Policy`) for the step (given,
+   or chosen for a tolerance), the starting gains and the pre-run checks, then
+   runs in segments on the chosen backend (numpy, or the compiled engine
+   :func:`liefi.engine.run_feedback`), asking the policy once per segment for
+   the verdict and the next gains, and for the audit of the saved states after;
 4. shows progress on stderr for runs expected to take more than
    :data:`PROGRESS_SECONDS` (``tqdm`` when installed, ``liefi[progress]``; a
    plain line otherwise; quiet when stderr is not a terminal);
@@ -40,7 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._progress import Progress, stderr_is_terminal
-from .schemes import IntegrationError, Solution, integrate, positive_int, steps_for
+from .schemes import IntegrationError, Solution, integrate, positive_int
 from .schemes import registry as _registry
 from .schemes import split as _split
 
@@ -189,47 +190,6 @@ def _step_seconds(fi, y0, sch):
     return (time.perf_counter() - t) * getattr(sch, "stages", 1) * (3 if sch.kind == "split" else 1)
 
 
-def exact_drops(fi, sch, y0, *, rtol=1e-12):
-    """``{name: reason}``: the penalized invariants the scheme ``sch`` keeps exactly from ``y0`` (left out of ``V``).
-
-    :func:`liefi.gains.exactly_kept` (a first integral with a constant gradient,
-    untouched by the other invariants' feedback: every Runge--Kutta step keeps it
-    to rounding), for an explicit tableau, and only where the invariant is on its
-    target at every member of ``y0`` (relative ``rtol``): off it, its own
-    feedback is what brings it back.  One vectorized evaluation over the batch.
-    """
-    if getattr(sch, "kind", None) not in ("explicit", "split") or not fi.invariant_names:
-        return {}
-    from .gains import exactly_kept
-    from .stability import drift_scales
-
-    Y = np.asarray(y0, float).reshape(-1, fi.n)
-    flat = fi.for_batch(np.shape(y0)[:-1]).members()  # every member's own target
-    with np.errstate(all="ignore"):
-        kept = exactly_kept(flat.members(0), sch.name, Y[0])
-        if not kept:
-            return {}
-        jet = flat.invariant_gradients(Y)
-        scales = drift_scales(fi)
-    out = {}
-    for name in kept:
-        j = jet.names.index(name)
-        if np.max(np.abs(jet.residual[..., j])) <= rtol * max(scales.get(name, 1.0), 1e-300):
-            out[name] = (f"kept exactly by {sch.name}: a first integral with a constant gradient that no other "
-                         "feedback term moves, so every Runge-Kutta step keeps it to rounding and its feedback "
-                         "term vanishes identically (liefi.gains.exactly_kept)")
-    return out
-
-
-def _span_length(t0, t_end):
-    """``t_end - t0`` when it is a positive finite number, else ``1.0`` (:func:`steps_for` then names the fault)."""
-    try:
-        length = float(t_end) - float(t0)
-    except (TypeError, ValueError):
-        return 1.0
-    return length if math.isfinite(length) and length > 0 else 1.0
-
-
 def legacy_call(t_span, args, *, dt, t_final, scheme):
     """``(t_span, dt, scheme, deprecated)`` of a call of :meth:`liefi.FeedbackIntegrator.run`.
 
@@ -285,7 +245,7 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
     memory the saved output may use (default: :data:`DEFAULT_SAVE_BYTES` with
     ``save_every=None``, half the available memory with an explicit stride).
     ``drop_exact`` (default True): leave out of ``V`` the invariants the scheme
-    keeps exactly (:func:`exact_drops`); ``solution.dropped`` lists them
+    keeps exactly (:func:`liefi.policy.exact_drops`); ``solution.dropped`` lists them
     (``{"name", "reason"}``).  ``t_eval``, ``events`` and ``dense_output`` as
     ``solve_ivp``'s, on the cubic Hermite interpolant of :mod:`liefi.dense`.
     ``errors``: ``"raise"`` (default) or ``"return"``: a failed run returns the
@@ -297,11 +257,11 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
 
     Returns the :class:`~liefi.schemes.Solution` with ``method`` (which method
     ran and why: :func:`liefi.tolerance.describe`), ``stability`` (the
-    guard's :class:`~liefi.guard.RunReport`), ``plan`` (:class:`RunPlan`),
+    policy's :class:`~liefi.guard.RunReport`), ``plan`` (:class:`RunPlan`),
     ``cpu_seconds`` (integration) and ``overhead_seconds``.
     """
     from . import dense as _dense
-    from .guard import Guard, _segment
+    from .policy import Policy, _segment
     from .schemes.core import MESSAGE_EVENT
     from .stability import StabilityError
 
@@ -317,22 +277,13 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
     scheme_given, dt_given = scheme is not None, dt is not None
     sch = _fixed_step_scheme(scheme if scheme_given else _tol.DEFAULT_SCHEME)
     backend = _tol.default_backend() if backend is None else backend
-    chosen = None
-    if dt is None:
-        rtol = _tol.DEFAULT_RTOL if rtol is None else rtol
-        _tol.check_tolerance(rtol, atol)
-        t_end = steps_for(_span_length(t_start, t_end), t_end, t0=t_start)[1]  # the span checked first
-        y_pilot = fi.y0 if y0 is None else np.asarray(y0, dtype=float)
-        if np.shape(y_pilot)[-1:] == (fi.n,) and np.all(np.isfinite(y_pilot)):
-            dt, chosen = _tol.choose_step(fi.for_batch(np.shape(y_pilot)[:-1]), sch, y_pilot, t_start, t_end,
-                                          rtol, atol, backend=backend, choose_order=not scheme_given)
-            sch = _fixed_step_scheme(chosen["scheme"])  # the order chosen for the tolerance
-            if (t_end - t_start) / dt > MAX_RUN_STEPS:
-                raise ValueError(f"rtol: {rtol!r} needs {(t_end - t_start) / dt:.3g} steps over t in [{t_start:g}, "
-                                 f"{t_end:g}], more than the {MAX_RUN_STEPS:.0e} allowed; loosen rtol or atol")
-        else:
-            dt = t_end - t_start  # y0 is refused below, naming what is wrong
-    dt, t_end, n_steps, _, check_every = steps_for(dt, t_end, check_every=check_every, t0=t_start)
+    # the one policy of the run: its step, its gains and their checks
+    policy = Policy(sch, backend=backend, check_stability=check_stability, adaptive=adaptive,
+                    stacklevel=stacklevel + 1, choose_order=not scheme_given)
+    dt, t_end, n_steps, check_every = policy.step(fi, y0, t_start, t_end, dt, rtol, atol, check_every=check_every,
+                                                  max_steps=MAX_RUN_STEPS)
+    chosen = policy.chosen
+    sch = policy.sch  # a step for a tolerance may have chosen the order
     t_eval = _dense.check_t_eval(t_eval, t_start, t_end)
     evs = _dense.check_events(events)
     if monitor_every is not None:
@@ -350,17 +301,14 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
                          f"{y0.shape}; run the members one by one to locate their events")
     fi = fi.for_batch(y0.shape[:-1])  # an integrator built on one state, run on a batch: common values
     user_fi = fi
-    drops = exact_drops(fi, sch, y0) if drop_exact else {}
+    drops = policy.drops(fi, y0) if drop_exact else {}
     if drops:
         fi = fi.without(drops)
     pl = plan(y0, n_steps, save_every, max_bytes=max_saved_bytes)
     save_every = pl.save_every
     names = fi.names
     runner = _segment_runner(sch, dt, backend, names, t_start)
-    guard = Guard(fi, sch, dt, n_steps, backend=backend, check_stability=check_stability, adaptive=adaptive,
-                  monitor_every=monitor_every, stacklevel=stacklevel + 1, t0=t_start,
-                  **({"resolution_limit": chosen["resolution_limit"]} if chosen else {}))
-    run_fi = guard.before(y0)
+    run_fi = policy.start(fi, dt, n_steps, y0, t0=t_start, monitor_every=monitor_every)
     if runner.state["backend"] == "numpy":
         pl.seconds_per_step = _step_seconds(run_fi, y0, sch)
         pl.expected_seconds = pl.seconds_per_step * n_steps
@@ -369,8 +317,8 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
     out = np.empty(y0.shape + (pl.n_saved,))
     ts = np.empty(pl.n_saved)
     out[..., 0], ts[0], k = y0, t_start, 1
-    if guard.active:
-        N = guard.segment_length(n_steps, save_every)
+    if policy.active:
+        N = policy.segment_length(n_steps, save_every)
     else:
         N = n_steps if not pl.expected_seconds > PROGRESS_SECONDS else max(1, n_steps // 100)
     tracker = _dense.EventTracker(evs, run_fi, sch.kind) if evs else None
@@ -393,7 +341,7 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
             try:
                 seg = runner(run_fi, y, L, s0, sub, check_every, buf)
             except IntegrationError as exc:
-                raise guard.failure(run_fi, exc, checked) from None
+                raise policy.failure(run_fi, exc, checked) from None
             last = seg
             rhs += seg.rhs_evaluations
             cpu += seg.cpu_seconds
@@ -428,13 +376,13 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
                     bar.update(s0)
             if s0 >= n_steps:
                 break
-            if guard.active and (not terminal or s0 >= next_guard):  # short event segments: the guard's own pace
-                run_fi, N = guard.between(run_fi, y, s0, N)
+            if policy.active and (not terminal or s0 >= next_guard):  # short event segments: the guard's own pace
+                run_fi, N = policy.between(run_fi, y, s0, N)
                 next_guard = s0 + N
                 checked = (y, t_start + s0 * dt)
                 if tracker:
                     tracker.fi = run_fi  # the interpolant follows the gains in effect
-        guard.after(ts[:k], np.moveaxis(out[..., :k], -1, 0))
+        policy.after(ts[:k], np.moveaxis(out[..., :k], -1, 0))
     except (IntegrationError, StabilityError) as exc:
         if errors == "raise":
             raise
@@ -465,7 +413,7 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
         if last is not None and hasattr(last, attr):
             setattr(sol, attr, getattr(last, attr))
     sol.backend = getattr(sol, "backend", runner.state["backend"])
-    sol.stability = guard.report
+    sol.stability = policy.report
     sol.dropped = list(run_fi.dropped)
     sol.plan = pl
     sol.method = _tol.describe(sch.name, dt, getattr(user_fi, "gains_mode", "fixed"), sol.backend, chosen=chosen,

@@ -359,12 +359,18 @@ def dynamics_rate(fi, y):
 
 
 def dynamics_growth(scheme, dt, eigenvalues):
-    """``max |R(dt mu)|`` over the eigenvalues ``mu`` of ``dX/dy``: the unforced dynamics' growth per step.
+    r"""``max |R(dt mu)| / max(1, |exp(dt mu)|)`` over the eigenvalues ``mu`` of ``dX/dy``: the scheme's own growth.
 
     ``R`` is the stability function of the scheme's explicit tableau (for a split
-    scheme, the tableau that steps ``X``).  Above 1 the scheme amplifies the
-    motion itself -- e.g. Euler on a rotation, ``|1 + i dt omega|`` -- which no
-    feedback on the invariants can repair when it is large.
+    scheme, the tableau that steps ``X``).  The exact flow of the linearized
+    motion multiplies the mode of ``mu`` by ``exp(dt mu)`` a step; a mode the
+    motion itself stretches (a real ``mu > 0``: Kepler's radial direction near
+    perihelion, ``mu = sqrt(2 mu_K / r^3)``) grows under any accurate scheme,
+    and is not the scheme's fault.  What no feedback on the invariants can repair
+    is growth *beyond* that and beyond 1 -- e.g. Euler on a rotation,
+    ``|1 + i dt omega| > 1 = |exp(i dt omega)|`` -- so the growth is measured
+    against ``max(1, |exp(dt mu)|)``: 1 for an exact or a contracting step, ``> 1``
+    for one that amplifies the motion past the flow's own.
     """
     sch, _ = resolve_scheme(scheme)
     tab = sch.explicit if isinstance(sch, _stiff.LinearlyImplicitSplit) else sch
@@ -372,7 +378,30 @@ def dynamics_growth(scheme, dt, eigenvalues):
     mu = mu[np.isfinite(mu)]
     if mu.size == 0 or getattr(tab, "kind", None) != "explicit":
         return math.nan
-    return float(np.max(np.abs(_R(tab, dt * mu))))
+    z = dt * mu
+    exact = np.maximum(1.0, np.exp(np.minimum(np.real(z), 700.0)))
+    return float(np.max(np.abs(_R(tab, z)) / exact))
+
+
+def growth_step(scheme, dt, eigenvalues, limit=None):
+    """The largest step ``<= dt`` whose :func:`dynamics_growth` stays within ``limit`` (:data:`GROWTH_LIMIT`).
+
+    Bisection on ``[0, dt]`` (the growth is 1 at a step of 0); ``dt`` itself
+    when it is within the limit.  Never larger than ``dt``: the step to suggest
+    when a run is refused for amplifying the motion.
+    """
+    limit = GROWTH_LIMIT if limit is None else limit
+    g = dynamics_growth(scheme, dt, eigenvalues)
+    if not g > limit:
+        return float(dt)
+    lo, hi = 0.0, float(dt)
+    for _ in range(50):
+        mid = 0.5 * (lo + hi)
+        if dynamics_growth(scheme, mid, eigenvalues) > limit:
+            hi = mid
+        else:
+            lo = mid
+    return lo
 
 
 #: A run that fails where the metric's smallest eigenvalue fell below this fraction of
@@ -456,12 +485,14 @@ class StabilityEstimate:
     rate: float = float("nan")
     #: first pilot time where ``dt lambda`` passes the bound by more than 1 % (``nan``: never)
     t_cross: float = float("nan")
-    #: ``max |R(dt mu)|`` over the eigenvalues of ``dX/dy`` (:func:`dynamics_growth`)
+    #: ``max |R(dt mu)| / max(1, |exp(dt mu)|)`` over the eigenvalues of ``dX/dy`` (:func:`dynamics_growth`)
     growth: float = float("nan")
     #: a few states of the pilot (start included), shape ``(k,) + y0.shape``
     samples: np.ndarray = field(repr=False, default=None)
     #: :func:`metric_defect` along the pilot (``""``: the metric stays positive definite)
     metric: str = ""
+    #: the largest step ``<= dt`` within :data:`GROWTH_LIMIT` at those eigenvalues (:func:`growth_step`)
+    dt_growth: float = float("nan")
     #: the largest ``rate`` that resolves the motion (a run for a tolerance passes its own)
     limit: float = RESOLUTION_LIMIT
 
@@ -555,16 +586,36 @@ class StabilityEstimate:
             )
         return s
 
+    def resolution_step(self):
+        """The step to suggest when the run under-resolves or amplifies the motion: never above ``dt``.
+
+        The smaller of ``dt limit / rate`` (when under-resolved) and
+        :func:`growth_step` (when the scheme amplifies the motion), times 0.98.
+        """
+        cands = [self.dt]
+        if self.under_resolved:
+            cands.append(self.dt * self.limit / self.rate)
+        if self.unresolvable and math.isfinite(self.dt_growth):
+            cands.append(self.dt_growth)
+        return 0.98 * min(cands) if len(cands) > 1 else self.dt
+
     def resolution_message(self):
-        s = (
-            f"dt times the fastest rate of the unforced dynamics is {self.rate:.3g} (> {self.limit:g}): "
-            f"the step under-resolves the motion itself, whatever the gains, so the trajectory will be "
-            f"inaccurate; take dt below {self.dt * self.limit / self.rate:.3g}."
-        )
+        parts = []
+        if self.under_resolved:
+            parts.append(
+                f"dt times the fastest rate of the unforced dynamics is {self.rate:.3g} (> {self.limit:g}): "
+                f"the step under-resolves the motion itself, whatever the gains, so the trajectory will be "
+                "inaccurate"
+            )
         if self.unresolvable:
-            s += (f" {self.scheme} amplifies that motion by |R(dt mu)| = {self.growth:.3g} per step: the run "
-                  "cannot be meaningful.")
-        return s
+            parts.append(
+                f"{self.scheme} amplifies the linearized unforced motion by {self.growth:.3g} per step beyond the "
+                f"exact flow's own growth (max |R(dt mu)| / max(1, |exp(dt mu)|) over the eigenvalues mu of dX/dy, "
+                f"at dt times the fastest rate {self.rate:.3g}): the run cannot be meaningful"
+            )
+        if not parts:
+            return f"dt = {self.dt:g} resolves the unforced motion (dt times its fastest rate {self.rate:.3g})."
+        return "; ".join(parts) + f"; take dt below {self.resolution_step():.3g} (dt = {self.dt:g} now)."
 
 
 def _max_evals(n_steps, stages):
@@ -625,22 +676,23 @@ def estimate(fi, dt, scheme="euler", *, t_final=None, y0=None, max_evals=None, r
     dom = str(dom[int(np.argmax(lam_t[i]))])
     ev = np.asarray(st.eigenvalues).reshape((len(ts), lam_t.shape[1]) + st.eigenvalues.shape[-1:])[i]
     ev = ev[int(np.argmax(lam_t[i]))]
-    rate = growth = float("nan")
+    rate = growth = dt_growth = float("nan")
     if resolution:
         try:  # at the start and at a few points of the pilot, on a few members of a batch
             pick = np.unique(np.linspace(0, len(ts) - 1, min(len(ts), 6)).astype(int))
             evX = dynamics_eigenvalues(fi, _members(Ys[pick], RESOLUTION_MEMBERS))
             rate = dt * float(np.max(np.abs(evX), initial=0.0))
             growth = dynamics_growth(sch, dt, evX)
+            dt_growth = growth_step(sch, dt, evX) if growth > GROWTH_LIMIT else float(dt)
         except Exception:  # noqa: BLE001 -- a diagnostic only
-            rate = growth = float("nan")
+            rate = growth = dt_growth = float("nan")
     over = np.nonzero(dt * per_t > beta * (1 + LIMIT_BAND))[0] if math.isfinite(beta) else []
     t_cross = float(ts[over[0]]) if len(over) else float("nan")
     return StabilityEstimate(
         getattr(sch, "name", str(scheme)), beta, float(dt), lam, lam0, float(ts[i]), float(ts[-1]),
         float(t_final if t_final is not None else 0.0), dict(fi.gains), dom, ev, rate, t_cross, growth,
         _members(Ys[np.unique(np.linspace(0, len(ts) - 1, min(len(ts), 8)).astype(int))], RESOLUTION_MEMBERS),
-        metric_defect(fi, Ys[: i + 2]) if len(ts) > 1 else "", float(resolution_limit),
+        metric_defect(fi, Ys[: i + 2]) if len(ts) > 1 else "", dt_growth, float(resolution_limit),
     )
 
 

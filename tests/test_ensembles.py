@@ -205,3 +205,18 @@ def test_not_dropped_off_target_on_a_field_where_it_is_a_first_integral():
     r0 = 0.1
     r1 = off.invariant_values(sol.y[:, -1])["Pi_x"] - off.targets["Pi_x"]
     assert abs(r1) < 0.99 * r0  # its feedback acts
+
+
+@pytest.mark.parametrize("backend", ["numpy", "numba"])
+def test_the_guard_watches_and_does_not_steer_adapted_gains(suslov3, backend):
+    """An adapted ensemble (Euler, gains="auto") gets the same gains, schedule and states with the guard off:
+    the pace of adaptation is the policy's (the members' own unforced rates), not the guard's."""
+    sc, fi, Y = suslov3
+    if backend == "numba":
+        pytest.importorskip("numba")
+    ens = liefi.FeedbackIntegrator(sc.system, Y, gains="auto", configuration=fi.configuration)
+    a = _quiet(ens.run, 3.0, dt=1e-3, scheme="euler", backend=backend)
+    b = _quiet(ens.run, 3.0, dt=1e-3, scheme="euler", backend=backend, check_stability=False)
+    assert a.stability.adaptive and len(a.stability.gain_times) > 1
+    assert a.stability.gain_times == b.stability.gain_times
+    assert np.array_equal(a.y, b.y)

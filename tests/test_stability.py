@@ -18,6 +18,7 @@ maps of every scene are ``@pytest.mark.slow``.
 from __future__ import annotations
 
 import math
+import re
 import warnings
 from concurrent.futures import ThreadPoolExecutor
 
@@ -350,3 +351,60 @@ def test_stability_map_of_every_scene(name):
 def test_heisenberg_generic_auto_t1000():
     r = scenes.get("heisenberg").run(variant="generic", gains="auto", t_final=1000.0)
     assert max(r.max_drift.values()) < 1e-6
+
+
+# --- the unforced motion's own growth is not the scheme's (issue: RK4 on Kepler refused) ------------------
+
+
+def test_kepler_perihelion_growth_is_the_motion_not_the_scheme():
+    """At perihelion Kepler's ``dX/dy`` has a real eigenvalue ``sqrt(2 mu / r^3)``: the motion stretches.
+
+    RK4 at ``dt = 0.1`` follows that growth (``R(z) ~ exp(z)``), so it is not amplification;
+    the growth against ``max(1, |exp(dt mu)|)`` stays 1 (it was 1.15 against 1).
+    """
+    fi = scenes.get("kepler").integrator()
+    ev = S.dynamics_eigenvalues(fi, fi.y0)
+    mu_real = float(np.max(ev.real))
+    assert mu_real == pytest.approx(math.sqrt(2.0), rel=1e-6)  # r = 1, mu_K = 1 at the start (perihelion)
+    raw = float(np.max(np.abs(SCHEMES["rk4"].stability_function(0.1 * ev))))
+    assert raw > S.GROWTH_LIMIT  # the old criterion refused here
+    assert S.dynamics_growth("rk4", 0.1, ev) <= 1.0 + 1e-6
+    est = S.estimate(fi, 0.1, "rk4", y0=fi.y0)
+    assert not est.unresolvable and not est.under_resolved
+
+
+def test_kepler_rk4_at_dt_01_runs_accurately():
+    fi = scenes.get("kepler").integrator(gains="auto")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", S.LiefiStabilityWarning)
+        sol = fi.run(2 * 70.2481, dt=70.2481 / 700, scheme="rk4", backend="numpy")  # two periods, dt ~ 0.1
+    ref = _exact.kepler(sol.t, fi.y0[:3], fi.y0[3:], 1.0)
+    err = max(float(np.max(np.abs(ref[nm] - sol.y[i]))) for i, nm in enumerate(fi.names))
+    assert err < 5e-2  # RK4 at dt*|mu| ~ 0.14 over two eccentric orbits: a phase error of ~1e-2, not garbage
+
+
+def test_growth_refusal_suggests_a_smaller_step():
+    """A step that truly amplifies the motion (RK4 past its imaginary-axis bound) is refused, the advice below it."""
+    fi = scenes.get("kepler").integrator()
+    dt = 3.0  # dt * |mu| ~ 4.2 at perihelion: past RK4's 2.83 on the imaginary axis
+    est = S.estimate(fi, dt, "rk4", y0=fi.y0)
+    assert est.unresolvable
+    sugg = est.resolution_step()
+    assert 0 < sugg < dt
+    ev = S.dynamics_eigenvalues(fi, fi.y0)
+    assert S.dynamics_growth("rk4", sugg, ev) <= S.GROWTH_LIMIT
+    with pytest.raises(ValueError, match=r"take dt below ([0-9.e-]+)") as info:
+        scenes.get("kepler").integrator(gains="auto").run(30.0, dt=dt, scheme="rk4", backend="numpy")
+    said = float(re.search(r"take dt below ([0-9.e+-]+) \(", str(info.value)).group(1))
+    assert said < dt
+
+
+def test_resolution_message_never_suggests_a_larger_step():
+    """Every refusal or warning of the resolution check names a step below the one given."""
+    fi = scenes.get("rigid-body").integrator()
+    for scheme in ("euler", "heun", "rk4"):
+        for dt in (0.05, 0.3, 1.0, 3.0):
+            est = S.estimate(fi, dt, scheme, y0=fi.y0)
+            if est.under_resolved or est.unresolvable:
+                assert est.resolution_step() < dt
+                assert f"(dt = {dt:g} now)" in est.resolution_message()
