@@ -305,7 +305,8 @@ def run_settings(scene, args):
     rtol, atol = args.rtol, args.atol
     if fixed and args.dt is None and rtol is None:
         rtol = _tol.DEFAULT_RTOL
-    why = "liefi's default method (imex-rk4, gains auto, the step for the tolerance; --paper: the paper's settings)"
+    why = ("liefi's default method (a split scheme imex-rk4/rk6/rk8, gains auto, the order and step for the "
+           "tolerance; --paper: the paper's settings)")
     if args.scheme is not None or args.gains is not None or args.dt is not None:
         why = "as asked, liefi's defaults for the rest (imex-rk4, gains auto, the step for the tolerance)"
     return scheme, gains, args.dt, rtol, atol, why
