@@ -227,3 +227,32 @@ def test_a_cached_kernel_loads_without_numba_registry_refresh(tmp_path):
     assert not loaded["refreshed"], "loading cached kernels imported numba's compile-time registries"
     assert loaded["backend"] == ["numba", "numba"]
     assert loaded["one"] == compiled["one"] and loaded["many"] == compiled["many"]
+
+
+def test_a_result_pickles_with_its_errors(store_dir):
+    import pickle
+
+    _, calls = store_dir
+    r = _run()
+    back = pickle.loads(pickle.dumps(r))
+    assert calls == ["oscillator"] and back.max_error == r.max_error and back.max_error["x"] >= 0.0
+
+
+def test_the_step_for_a_tolerance_is_kept_in_the_store(store_dir, monkeypatch):
+    from liefi import tolerance
+
+    folder, _ = store_dir
+    pilots = []
+    choose = tolerance.choose_step
+
+    def counted(*a, **k):
+        pilots.append(1)
+        return choose(*a, **k)
+
+    monkeypatch.setattr(tolerance, "choose_step", counted)
+    args = (None, "imex-rk4", 0.5, 1e-6, None)
+    first = _Osc().step_for_tolerance(*args, gains="auto")
+    second = _Osc().step_for_tolerance(*args, gains="auto")
+    assert pilots == [1] and second == first and first[0] > 0.0
+    third = _Osc().step_for_tolerance(None, "imex-rk4", 0.5, 1e-8, None, gains="auto")
+    assert pilots == [1, 1] and third[0] < first[0]

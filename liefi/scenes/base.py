@@ -14,8 +14,9 @@ A scene also owns what is particular to it, so that the plotting, the
 whether they need the configuration (:attr:`Scene.figures_need_configuration`),
 the runs ``liefi reproduce`` makes (:meth:`Scene.paper_runs`), its reference
 solution and what it costs (:meth:`Scene.reference_solution`, computed once per
-start), and its extreme cases for the stability battery
-(:attr:`Scene.stability_cases`).
+start; a run's reference values are kept on disk by :mod:`liefi.scenes.store`
+and computed only when an error is asked for), and its extreme cases for the
+stability battery (:attr:`Scene.stability_cases`).
 """
 
 from __future__ import annotations
