@@ -194,10 +194,8 @@ def _directory():
     """``(path, signing key)`` of the store, or ``None`` (after a warning when it cannot be used)."""
     from ..engine import cache as _cache
 
-    with warnings.catch_warnings():  # the kernel cache warns about its directory itself, when kernels load
-        warnings.simplefilter("ignore", _cache.KernelCacheWarning)
-        base = _cache.kernel_dir()
-        sign = _cache.signing_key(base) if base is not None else None
+    base = _cache.kernel_dir()  # warns (once per process) when the directory cannot be used
+    sign = _cache.signing_key(base) if base is not None else None
     if base is None or sign is None:
         _warn_once("dir", "liefi: the reference store is not used (no private cache directory or key); "
                           "references are solved in every run")
