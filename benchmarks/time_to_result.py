@@ -22,7 +22,7 @@ Every call is a new ``python -m liefi run SCENE --json`` process (its whole wall
 time: interpreter start, imports, run, output), best of ``--repeat`` (warm) and
 ``--cold-repeat`` (cold, a new empty directory each time).  ``--split`` adds one
 more warm call per scene, in a process that times its phases: *import* (liefi's
-CLI, numba and ``scipy.integrate``), *kernel load* (numba dispatchers loading from
+CLI and numba), *kernel load* (numba dispatchers loading from
 the cache), *reference* (solving or reading the reference), *run* (the rest of
 ``liefi run``: building the system, choosing the step, integrating, invariants)
 and *output* (the JSON).  The table is printed in markdown.
@@ -51,7 +51,7 @@ try:
     import numba
 except ImportError:
     pass
-import scipy.integrate
+
 t_import = time.perf_counter() - t0
 acc = {"kernel load": 0.0, "reference": 0.0, "output": 0.0}
 
