@@ -122,6 +122,8 @@ def parse_gains(text, scene, variant=None, configuration=None):
     """
     if text is None:
         return None
+    if text.strip() == "auto":  # chosen by the library: no integrator to build for the gains' names
+        return "auto"
     from .feedback import parse_gains as _parse
 
     names = gain_names(scene, variant, configuration)

@@ -494,7 +494,7 @@ class FeedbackIntegrator:
         ``h``, ``h~``, user invariants, and the embedding penalty."""
         y = np.asarray(y, float)
         g, z = self.split(y)
-        t = _core.evaluate(self.system, z)
+        t = _core.evaluate(self.system, z, derivatives=False)
         out = {}
         if self.configuration:
             out["penalty"] = self.system.space.group.penalty(g)
@@ -504,7 +504,7 @@ class FeedbackIntegrator:
         out["h~"] = t.ht
         out["energy"] = t.ht if self.energy == "extended" else t.h
         for u in self.user + self._dropped_user:
-            out[u.name] = u.value_and_grad(z)[0]
+            out[u.name] = np.asarray(u.fun(z))
         return out
 
     def invariant_gradients(self, y):

@@ -255,6 +255,7 @@ def _run_one(scene, variant, spec, scale, count):
             warnings.simplefilter("always")
             result = scene.run(scheme=scheme, t_final=T, variant=variant, configuration=spec.configuration,
                                save_every=spec.save_every)
+            result.errors  # the errors against the reference (computed on first use): their failures are this run's
     except Exception as exc:  # noqa: BLE001 - record and go on with the other experiments
         row = _failed_row(scene.name, variant, scheme, T, spec.experiment, exc)
         _log(f"{tag} FAILED: {row['error']}")

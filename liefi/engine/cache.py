@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import atexit
 import hashlib
+import hmac
 import os
 import secrets
 import shutil
@@ -277,6 +278,15 @@ def signing_key(directory):
             key = None
         _KEYS[directory] = key
         return key
+
+
+def tag(key, name, payload):
+    """``HMAC-SHA256(key, name + NUL + payload)``: binds a signed file's content to its name.
+
+    The signature of numba's cache files (:mod:`liefi.engine.numba_cache`) and of the
+    reference store (:mod:`liefi.scenes.store`), with the key of :func:`signing_key`.
+    """
+    return hmac.new(key, name.encode() + b"\0" + payload, hashlib.sha256).digest()
 
 
 def _purge_all(directory):

@@ -81,9 +81,8 @@ def _warn(msg):
     warnings.warn(msg, _cache.KernelCacheWarning, stacklevel=2)
 
 
-def tag(key, name, payload):
-    """``HMAC-SHA256(key, name + NUL + payload)``: binds a file's content to its name."""
-    return hmac.new(key, name.encode() + b"\0" + payload, hashlib.sha256).digest()
+#: ``HMAC-SHA256(key, name + NUL + payload)`` (:func:`liefi.engine.cache.tag`)
+tag = _cache.tag
 
 
 class SignedFiles(_nc.IndexDataCacheFile):
@@ -189,6 +188,25 @@ class TrustedCache(_nc.FunctionCache):
         self._cache_path = cache_path
         self._cache_file = SignedFiles(cache_path, self._impl.filename_base, stamp, key)
         self.enable()
+
+    def load_overload(self, sig, target_context):
+        """Load a cached kernel without refreshing numba's whole target context first.
+
+        numba's ``load_overload`` calls ``target_context.refresh()``, which imports every
+        registry numba compiles with (``numba.np.arraymath`` and through it ``scipy.linalg``,
+        ``cffi``'s C parser...): about half a second, spent again in every process.  Linking
+        a kernel's object code needs only the symbols the context defines when it is made
+        (numba's C helpers, libm, the exception types), the runtime (``rtsys.initialize``)
+        and the hash secret ``numba.cpython.hashing`` defines on import; parallel kernels
+        start their threading layer through the cached ``reload_init``.  A kernel that is
+        not in the cache is compiled by numba's compiler, which refreshes the context itself.
+        """
+        from numba.core.runtime import rtsys
+        import numba.cpython.hashing  # noqa: F401 -- defines the _numba_hashsecret_ symbols
+
+        rtsys.initialize(target_context)
+        with self._guard_against_spurious_io_errors():
+            return self._load_overload(sig, target_context)
 
     def save_overload(self, sig, data):
         """Save (signed); a write that fails (full disk, quota, read-only) keeps the kernel in memory."""

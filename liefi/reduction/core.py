@@ -147,8 +147,11 @@ def small_inverse(C):
     return np.linalg.inv(C)
 
 
-def evaluate(system, z, *, data=NUMPY_DATA) -> Terms:
+def evaluate(system, z, *, data=NUMPY_DATA, derivatives=True) -> Terms:
     """Compute :class:`Terms` at the reduced states ``z`` (shape ``(..., nz)``).
+
+    ``derivatives=False``: the values ``h``, ``h~``, ``J`` (and ``Eflat``, ``Cinv``) only,
+    without differentiating the data; the gradients ``dh``, ``dht``, ``dJ`` are then ``None``.
 
     ``data``: the data accessor (:class:`NumpyData`, or the engine's tracing one
     when ``z`` holds traced scalars).  The constant parts (``m^{-1}`` of a
@@ -181,15 +184,18 @@ def evaluate(system, z, *, data=NUMPY_DATA) -> Terms:
     x, P = z[..., :n], z[..., n:]
     batch = z.shape[:-1]
 
-    m, dm = data.value_and_derivative(system.metric, x)
-    E, dE = data.value_and_derivative(system.constraints, x)
-    U, dU = data.value_and_derivative(system.potential, x)
+    def read(datum):
+        return data.value_and_derivative(datum, x) if derivatives else (data.value(datum, x), None)
+
+    m, dm = read(system.metric)
+    E, dE = read(system.constraints)
+    U, dU = read(system.potential)
     # Vector potential: h = 1/2 <P - A, m^{-1}(P - A)> + U and J = <P - A, e_i>; every
     # formula below is in the kinetic momentum Pi = P - A(x), plus the x-derivative
     # terms -dA^T v in dh/dx and -dA^T e_i in dJ_i/dx (added where those are formed).
     Pi, dA = P, None
     if system.vector_potential is not None:
-        A, dA = data.value_and_derivative(system.vector_potential, x)
+        A, dA = read(system.vector_potential)
         Pi = P - A
     if system.metric.constant:
         minv = system.metric_inverse
@@ -207,6 +213,8 @@ def evaluate(system, z, *, data=NUMPY_DATA) -> Terms:
     dht_dP = v - np.einsum("...kj,...k->...j", E, w)
     h = 0.5 * np.einsum("...i,...i->...", Pi, v) + U
     ht = h - 0.5 * np.einsum("...k,...k->...", J, w)
+    if not derivatives:
+        return Terms(h, ht, J, None, None, None, np.broadcast_to(Eflat, batch + (K, D)), Cinv)
 
     dh_dx = np.zeros(batch + (n,))
     dJ_dx = np.zeros(batch + (n, K))

@@ -14,8 +14,9 @@ A scene also owns what is particular to it, so that the plotting, the
 whether they need the configuration (:attr:`Scene.figures_need_configuration`),
 the runs ``liefi reproduce`` makes (:meth:`Scene.paper_runs`), its reference
 solution and what it costs (:meth:`Scene.reference_solution`, computed once per
-start), and its extreme cases for the stability battery
-(:attr:`Scene.stability_cases`).
+start; a run's reference values are kept on disk by :mod:`liefi.scenes.store`
+and computed only when an error is asked for), and its extreme cases for the
+stability battery (:attr:`Scene.stability_cases`).
 """
 
 from __future__ import annotations
@@ -84,6 +85,10 @@ class RunResult:
     (the constraint momenta ``J_i``, the energies ``h`` and ``h~``, the scene's
     other invariants, and ``orthogonality = ||R^T R - I||_F`` when the group
     element is integrated in an embedding with a penalty).
+
+    The errors (``errors``, ``max_error``) are computed on first use: a run whose
+    error is never asked for never computes the reference.  Its cost is then added
+    to ``overhead_seconds`` and ``reference_seconds``.
     """
 
     scene: str
@@ -99,9 +104,7 @@ class RunResult:
     t: np.ndarray
     y: np.ndarray
     names: tuple
-    errors: dict
     invariants: dict
-    max_error: dict
     max_drift: dict
     #: CPU seconds of the whole :meth:`Scene.run` besides the integration itself
     #: (setup, stability estimate, compilation, reference solution, invariants)
@@ -114,12 +117,33 @@ class RunResult:
     dropped: list = _field(default_factory=list)
     #: which method ran and why (:func:`liefi.tolerance.describe`; ``None`` outside the fixed-step loop)
     method: dict = None
+    #: ``() -> errors``: computes the errors against the reference (called once, on first use)
+    _reference: object = _field(default=None, repr=False, compare=False)
+    _errors: dict = _field(default=None, repr=False, compare=False)
+
+    @property
+    def errors(self):
+        """``{name: array}``: the run minus the reference at the saved points (computed on first use)."""
+        if self._errors is None:
+            compute, self._reference = self._reference, None
+            self._errors = {} if compute is None else compute(self)
+        return self._errors
+
+    @property
+    def max_error(self):
+        """``{name: max |error|}`` over the saved points (computes the reference on first use)."""
+        return {k: float(np.max(np.abs(e))) for k, e in self.errors.items()}
+
+    def __getstate__(self):  # the errors are computed before a result is pickled (the thunk is not)
+        self.errors
+        return dict(self.__dict__)
 
     def __getitem__(self, name):
         return self.y[self.names.index(name)]
 
     def to_dict(self):
         """The JSON-able summary (the keys of ``liefi run --json``)."""
+        max_error = self.max_error  # first: computing the reference adds to the seconds below
         return {
             "scene": self.scene,
             "variant": self.variant,
@@ -132,13 +156,18 @@ class RunResult:
             "rhs_evaluations": self.rhs_evaluations,
             "reference": self.reference,
             "gains": self.gains,
-            "max_error": {k: float(v) for k, v in self.max_error.items()},
+            "max_error": max_error,
             "max_drift": {k: float(v) for k, v in self.max_drift.items()},
             "reference_seconds": self.reference_seconds,
             "backend": self.backend,
             "dropped": [dict(d) for d in self.dropped],
             "method": None if self.method is None else dict(self.method),
         }
+
+
+def _json_number(x):
+    """numpy numbers and arrays as JSON (the step's ``info``)."""
+    return x.tolist() if hasattr(x, "tolist") else float(x)
 
 
 class Scene:
@@ -254,6 +283,21 @@ class Scene:
         (configuration names, then the state names); see :meth:`reference_solution`."""
         t = np.asarray(t, float)
         return self.reference_solution(variant, float(t[-1]) if t.size else 0.0)(t)
+
+    def reference_values(self, t, variant):
+        """The reference ``{name: array}`` at the times ``t``: :meth:`exact`, through the reference store.
+
+        A numerical reference is kept on disk (:mod:`liefi.scenes.store`, signed, keyed by the scene's
+        parameters, the variant, the start, ``t`` and liefi's code) and read back by any later run
+        that asks for the same one; a closed-form reference is evaluated.
+        """
+        v = self.variant(variant) if not isinstance(variant, Variant) else variant
+        t = np.asarray(t, float)
+        if self.reference != "numerical":
+            return self.exact(t, v)
+        from . import store
+
+        return store.reference(self, v, t, lambda: self.exact(t, v))
 
     def solve_reference(self, fun, y0, t_final, **kw):
         """``solve_ivp(fun, (0, t_final), y0)`` by DOP853 at the scene's ``reference_rtol``/``atol``: the one
@@ -511,9 +555,22 @@ class Scene:
                bool(choose_order))
         cache = self.__dict__.setdefault("_stepcache", {})
         if key not in cache:
-            fi = self.integrator(v, gains=gains, configuration=configuration)
-            cache[key] = choose_step(fi, _fixed_step_scheme(scheme), fi.y0, 0.0, float(t_final), rtol, atol,
-                                     choose_order=choose_order)
+            import json
+
+            from . import store
+
+            def pilot():
+                fi = self.integrator(v, gains=gains, configuration=configuration)
+                dt, info = choose_step(fi, _fixed_step_scheme(scheme), fi.y0, 0.0, float(t_final), rtol, atol,
+                                       choose_order=choose_order)
+                return {"dt": np.array(dt), "info": np.array(json.dumps(info, default=_json_number))}
+
+            # the pilot is deterministic: kept in the store like a reference, by everything it depends on
+            got = store.remember(self, v, ("step", str(scheme), gains, configuration, float(t_final),
+                                           np.asarray(rtol, float), None if atol is None else np.asarray(atol, float),
+                                           bool(choose_order)),
+                                 pilot)
+            cache[key] = float(got["dt"]), json.loads(str(got["info"]))
         return cache[key]
 
     def _check_start(self, fi, v, rtol=1e-9):
@@ -536,11 +593,22 @@ class Scene:
         """Run a scene-specific scheme; returns ``(t, Y, names, cpu, steps, nfev)``."""
         raise ValueError(f"scheme: {scheme!r} is not available for scene {self.name!r}")
 
+    def _errors(self, v, t, data):
+        """``result -> errors`` against the reference, for :attr:`RunResult.errors` (called on first use)."""
+
+        def compute(result):
+            start, ref_before = time.process_time(), getattr(self, "reference_seconds", 0.0)
+            ref = self.reference_values(t, v)
+            errors = {k: data[k] - ref[k] for k in self.error_variables if k in data and k in ref}
+            result.overhead_seconds += time.process_time() - start
+            result.reference_seconds += getattr(self, "reference_seconds", 0.0) - ref_before
+            return errors
+
+        return compute
+
     def _result(self, v, scheme, dt, T, fi, t, Y, names, cpu, steps, nfev, clock=None):
         data = {n: Y[i] for i, n in enumerate(names)}
         data.update(self.observables(Y, names))
-        ref = self.exact(t, v)
-        errors = {k: data[k] - ref[k] for k in self.error_variables if k in data and k in ref}
         # invariants along the run (the integrator's state layout)
         full_names = fi.names
         Yfi = np.stack([data[n] for n in full_names], -1) if all(n in data for n in full_names) else None
@@ -559,13 +627,12 @@ class Scene:
         for k, val in invariants.items():
             base = 0.0 if k.startswith("J_") or k == "orthogonality" else val[0]
             max_drift[k] = float(np.max(np.abs(val - base)))
-        max_error = {k: float(np.max(np.abs(e))) for k, e in errors.items()}
         overhead = ref_seconds = 0.0
         if clock is not None:
             overhead = max(0.0, time.process_time() - clock[0] - float(cpu))
             ref_seconds = getattr(self, "reference_seconds", 0.0) - clock[1]
         return RunResult(
             self.name, v.name, scheme, dt, T, int(steps), float(cpu), int(nfev), self.reference,
-            dict(fi.gains), t, Y, tuple(names), errors, invariants, max_error, max_drift,
-            overhead_seconds=overhead, reference_seconds=ref_seconds,
+            dict(fi.gains), t, Y, tuple(names), invariants, max_drift,
+            overhead_seconds=overhead, reference_seconds=ref_seconds, _reference=self._errors(v, t, data),
         )

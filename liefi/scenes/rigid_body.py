@@ -179,17 +179,13 @@ class RigidBody(Scene):
 
         if not engine.available():
             return self.numerical_reference(t, variant)
-        from scipy.integrate import solve_ivp
-
         key = ("compiled", variant.name, float(t[-1]), len(t))
         cache = self.__dict__.setdefault("_refcache", {})
         if key not in cache:
             fi = self.integrator(variant, configuration=True)
             cf = engine.compile_feedback(fi)
             fun = cf.fun(engine.parameters(fi, {k: 0.0 for k in fi.gains}))
-            sol = solve_ivp(fun, (0.0, float(t[-1])), fi.y0, method="DOP853", rtol=1e-12, atol=1e-12, t_eval=t)
-            if not sol.success:
-                raise RuntimeError(f"reference solution of {self.name!r} failed: {sol.message}")
+            sol = self.solve_reference(fun, fi.y0, t[-1], t_eval=t)
             cache[key] = {n: sol.y[i] for i, n in enumerate(fi.names)}
         return cache[key]
 
