@@ -52,14 +52,17 @@ def _grid_select(task):
 
 
 def grid(a, names):
+    factors = [float(f) for f in (a.dts or "8,4,2,1,0.5,0.25").split(",")]
     with open_executor(a.scheduler) as ex:
         expected = {}
         for name in names:
             sc = scenes.get(name)
-            dts = [sc.dt * f for f in (8.0, 4.0, 2.0, 1.0, 0.5, 0.25)]
-            expected[name] = [t for t in bench.build_tasks(sc, a.t_final, dts=dts) if _grid_select(t)]
+            dts = [sc.dt * f for f in factors]
+            expected[name] = [t for t in bench.build_tasks(sc, a.t_final, dts=dts, repeats=a.repeats)
+                              if _grid_select(t)]
             try:
-                rows = bench.work_precision(sc, a.t_final, a.out, ex, log=log, dts=dts, select=_grid_select)
+                rows = bench.work_precision(sc, a.t_final, a.out, ex, log=log, dts=dts, select=_grid_select,
+                                            repeats=a.repeats)
             except KeyboardInterrupt:
                 bench.write_summary(a.out, expected)
                 log(f"{name}: interrupted; what finished is in results.sqlite and summary.json")
@@ -75,14 +78,16 @@ def _cell(r):
     k = "" if r.get("gain") is None else f", k={r['gain']:g}"
     if r["method"] == "FI" and r.get("gain") is None:
         k = ", scene's gains"
-    return f"{r['method']} {r['scheme']} ({p}{k}): {r['cpu_seconds']:.2g} s, drift {r['max_drift']:.0e}"
+    err = r.get("max_error")
+    err = "" if err is None else f", error {err:.0e}"
+    return f"{r['method']} {r['scheme']} ({p}{k}): {r['cpu_seconds']:.2g} s, drift {r['max_drift']:.0e}{err}"
 
 
 def long(a, names):
     path = os.path.join(a.out, f"long-{a.t_final:g}.sqlite")
     res_path = os.path.join(a.out, "crossover.json")
     allres = json.load(open(res_path)) if os.path.exists(res_path) else {}
-    factors = [float(f) for f in a.dts.split(",")]
+    factors = [float(f) for f in (a.dts or "8,4").split(",")]
     with open_executor(a.scheduler) as ex, ResultStore(path) as store:
         for name in names:
             sc = scenes.get(name)
@@ -117,15 +122,53 @@ def long(a, names):
             log(f"{name}: crossover {res['drift+error']['crossover']} (drift only: {res['drift']['crossover']})")
 
 
+def _ratio(r, reason=None):
+    return f"null ({reason})" if r is None and reason else "-" if r is None else f"{r:.2f}"
+
+
+def _verdict(v, ratio, noise):
+    if v is None:
+        return "-"
+    if ratio is None:
+        return v
+    return f"{v} ({ratio:.2f}, noise {noise:.0%})"
+
+
+def _summaries(a, names):
+    """Per scene the verdict recomputed from its CSV (:func:`liefi.bench.summarize`: both criteria)."""
+    out = {}
+    for n in names:
+        p = os.path.join(a.out, f"{n}-work-precision.csv")
+        if os.path.exists(p):
+            out[n] = bench.summarize(bench.read_csv(p))
+    return out
+
+
 def tables(a, names):
-    s = json.load(open(os.path.join(a.out, "summary.json")))["scenes"]
-    print("| scene | cheapest overall | cheapest FI | fi_over_best |\n|---|---|---|---|")
+    s = _summaries(a, names)
+    print("| scene | fi_over_best (drift <= 1e-8) | verdict | fi_over_best_accurate (error <= 1e-6, drift <= 1e-8) "
+          "| verdict | cheapest accurate run | cheapest accurate FI |\n|---|---|---|---|---|---|---|")
     for n in names:
         if n in s:
             x = s[n]
-            r = x["fi_over_best"]
-            print(f"| {n} | {_cell(x['cheapest_overall'])} | {_cell(x['cheapest_fi'])} | "
-                  f"{'-' if r is None else f'{r:.2f}'} |")
+            print(f"| {n} | {_ratio(x['fi_over_best'], x['fi_over_best_reason'])} | "
+                  f"{_verdict(x['verdict'], x['fi_over_other'], x['noise'])} | "
+                  f"{_ratio(x['fi_over_best_accurate'], x['fi_over_best_accurate_reason'])} | "
+                  f"{_verdict(x['verdict_accurate'], x['fi_over_other_accurate'], x['noise_accurate'])} | "
+                  f"{_cell(x['cheapest_accurate'])} | {_cell(x['cheapest_fi_accurate'])} |")
+    if any(x["rtol_vs_best"] for x in s.values()):
+        print("\n| scene | rtol | dt chosen | error | error / rtol | CPU (s) | cheapest other run at that error | "
+              "CPU / cheapest | (CPU + setup) / cheapest |\n|---|---|---|---|---|---|---|---|---|")
+        for n in names:
+            for e in s.get(n, {}).get("rtol_vs_best", ()):
+                if e["status"] != "ok":
+                    print(f"| {n} | {e['rtol']:.0e} | {e['status']} | | | | | | |")
+                    continue
+                f = lambda v, spec: "-" if v is None else format(v, spec)  # noqa: E731
+                print(f"| {n} | {e['rtol']:.0e} | {f(e['dt'], '.3g')} | {f(e['max_error'], '.1e')} | "
+                      f"{f(e['error_over_rtol'], '.2g')} | {f(e['cpu_seconds'], '.2g')} | "
+                      f"{_cell(e['cheapest_at_error']) if e['cheapest_at_error'] else '-'} | "
+                      f"{f(e['cpu_over_cheapest'], '.2f')} | {f(e['total_over_cheapest'], '.1f')} |")
     p = os.path.join(a.out, "crossover.json")
     if os.path.exists(p):
         c = json.load(open(p))
@@ -152,7 +195,10 @@ def main(argv=None):
     ap.add_argument("--out", default=OUT)
     ap.add_argument("--only", default=None, help="comma-separated scene names")
     ap.add_argument("--t-final", type=float, default=None, dest="t_final")
-    ap.add_argument("--dts", default="8,4", help="long: steps as multiples of the scene's dt")
+    ap.add_argument("--dts", default=None, help="steps as multiples of the scene's dt (grid: 8,4,2,1,0.5,0.25; "
+                    "long: 8,4)")
+    ap.add_argument("--repeats", type=int, default=bench.REPEATS,
+                    help=f"grid: timed runs per task, the least CPU time kept (default {bench.REPEATS})")
     ap.add_argument("--gains", default="0.1,1", help="long: fixed FI gains ('scene': the scene's)")
     ap.add_argument("--methods", default=None, help="long: only these families (FI,no-feedback,projection)")
     ap.add_argument("--schemes", default="rk4,imex-rk4", help="long: the fixed-step schemes (default rk4,imex-rk4)")
