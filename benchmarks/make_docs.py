@@ -7,6 +7,7 @@ finishes, and a rerun skips what is there)::
     python benchmarks/make_docs.py long --t-final 1e5      # long runs, crossover horizons
     python benchmarks/make_docs.py long --t-final 1e6 --only roller-racer --dts 8 --gains 1 --methods FI,projection
     python benchmarks/make_docs.py tables                  # print the markdown tables
+    python benchmarks/make_docs.py summary --out DIR --dts ...   # summary.json of every scene of a grid
 
 ``grid`` writes into ``docs/work_precision/`` (``--out``): per scene
 ``<scene>-work-precision.csv``, ``<scene>-error.png``, ``<scene>-drift.png``;
@@ -49,6 +50,26 @@ def log(msg):
 
 def _grid_select(task):
     return not (task["method"] == "FI/solve_ivp" and task["scheme"] != "LSODA")
+
+
+def _grid_tasks(a, names):
+    """``{scene: tasks}`` of the grid stage for ``names`` (its ``--dts``, ``--repeats`` and ``--t-final``)."""
+    factors = [float(f) for f in (a.dts or "8,4,2,1,0.5,0.25").split(",")]
+    out = {}
+    for name in names:
+        sc = scenes.get(name)
+        out[name] = [t for t in bench.build_tasks(sc, a.t_final, dts=[sc.dt * f for f in factors],
+                                                  repeats=a.repeats) if _grid_select(t)]
+    return out
+
+
+def summary(a, names):
+    """Rebuild ``summary.json`` for every scene of ``names`` (one grid invocation writes its own scenes only)."""
+    doc = bench.write_summary(a.out, _grid_tasks(a, names))
+    if doc is None:
+        raise SystemExit(f"{a.out}: no results store ({bench.core.STORE}); run the grid stage first")
+    for n, x in doc["scenes"].items():
+        log(f"{n}: {x['runs']} of {x['tasks']} runs, complete {x['complete']}")
 
 
 def grid(a, names):
@@ -172,7 +193,7 @@ def tables(a, names):
             cells += [_cell(x["cheapest_accurate"]), _cell(x["cheapest_fi_accurate"])]
             print("| " + " | ".join(cells) + " |")
     if any(x["rtol_vs_best"] for x in s.values()):
-        print("\n| scene | rtol | dt chosen | error | error / rtol | CPU (s) | cheapest other run at that error | "
+        print("\n| scene | rtol | dt chosen | error | error / rtol | CPU (s) | cheapest grid run at that error | "
               "CPU / cheapest | CPU / cheapest with drift <= 1e-8 | (CPU + setup) / cheapest |\n"
               "|---|---|---|---|---|---|---|---|---|---|")
         for n in names:
@@ -208,7 +229,7 @@ def tables(a, names):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("stage", choices=("grid", "long", "tables"))
+    ap.add_argument("stage", choices=("grid", "long", "tables", "summary"))
     ap.add_argument("--out", default=OUT)
     ap.add_argument("--only", default=None, help="comma-separated scene names")
     ap.add_argument("--t-final", type=float, default=None, dest="t_final")
@@ -227,8 +248,8 @@ def main(argv=None):
     names = a.only.split(",") if a.only else scenes.names()
     os.makedirs(a.out, exist_ok=True)
     if a.t_final is None:
-        a.t_final = 1e3 if a.stage == "grid" else 1e5
-    {"grid": grid, "long": long, "tables": tables}[a.stage](a, names)
+        a.t_final = 1e5 if a.stage == "long" else 1e3
+    {"grid": grid, "long": long, "tables": tables, "summary": summary}[a.stage](a, names)
     return 0
 
 
