@@ -154,7 +154,7 @@ def _verdict(v, ratio, noise):
         return "-"
     if ratio is None:
         return v
-    return f"{v} ({ratio:.2f}, noise {noise:.0%})"
+    return f"{v} ({ratio:.2f}, noise {100 * noise:.2g} %)"
 
 
 def _summaries(a, names):
