@@ -7,6 +7,7 @@ finishes, and a rerun skips what is there)::
     python benchmarks/make_docs.py long --t-final 1e5      # long runs, crossover horizons
     python benchmarks/make_docs.py long --t-final 1e6 --only roller-racer --dts 8 --gains 1 --methods FI,projection
     python benchmarks/make_docs.py tables                  # print the markdown tables
+    python benchmarks/make_docs.py summary --out DIR --dts ...   # summary.json of every scene of a grid
 
 ``grid`` writes into ``docs/work_precision/`` (``--out``): per scene
 ``<scene>-work-precision.csv``, ``<scene>-error.png``, ``<scene>-drift.png``;
@@ -51,15 +52,38 @@ def _grid_select(task):
     return not (task["method"] == "FI/solve_ivp" and task["scheme"] != "LSODA")
 
 
+def _grid_tasks(a, names):
+    """``{scene: tasks}`` of the grid stage for ``names`` (its ``--dts``, ``--repeats`` and ``--t-final``)."""
+    factors = [float(f) for f in (a.dts or "8,4,2,1,0.5,0.25").split(",")]
+    out = {}
+    for name in names:
+        sc = scenes.get(name)
+        out[name] = [t for t in bench.build_tasks(sc, a.t_final, dts=[sc.dt * f for f in factors],
+                                                  repeats=a.repeats) if _grid_select(t)]
+    return out
+
+
+def summary(a, names):
+    """Rebuild ``summary.json`` for every scene of ``names`` (one grid invocation writes its own scenes only)."""
+    doc = bench.write_summary(a.out, _grid_tasks(a, names))
+    if doc is None:
+        raise SystemExit(f"{a.out}: no results store ({bench.core.STORE}); run the grid stage first")
+    for n, x in doc["scenes"].items():
+        log(f"{n}: {x['runs']} of {x['tasks']} runs, complete {x['complete']}")
+
+
 def grid(a, names):
+    factors = [float(f) for f in (a.dts or "8,4,2,1,0.5,0.25").split(",")]
     with open_executor(a.scheduler) as ex:
         expected = {}
         for name in names:
             sc = scenes.get(name)
-            dts = [sc.dt * f for f in (8.0, 4.0, 2.0, 1.0, 0.5, 0.25)]
-            expected[name] = [t for t in bench.build_tasks(sc, a.t_final, dts=dts) if _grid_select(t)]
+            dts = [sc.dt * f for f in factors]
+            expected[name] = [t for t in bench.build_tasks(sc, a.t_final, dts=dts, repeats=a.repeats)
+                              if _grid_select(t)]
             try:
-                rows = bench.work_precision(sc, a.t_final, a.out, ex, log=log, dts=dts, select=_grid_select)
+                rows = bench.work_precision(sc, a.t_final, a.out, ex, log=log, dts=dts, select=_grid_select,
+                                            repeats=a.repeats, plots=not a.no_plots)
             except KeyboardInterrupt:
                 bench.write_summary(a.out, expected)
                 log(f"{name}: interrupted; what finished is in results.sqlite and summary.json")
@@ -75,14 +99,18 @@ def _cell(r):
     k = "" if r.get("gain") is None else f", k={r['gain']:g}"
     if r["method"] == "FI" and r.get("gain") is None:
         k = ", scene's gains"
-    return f"{r['method']} {r['scheme']} ({p}{k}): {r['cpu_seconds']:.2g} s, drift {r['max_drift']:.0e}"
+    if r["method"] == bench.RTOL_METHOD:
+        p = f"rtol={r['rtol']:.0e}, dt={r['dt']:.3g}"
+    err = r.get("max_error")
+    err = "" if err is None else f", error {err:.0e}"
+    return f"{r['method']} {r['scheme']} ({p}{k}): {r['cpu_seconds']:.2g} s, drift {r['max_drift']:.0e}{err}"
 
 
 def long(a, names):
     path = os.path.join(a.out, f"long-{a.t_final:g}.sqlite")
     res_path = os.path.join(a.out, "crossover.json")
     allres = json.load(open(res_path)) if os.path.exists(res_path) else {}
-    factors = [float(f) for f in a.dts.split(",")]
+    factors = [float(f) for f in (a.dts or "8,4").split(",")]
     with open_executor(a.scheduler) as ex, ResultStore(path) as store:
         for name in names:
             sc = scenes.get(name)
@@ -117,15 +145,68 @@ def long(a, names):
             log(f"{name}: crossover {res['drift+error']['crossover']} (drift only: {res['drift']['crossover']})")
 
 
+def _ratio(r, reason=None):
+    return f"null ({reason})" if r is None and reason else "-" if r is None else f"{r:.2f}"
+
+
+def _verdict(v, ratio, noise):
+    if v is None:
+        return "-"
+    if ratio is None:
+        return v
+    return f"{v} ({ratio:.2f}, noise {100 * noise:.2g} %)"
+
+
+def _summaries(a, names):
+    """Per scene the verdict recomputed from its CSV (:func:`liefi.bench.summarize`: both criteria), and
+    the same without the ``FI-rtol`` rows (key ``without_rtol``)."""
+    out = {}
+    for n in names:
+        p = os.path.join(a.out, f"{n}-work-precision.csv")
+        if os.path.exists(p):
+            rows = bench.read_csv(p)
+            out[n] = bench.summarize(rows)
+            out[n]["without_rtol"] = bench.summarize([r for r in rows if r["method"] != bench.RTOL_METHOD])
+    return out
+
+
 def tables(a, names):
-    s = json.load(open(os.path.join(a.out, "summary.json")))["scenes"]
-    print("| scene | cheapest overall | cheapest FI | fi_over_best |\n|---|---|---|---|")
+    s = _summaries(a, names)
+    # the verdict columns only where the timings were repeated, "without FI-rtol" only where there are FI-rtol rows
+    timed = any(x["scene_noise"] is not None for x in s.values())
+    rtol = any(x["rtol_vs_best"] for x in s.values())
+    head = ["scene", "fi_over_best (drift <= 1e-8)"] + (["verdict (FI/other, noise)"] if timed else []) + \
+        ["fi_over_best_accurate (error <= 1e-6, drift <= 1e-8)"] + (["verdict (FI/other, noise)"] if timed else []) + \
+        (["fi_over_best_accurate without FI-rtol"] if rtol else []) + ["cheapest accurate run", "cheapest accurate FI"]
+    print("| " + " | ".join(head) + " |\n|" + "---|" * len(head))
     for n in names:
         if n in s:
-            x = s[n]
-            r = x["fi_over_best"]
-            print(f"| {n} | {_cell(x['cheapest_overall'])} | {_cell(x['cheapest_fi'])} | "
-                  f"{'-' if r is None else f'{r:.2f}'} |")
+            x, w = s[n], s[n]["without_rtol"]
+            wo = _ratio(w["fi_over_best_accurate"], w["fi_over_best_accurate_reason"])
+            if w["verdict_accurate"] is not None:
+                wo += f", {_verdict(w['verdict_accurate'], w['fi_over_other_accurate'], w['noise_accurate'])}"
+            cells = [n, _ratio(x["fi_over_best"], x["fi_over_best_reason"])]
+            cells += [_verdict(x["verdict"], x["fi_over_other"], x["noise"])] if timed else []
+            cells += [_ratio(x["fi_over_best_accurate"], x["fi_over_best_accurate_reason"])]
+            cells += [_verdict(x["verdict_accurate"], x["fi_over_other_accurate"], x["noise_accurate"])] if timed else []
+            cells += [wo] if rtol else []
+            cells += [_cell(x["cheapest_accurate"]), _cell(x["cheapest_fi_accurate"])]
+            print("| " + " | ".join(cells) + " |")
+    if any(x["rtol_vs_best"] for x in s.values()):
+        print("\n| scene | rtol | dt chosen | error | error / rtol | CPU (s) | cheapest grid run at that error | "
+              "CPU / cheapest | CPU / cheapest with drift <= 1e-8 | (CPU + setup) / cheapest |\n"
+              "|---|---|---|---|---|---|---|---|---|---|")
+        for n in names:
+            for e in s.get(n, {}).get("rtol_vs_best", ()):
+                if e["status"] != "ok":
+                    print(f"| {n} | {e['rtol']:.0e} | {e['status']} | | | | | | | |")
+                    continue
+                f = lambda v, spec: "-" if v is None else format(v, spec)  # noqa: E731
+                print(f"| {n} | {e['rtol']:.0e} | {f(e['dt'], '.3g')} | {f(e['max_error'], '.1e')} | "
+                      f"{f(e['error_over_rtol'], '.2g')} | {f(e['cpu_seconds'], '.2g')} | "
+                      f"{_cell(e['cheapest_at_error']) if e['cheapest_at_error'] else '-'} | "
+                      f"{f(e['cpu_over_cheapest'], '.2f')} | {f(e['cpu_over_cheapest_kept'], '.2f')} | "
+                      f"{f(e['total_over_cheapest'], '.1f')} |")
     p = os.path.join(a.out, "crossover.json")
     if os.path.exists(p):
         c = json.load(open(p))
@@ -148,14 +229,18 @@ def tables(a, names):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("stage", choices=("grid", "long", "tables"))
+    ap.add_argument("stage", choices=("grid", "long", "tables", "summary"))
     ap.add_argument("--out", default=OUT)
     ap.add_argument("--only", default=None, help="comma-separated scene names")
     ap.add_argument("--t-final", type=float, default=None, dest="t_final")
-    ap.add_argument("--dts", default="8,4", help="long: steps as multiples of the scene's dt")
+    ap.add_argument("--dts", default=None, help="steps as multiples of the scene's dt (grid: 8,4,2,1,0.5,0.25; "
+                    "long: 8,4)")
+    ap.add_argument("--repeats", type=int, default=bench.REPEATS,
+                    help=f"grid: timed runs per task, the least CPU time kept (default {bench.REPEATS})")
     ap.add_argument("--gains", default="0.1,1", help="long: fixed FI gains ('scene': the scene's)")
     ap.add_argument("--methods", default=None, help="long: only these families (FI,no-feedback,projection)")
     ap.add_argument("--schemes", default="rk4,imex-rk4", help="long: the fixed-step schemes (default rk4,imex-rk4)")
+    ap.add_argument("--no-plots", action="store_true", dest="no_plots", help="grid: the CSVs and stores only")
     ap.add_argument("--n-save", type=int, default=10000, dest="n_save")
     ap.add_argument("--scheduler", default="processes:2")
     a = ap.parse_args(argv)
@@ -163,8 +248,8 @@ def main(argv=None):
     names = a.only.split(",") if a.only else scenes.names()
     os.makedirs(a.out, exist_ok=True)
     if a.t_final is None:
-        a.t_final = 1e3 if a.stage == "grid" else 1e5
-    {"grid": grid, "long": long, "tables": tables}[a.stage](a, names)
+        a.t_final = 1e5 if a.stage == "long" else 1e3
+    {"grid": grid, "long": long, "tables": tables, "summary": summary}[a.stage](a, names)
     return 0
 
 

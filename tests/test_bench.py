@@ -33,7 +33,7 @@ SMALL = dict(t_final=0.5, dts=[5e-3], rtols=[1e-6], schemes=("euler",), ivp_meth
 
 def _strip(r):
     """A run without its timings (which differ from run to run)."""
-    return {k: v for k, v in r.items() if k not in ("cpu_seconds", "compile_seconds")}
+    return {k: v for k, v in r.items() if k not in ("cpu_seconds", "compile_seconds", "cpu_spread", "setup_seconds")}
 
 
 def _same(a, b):

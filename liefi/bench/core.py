@@ -16,6 +16,11 @@ tolerances ``rtol`` (each run from the scene's start to ``t_final``):
                     invariant the scheme does not keep is the no-feedback method, and is
                     recorded as ``not-applicable``
 ``FI/solve_ivp``    the same field with ``solve_ivp`` ``RK45``, ``DOP853``, ``LSODA``
+``FI-rtol``         liefi's default run driven by a tolerance: ``FeedbackIntegrator.run(t_final,
+                    rtol=r)`` with the constructor's default gains (``"auto"``), no scheme and no
+                    ``dt`` (the library chooses both), for each r of :data:`FI_RTOLS`; column
+                    ``dt`` is the step it chose, ``setup_seconds`` the CPU of the call outside
+                    the integration (choosing the step, the guard)
 ``no-feedback``     the extended field ``X`` alone (gains zero) with ``euler``, ``heun``, ``rk4``
 ``constrained``     the original constrained equations (multipliers
                     ``lambda = C^{-1}{h, J}``, :func:`~liefi.reduction.full_vector_field`
@@ -51,7 +56,10 @@ How the runs are made comparable
   fixed-step method's advantage is the engine, not the method:
   ``rhs_evaluations`` is the engine-independent measure of work, and
   :func:`plot` draws error against it too.
-* ``cpu_seconds`` is process CPU time (robust to other load on the machine).
+* ``cpu_seconds`` is process CPU time (robust to other load on the machine),
+  the least of ``repeats`` timed runs (:data:`REPEATS`; after the warm-up);
+  ``cpu_spread = (second least - least) / least`` over the repeats is the run's
+  measured noise (:func:`best_of`), which :mod:`liefi.bench.verdict` uses to call a ratio a tie.
 * The state is the scene's full state ``(g, z)`` (configuration integrated, so
   that ``R^T R = I`` is an invariant to keep) unless ``configuration=False``.
 * The projection is the Euclidean orthogonal projection onto
@@ -83,17 +91,20 @@ from .. import engine as _engine
 from .. import scenes as _scenes
 from .._files import writing
 from ..sweep import ResultStore, StoreError, SweepInterrupted, TaskError, run_sweep
+from .verdict import FI_METHODS, RTOL_METHOD, cheapest, summarize, summary  # noqa: F401  (re-exported)
 
 FIXED_SCHEMES = ("euler", "heun", "rk4", "imex-euler", "imex-heun", "imex-rk4")
 IVP_METHODS = ("RK45", "DOP853", "LSODA")
-METHODS = ("FI", "FI-tuned", "FI-accurate", "FI/solve_ivp", "no-feedback", "constrained", "projection", "projection-1",
-           "DLA")
+METHODS = ("FI", "FI-tuned", "FI-accurate", "FI/solve_ivp", "FI-rtol", "no-feedback", "constrained", "projection",
+           "projection-1", "DLA")
 #: the gains of the ``FI`` rows: ``None`` is the scene's own (the paper's) gains, a number k is k on every
 #: invariant.  Small gains belong here: with RK4 at the scene's step, k = 0.1 keeps the oscillator's
 #: invariants bounded at the cost of plain RK4.  Zero is the ``no-feedback`` method, not an FI.
 FI_GAINS = (None, 0.1, 1.0, 10.0)
-#: the methods that count as a feedback integrator in :func:`summarize`
-FI_METHODS = ("FI", "FI-tuned", "FI-accurate", "FI/solve_ivp")
+#: the tolerances of the ``FI-rtol`` rows (``FeedbackIntegrator.run(t_final, rtol=r)``)
+FI_RTOLS = (1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10)
+#: every run is timed this many times and keeps the least CPU time (``cpu_spread``: the repeats' relative spread)
+REPEATS = 3
 STORE = "results.sqlite"
 
 
@@ -109,6 +120,11 @@ def default_grid(scene, t_final, quick=False):
     return [scene.dt * f for f in (8.0, 4.0, 2.0, 1.0, 0.5, 0.25, 0.125, 0.0625)], [1e-3, 1e-5, 1e-7, 1e-9, 1e-11]
 
 
+def default_fi_rtols(quick=False):
+    """The tolerances of the ``FI-rtol`` rows: :data:`FI_RTOLS`, or ``1e-4, 1e-7, 1e-10`` with ``quick``."""
+    return [1e-4, 1e-7, 1e-10] if quick else list(FI_RTOLS)
+
+
 def applicable_methods(scene):
     """The method families that apply to ``scene`` (DLA only on ``T*R^n`` with a constant metric)."""
     out = list(METHODS)
@@ -118,16 +134,21 @@ def applicable_methods(scene):
 
 
 def build_tasks(scene, t_final, *, variant=None, dts=None, rtols=None, methods=None, configuration=True,
-                n_save=1000, quick=False, schemes=FIXED_SCHEMES, ivp_methods=IVP_METHODS, gains=FI_GAINS):
+                n_save=1000, quick=False, schemes=FIXED_SCHEMES, ivp_methods=IVP_METHODS, gains=FI_GAINS,
+                fi_rtols=None, repeats=REPEATS):
     """The list of task dicts of a work-precision sweep (see :func:`run_task`).
 
     ``schemes`` (liefi's fixed-step schemes) and ``ivp_methods`` (``solve_ivp``'s)
     restrict the grid; the defaults are :data:`FIXED_SCHEMES` and :data:`IVP_METHODS`.
     ``gains`` are the gains of the ``FI`` rows (:data:`FI_GAINS`; ``None``: the scene's).
+    ``fi_rtols``: the tolerances of the ``FI-rtol`` rows (default :func:`default_fi_rtols`).
+    ``repeats``: timed runs per task, the least CPU time kept (:data:`REPEATS`).
     """
-    from .validate import check_grid
+    from .validate import check_grid, positive_int
 
     t_final, dts, rtols, gains = check_grid(t_final, dts, rtols, gains)
+    fi_rtols = default_fi_rtols(quick) if fi_rtols is None else check_grid(t_final, None, fi_rtols, ())[2]
+    repeats = positive_int("repeats", repeats)
     sc = _scenes.get(scene) if isinstance(scene, str) else scene
     v = sc.variant(variant).name
     g_dts, g_rtols = default_grid(sc, t_final, quick)
@@ -135,7 +156,7 @@ def build_tasks(scene, t_final, *, variant=None, dts=None, rtols=None, methods=N
     rtols = g_rtols if rtols is None else list(rtols)
     methods = applicable_methods(sc) if methods is None else list(methods)
     common = {"scene": sc.name, "variant": v, "t_final": float(t_final), "configuration": bool(configuration),
-              "n_save": int(n_save), "gain": None}
+              "n_save": int(n_save), "gain": None, "repeats": repeats}
     from ..schemes import get as _scheme
 
     # a split imex-* scheme steps the feedback field: it is a feedback integrator only
@@ -153,6 +174,8 @@ def build_tasks(scene, t_final, *, variant=None, dts=None, rtols=None, methods=N
         elif m == "FI/solve_ivp":
             tasks += [dict(common, method=m, scheme=s, dt=None, rtol=float(r), gain=k)
                       for k in gains for s in ivp_methods for r in rtols]
+        elif m == RTOL_METHOD:
+            tasks += [dict(common, method=m, scheme="default", dt=None, rtol=float(r)) for r in fi_rtols]
         elif m == "constrained":
             tasks += [dict(common, method=m, scheme=s, dt=None, rtol=float(r)) for s in ivp_methods for r in rtols]
         elif m == "DLA":
@@ -168,11 +191,28 @@ def _split_scheme(name):
     return get(name).kind == "split"
 
 
-def _integrator(task):
+def _integrator(task, gains=None):
     sc = _scenes.get(task["scene"])
     v = sc.variant(task["variant"])
     cfg = task["configuration"] and sc.system.space.group.config_dim > 0
-    return sc, v, sc.integrator(v, configuration=cfg)
+    return sc, v, sc.integrator(v, configuration=cfg, gains=gains)
+
+
+def best_of(repeats, timed):
+    """Call ``timed()`` (returning ``(result, cpu_seconds)``) ``repeats`` times.
+
+    Returns ``(result, cpu, spread)``: the result of the fastest call, the least CPU
+    time, and the spread ``(second least - least) / least`` of the CPU times (``nan``
+    for one call): how far the next-best repeat is from the kept one.  The second
+    least rather than the largest, so that one repeat slowed by another process (or
+    a cold cache) does not turn every comparison of the scene into a tie.
+    """
+    runs = [timed() for _ in range(max(1, int(repeats)))]
+    cpus = [c for _, c in runs]
+    i = int(np.argmin(cpus))
+    lo = cpus[i]
+    spread = (sorted(cpus)[1] - lo) / lo if len(cpus) > 1 and lo > 0 else math.nan
+    return runs[i][0], lo, spread
 
 
 def _steps(t_final, dt, n_save):
@@ -186,7 +226,8 @@ def run_task(task):
     """Run one method of a sweep; returns ``{t, y, cpu_seconds, rhs_evaluations, ...}`` or a failure.
 
     ``task``: ``scene``, ``variant``, ``method`` (one of :data:`METHODS`),
-    ``scheme``, ``dt`` or ``rtol``, ``t_final``, ``configuration``, ``n_save``.
+    ``scheme``, ``dt`` or ``rtol``, ``t_final``, ``configuration``, ``n_save``,
+    ``repeats`` (default 1: timed runs after the warm-up, :func:`best_of`).
     ``y`` is ``(N, n_t)`` in the feedback integrator's state layout.  Never
     raises for a run that fails (diverges, solver gives up): ``status`` says so.
     """
@@ -196,12 +237,24 @@ def run_task(task):
 
     out = dict(task)
     out.update(status="ok", message="", cpu_seconds=math.nan, compile_seconds=0.0, rhs_evaluations=0,
-               projection_evaluations=0, steps=0, t=None, y=None)
+               projection_evaluations=0, steps=0, t=None, y=None, cpu_spread=math.nan, setup_seconds=None)
+    repeats = task.get("repeats", 1)
     try:
-        sc, v, fi = _integrator(task)
         method, scheme, T = task["method"], task["scheme"], task["t_final"]
+        sc, v, fi = _integrator(task, gains="auto" if method == RTOL_METHOD else None)
         w = time.perf_counter()
-        if method in ("FI", "FI-tuned", "FI-accurate", "no-feedback", "projection", "projection-1"):
+        if method == RTOL_METHOD:
+            # liefi's default run for a tolerance: no scheme, no dt, the constructor's default gains
+            kw = dict(rtol=task["rtol"], progress=False)
+            first = fi.run(T, save_every=2**62, **kw)  # the warm-up: compiles, and tells the number of steps
+            n = first.plan.n_steps
+            out["compile_seconds"] = time.perf_counter() - w
+            se = max(1, n // task["n_save"])
+            sol, cpu, spread = best_of(repeats, lambda: (lambda s: (s, s.cpu_seconds))(fi.run(T, save_every=se, **kw)))
+            out.update(t=sol.t, y=sol.y, cpu_seconds=cpu, cpu_spread=spread, rhs_evaluations=int(sol.nfev), steps=n,
+                       dt=float(sol.method["dt"]), scheme=sol.method["scheme"], setup_seconds=sol.overhead_seconds,
+                       message=sol.method.get("why", "")[:300])
+        elif method in ("FI", "FI-tuned", "FI-accurate", "no-feedback", "projection", "projection-1"):
             n, se = _steps(T, task["dt"], task["n_save"])
             # a split scheme (explicit tableau on X, then the feedback substep) has its own kernel
             compile_fi = _engine.compile_split if _split_scheme(scheme) else _engine.compile_feedback
@@ -239,9 +292,14 @@ def run_task(task):
             cf.warmup(scheme, project=proj is not None)
             out["compile_seconds"] = time.perf_counter() - w
             newton = dict(maxit=1, tol=-1.0) if method == "projection-1" else {}  # one step, no check
-            sol = cf.run(fi.y0, p, task["dt"], n, scheme, save_every=se, names=fi.names, project=proj, **newton)
-            out.update(t=sol.t, y=sol.y, cpu_seconds=sol.cpu_seconds, rhs_evaluations=sol.rhs_evaluations, steps=n,
-                       projection_evaluations=getattr(sol, "projection_evaluations", 0))
+
+            def timed():
+                sol = cf.run(fi.y0, p, task["dt"], n, scheme, save_every=se, names=fi.names, project=proj, **newton)
+                return sol, sol.cpu_seconds
+
+            sol, cpu, spread = best_of(repeats, timed)
+            out.update(t=sol.t, y=sol.y, cpu_seconds=cpu, cpu_spread=spread, rhs_evaluations=sol.rhs_evaluations,
+                       steps=n, projection_evaluations=getattr(sol, "projection_evaluations", 0))
         elif method in ("FI/solve_ivp", "constrained"):
             if method == "FI/solve_ivp":
                 if task.get("gain") is not None:
@@ -254,11 +312,15 @@ def run_task(task):
             out["compile_seconds"] = time.perf_counter() - w
             t_eval = np.linspace(0.0, T, task["n_save"] + 1)
             rtol = task["rtol"]
-            c0 = time.process_time()
-            with np.errstate(all="ignore"):
-                sol = solve_ivp(fun, (0.0, T), fi.y0, method=scheme, t_eval=t_eval, rtol=rtol, atol=1e-2 * rtol)
-            cpu = time.process_time() - c0
-            out.update(cpu_seconds=cpu, rhs_evaluations=int(sol.nfev), steps=None)
+
+            def timed():
+                c0 = time.process_time()
+                with np.errstate(all="ignore"):
+                    sol = solve_ivp(fun, (0.0, T), fi.y0, method=scheme, t_eval=t_eval, rtol=rtol, atol=1e-2 * rtol)
+                return sol, time.process_time() - c0
+
+            sol, cpu, spread = best_of(repeats, timed)
+            out.update(cpu_seconds=cpu, cpu_spread=spread, rhs_evaluations=int(sol.nfev), steps=None)
             if not sol.success:
                 out.update(status="failed", message=f"solve_ivp({scheme}): {sol.message}")
             elif not np.all(np.isfinite(sol.y)):
@@ -281,8 +343,10 @@ def run_task(task):
             q0, q1 = dla.initial_pair(q0, p0, task["dt"])
             cd.run(q0, q1, task["dt"], 2)  # compile
             out["compile_seconds"] = time.perf_counter() - w
-            t, q, mom, cpu, updates = cd.run(q0, q1, task["dt"], n, save_every=se)
-            out.update(t=t, y=np.concatenate([q, mom], 0), cpu_seconds=cpu, rhs_evaluations=updates, steps=n)
+            (t, q, mom, _, updates), cpu, spread = best_of(
+                repeats, lambda: (lambda r: (r, r[3]))(cd.run(q0, q1, task["dt"], n, save_every=se)))
+            out.update(t=t, y=np.concatenate([q, mom], 0), cpu_seconds=cpu, cpu_spread=spread, rhs_evaluations=updates,
+                       steps=n)
         else:
             raise ValueError(f"method: unknown {method!r}")
     except (IntegrationError, FloatingPointError) as exc:
@@ -327,7 +391,8 @@ def reference(scene, variant, fi, t_final):
 
 
 _ROW_KEYS = ("scene", "variant", "method", "scheme", "dt", "rtol", "gain", "t_final", "configuration", "status",
-             "cpu_seconds", "compile_seconds", "rhs_evaluations", "projection_evaluations", "steps", "message")
+             "cpu_seconds", "cpu_spread", "repeats", "setup_seconds", "compile_seconds", "rhs_evaluations",
+             "projection_evaluations", "steps", "message")
 
 
 def error_row(task, err):
@@ -392,7 +457,7 @@ def invariant_drifts(fi, Y):
 def work_precision(scene, t_final=None, out_dir=None, executor=None, *, variant=None, dts=None, rtols=None,
                    methods=None, configuration=True, n_save=1000, quick=False, schemes=FIXED_SCHEMES,
                    ivp_methods=IVP_METHODS, gains=FI_GAINS, plots=True, log=None, progress=None, store=None,
-                   select=None):
+                   select=None, fi_rtols=None, repeats=REPEATS):
     """Run the work-precision sweep of ``scene``; write ``<scene>-work-precision.csv`` and diagrams.
 
     Parameters
@@ -407,8 +472,10 @@ def work_precision(scene, t_final=None, out_dir=None, executor=None, *, variant=
         Nothing is written without it.
     executor : concurrent.futures.Executor, optional
         Runs the grid (default: serially in this process); see :mod:`liefi.sweep`.
-    variant, dts, rtols, methods, configuration, n_save, quick, schemes, ivp_methods, gains
+    variant, dts, rtols, methods, configuration, n_save, quick, schemes, ivp_methods, gains, fi_rtols
         The grid: see :func:`build_tasks` and :func:`default_grid`.
+    repeats : int
+        Timed runs per task; the least CPU time is kept (:data:`REPEATS`, default 3).
     select : callable, optional
         ``select(task) -> bool`` keeps part of the grid only.
     plots : bool
@@ -440,7 +507,7 @@ def work_precision(scene, t_final=None, out_dir=None, executor=None, *, variant=
     T = sc.t_final if t_final is None else t_final
     tasks = build_tasks(sc, T, variant=variant, dts=dts, rtols=rtols, methods=methods,
                         configuration=configuration, n_save=n_save, quick=quick, schemes=schemes,
-                        ivp_methods=ivp_methods, gains=gains)
+                        ivp_methods=ivp_methods, gains=gains, fi_rtols=fi_rtols, repeats=repeats)
     if select is not None:
         tasks = [t for t in tasks if select(t)]
         if not tasks:
@@ -499,7 +566,8 @@ def work_precision(scene, t_final=None, out_dir=None, executor=None, *, variant=
 # ======================================================================================
 
 _FIRST = ("scene", "variant", "method", "scheme", "dt", "rtol", "gain", "t_final", "configuration", "status", "cpu_seconds",
-          "compile_seconds", "rhs_evaluations", "projection_evaluations", "steps", "max_error", "max_drift")
+          "cpu_spread", "repeats", "setup_seconds", "compile_seconds", "rhs_evaluations", "projection_evaluations",
+          "steps", "max_error", "max_drift")
 
 
 def write_csv(rows, path):
@@ -530,89 +598,3 @@ def read_csv(path):
                     out[k] = float(v) if v not in ("", None) else None
             rows.append(out)
     return rows
-
-
-# ======================================================================================
-# reading the results
-# ======================================================================================
-
-
-def cheapest(rows, *, drift=1e-8, error=None, methods=None):
-    """The row of least ``cpu_seconds`` among successful runs with ``max_drift <= drift``
-    (and ``max_error <= error`` when given), optionally among ``methods`` only."""
-    def good(r):
-        if r["status"] != "ok" or r.get("max_drift") is None or not np.isfinite(r["max_drift"]):
-            return False
-        if error is not None and not (r.get("max_error") is not None and r["max_error"] <= error):
-            return False
-        return r["max_drift"] <= drift and (methods is None or r["method"] in methods)
-
-    ok = [r for r in rows if good(r)]
-    return min(ok, key=lambda r: r["cpu_seconds"]) if ok else None
-
-
-def _label(r):
-    p = f"dt={r['dt']:.3g}" if r.get("dt") else f"rtol={r['rtol']:.0e}"
-    k = f", k={r['gain']:g}" if r.get("gain") is not None else ""
-    return f"{r['method']} {r['scheme']} ({p}{k})"
-
-
-def _brief(r):
-    if r is None:
-        return None
-    keys = ("method", "scheme", "dt", "rtol", "gain", "cpu_seconds", "rhs_evaluations", "max_drift", "max_error")
-    return {k: r.get(k) for k in keys}
-
-
-def summarize(rows, drift=1e-8, tasks=None):
-    """The verdict of one scene's sweep, for ``summary.json``.
-
-    ``cheapest_overall``: the run of least CPU time whose every invariant drifts
-    by at most ``drift`` (``max_drift``, each invariant's max over the run);
-    ``cheapest_fi``: the same among the feedback integrators (:data:`FI_METHODS`:
-    every gain nonzero -- zero gains are ``no-feedback``); ``fi_over_best``: the
-    ratio of their CPU times (``None`` if either is missing).  Each holds
-    ``method``, ``scheme``, ``dt`` or ``rtol``, ``gain`` (``None``: the scene's
-    gains; ``FI-tuned``: chosen from ``dt``), ``cpu_seconds``, ``max_drift`` and
-    ``max_error``.  Only runs with ``status = "ok"`` count; ``runs``,
-    ``failed`` (diverged or solver failures), ``not_applicable`` and ``errors``
-    (raised, worker died) count the rest.  ``rows`` are the stored outcomes of the grid's
-    tasks, at most one per task; ``complete`` says whether every one of the ``tasks`` (their
-    number; ``None`` when not given) has a stored result: a finished run, whatever its
-    status, not a task that raised or lost its worker (a rerun retries those).
-    """
-    best = cheapest(rows, drift=drift)
-    fi = cheapest(rows, drift=drift, methods=FI_METHODS)
-    ratio = None
-    if best is not None and fi is not None:
-        ratio = fi["cpu_seconds"] / max(best["cpu_seconds"], 1e-12)
-    return {
-        "criterion": f"every invariant's max drift <= {drift:g}",
-        "t_final": rows[0]["t_final"] if rows else None,
-        "runs": len(rows),
-        "tasks": None if tasks is None else int(tasks),
-        "complete": None if tasks is None else len(rows) - sum(r["status"] == "error" for r in rows) == tasks,
-        "failed": sum(r["status"] in ("diverged", "failed") for r in rows),
-        "not_applicable": sum(r["status"] == "not-applicable" for r in rows),
-        "errors": sum(r["status"] == "error" for r in rows),
-        "cheapest_overall": _brief(best),
-        "cheapest_fi": _brief(fi),
-        "fi_over_best": ratio,
-        "cheapest_accurate": _brief(cheapest(rows, drift=drift, error=1e-6)),
-        "cheapest_fi_accurate": _brief(cheapest(rows, drift=drift, error=1e-6, methods=FI_METHODS)),
-    }
-
-
-def summary(rows, drift=1e-8):
-    """One paragraph of text: the cheapest method reaching ``drift`` and the feedback integrator's."""
-    s = summarize(rows, drift)
-    best, fi = s["cheapest_overall"], s["cheapest_fi"]
-    lines = [f"cheapest with max drift <= {drift:g}: "
-             + (f"{_label(best)}, {best['cpu_seconds']:.3g} s" if best else "none")]
-    lines.append("cheapest feedback integrator reaching it: "
-                 + (f"{_label(fi)}, {fi['cpu_seconds']:.3g} s" if fi else "none in the grid"))
-    if s["fi_over_best"] is not None:
-        lines.append(f"fi_over_best = {s['fi_over_best']:.3g}")
-    if s["failed"] or s["errors"]:
-        lines.append(f"{s['failed']} runs diverged or failed, {s['errors']} raised or lost their worker (see the CSV)")
-    return "\n".join(lines)

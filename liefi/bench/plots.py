@@ -13,7 +13,7 @@ from ..plotting import finish_panel_grid, legend_columns, panel_grid
 # plots
 # ======================================================================================
 
-_COLORS = {"FI": "C3", "FI-tuned": "C6", "FI-accurate": "C5", "FI/solve_ivp": "C1", "no-feedback": "C7", "constrained": "C0", "projection": "C2", "projection-1": "C8", "DLA": "C4"}
+_COLORS = {"FI": "C3", "FI-tuned": "C6", "FI-accurate": "C5", "FI/solve_ivp": "C1", "FI-rtol": "k", "no-feedback": "C7", "constrained": "C0", "projection": "C2", "projection-1": "C8", "DLA": "C4"}
 #: scheme -> (marker, line): the marker by the order's base scheme, the line by the kind
 #: (explicit solid, split ``imex-*`` dash-dot, adaptive solve_ivp dashed, implicit dotted)
 _STYLES = {"euler": ("o", "-"), "heun": ("s", "-"), "midpoint": ("P", "-"), "rk3": ("h", "-"), "rk4": ("^", "-"),

@@ -28,3 +28,11 @@ def check_grid(t_final, dts, rtols, gains):
             raise ValueError("gains: 0 is the 'no-feedback' method, not a feedback integrator; give gains > 0")
         out.append(positive("gains", k))
     return t_final, dts, rtols, tuple(out)
+
+
+def positive_int(name, value):
+    """``int(value)`` if it is a whole number >= 1, else a ``ValueError`` naming ``name``
+    (:func:`liefi.schemes.positive_int`, the one validator of counts)."""
+    from ..schemes import positive_int as _positive_int
+
+    return _positive_int(value, name)
