@@ -104,7 +104,8 @@ CHECK_ERROR = 1e-3
 CHECK_COARSEST = 64.0
 #: The check's two runs cost at most this fraction of the run the local model predicts.
 CHECK_BUDGET = 0.25
-#: ... or at most this many field evaluations when that is more (a few milliseconds of compiled loop).
+#: ... or at most this many field evaluations when that is more (a few milliseconds of compiled loop; compiled
+#: backends only: on numpy that would be seconds).
 CHECK_FLOOR = 3e5
 #: Common times at which the check's two runs are compared (at least; every coarse step up to this many
 #: steps): dense enough to catch a short transient where the error peaks.
@@ -268,9 +269,9 @@ def _local_step(C, T, p, h):
 def _check_plan(fi, sch, tab, y0, t0, T, dt0, rtol, atol, p, backend):
     """The check of step 5 over the whole horizon, or ``None`` for a run of too few steps to protect.
 
-    The three runs cost at most :data:`CHECK_BUDGET` of the run ``dt0`` predicts, or
+    The three runs cost at most :data:`CHECK_BUDGET` of the run ``dt0`` predicts, or, compiled,
     :data:`CHECK_FLOOR` field evaluations when that is more (the fixed cost of a run, a few
-    milliseconds, is not worth saving below it).  The coarse step is the asymptotic one (its relative
+    milliseconds, is not worth saving below it; on numpy an evaluation costs about 1000 times more).  The coarse step is the asymptotic one (its relative
     error :data:`CHECK_ERROR` by the local model, at most :data:`CHECK_COARSEST` ``dt0``) when the
     budget affords it over ``[t0, T]``, else the finest the budget affords: the whole horizon is always
     measured, so that an error that grows late in the run (the rattleback's spin reversal) is seen;
@@ -279,7 +280,9 @@ def _check_plan(fi, sch, tab, y0, t0, T, dt0, rtol, atol, p, backend):
     """
     if T / dt0 < 256:
         return None
-    budget = max(CHECK_BUDGET * T / dt0, CHECK_FLOOR / max(1, int(getattr(sch, "stages", 1))))
+    # the floor is a few milliseconds of compiled loop; on numpy (an evaluation costs ~1000x) only the fraction
+    floor = CHECK_FLOOR / max(1, int(getattr(sch, "stages", 1))) if backend != "numpy" else 0.0
+    budget = max(CHECK_BUDGET * T / dt0, floor)
     H = dt0 * min(max(1.0, (CHECK_ERROR / rtol) ** (1.0 / p)), CHECK_COARSEST)
     H = min(max(H, 7.0 * T / budget), T / 64)
     spent, chk = 0.0, None
