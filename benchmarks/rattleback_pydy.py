@@ -348,7 +348,7 @@ def main(argv=None):
                     choices=["lambdify", "pydy-lambdify", "pydy-cython"])
     ap.add_argument("--repeats", type=int, default=1, help="best of N integrations (timing)")
     ap.add_argument("--n-out", type=int, default=2001, help="output times for the errors")
-    ap.add_argument("--liefi-dts", type=float, nargs="+", default=[1e-2, 5e-3, 2e-3],
+    ap.add_argument("--liefi-dts", type=float, nargs="+", default=[1e-4, 5e-5],
                     help="steps of liefi's scene (LIEFI HOOK; used once the scene exists)")
     ap.add_argument("--no-figure", action="store_true", help="tables only (no matplotlib)")
     ap.add_argument("--out", default=None, help="default: docs/rattleback_peer/GENERATOR")
