@@ -44,6 +44,7 @@ from ._progress import Progress, stderr_is_terminal
 from .schemes import IntegrationError, Solution, integrate, positive_int
 from .schemes import registry as _registry
 from .schemes import split as _split
+from .tolerance import MAX_RUN_STEPS  # a run of more steps is refused before it starts (``--max-steps``)
 
 #: Saved output kept by default (``save_every=None``): at most this many bytes.
 DEFAULT_SAVE_BYTES = 256 * 2**20
@@ -52,7 +53,6 @@ PROGRESS_SECONDS = 3.0
 #: Refuse an explicit ``scipy:`` method expected to need more steps than this.
 IVP_MAX_STEPS = 1e6
 #: A run of more steps than this is refused before it starts (``liefi run`` and ``liefi bench``: ``--max-steps``).
-MAX_RUN_STEPS = 10**8
 
 
 def available_memory():

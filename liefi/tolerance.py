@@ -102,6 +102,10 @@ TARGET = 1.0 / 3.0
 CHECK_ERROR = 1e-3
 #: ... and is at most this many local-model steps.
 CHECK_COARSEST = 64.0
+#: A run of more steps than this is refused before it starts (``liefi run``, ``liefi bench``: ``--max-steps``;
+#: :meth:`liefi.FeedbackIntegrator.run`); where the local model already predicts more, the check is not run
+#: (its runs would cost minutes before the refusal).
+MAX_RUN_STEPS = 10**8
 #: The check's two runs cost at most this fraction of the run the local model predicts.
 CHECK_BUDGET = 0.25
 #: ... or at most this many field evaluations when that is more (a few milliseconds of compiled loop; compiled
@@ -299,8 +303,9 @@ def _global_check(fi, sch, y0, t0, T, H, tau, rtol, atol, p, backend):
     """The measured global error over ``[t0, t0 + tau]`` (step 5 of the module docstring), or ``None``.
 
     Three runs of the scheme itself, at ``H``, ``H/2`` and ``H/4``, compared at up to
-    :data:`CHECK_SAMPLES` common times.  Returns ``(E, E_safe, H/2, tau, trusted)``, errors in units of
-    the tolerance at the horizon ``T``:
+    :data:`CHECK_SAMPLES` common times.  Returns ``(E, E_safe, H/2, tau, trusted, dense)``, errors in
+    units of the tolerance at the horizon ``T``, ``dense`` whether the runs were compared at every coarse
+    step:
 
     - ``E``: the run at ``H/2`` has the error ``|y_{H/2} - y_{H/4}| / (1 - 2^{-p})`` (Richardson),
       ``E = max_t`` of it, times ``T / tau`` when ``tau < T`` (linear growth past the prefix);
@@ -339,7 +344,7 @@ def _global_check(fi, sch, y0, t0, T, H, tau, rtol, atol, p, backend):
     if not (math.isfinite(E) and math.isfinite(E_safe)):
         return None
     trusted = d1 <= CHECK_TRUST and not (d2 > 1e3 * np.finfo(float).eps and d1 < 2.0 ** (p - 1) * d2)
-    return E, E_safe, H / 2, tau, trusted
+    return E, E_safe, H / 2, tau, trusted, m == 1
 
 
 def choose_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=None, choose_order=False):
@@ -375,7 +380,8 @@ def choose_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=
     dt_est, chk, safe = dt_local, None, False
     if check and C > 0 and math.isfinite(C):
         dt0, _ = resolved_step(fi, tab, Y, dt_local, T, rtol)
-        chk = _check_plan(fi, sch, tab, np.asarray(y0, float), float(t0), T, dt0, rtol, atol, p, backend)
+        chk = (None if T / dt0 > MAX_RUN_STEPS else
+               _check_plan(fi, sch, tab, np.asarray(y0, float), float(t0), T, dt0, rtol, atol, p, backend))
         for _ in range(CHECK_WIDEN):
             # a trusted check that caps the step (the tolerance allows more than CHECK_GROWTH x its step):
             # measure again at a 4x coarser step, cheaper, and keep it if it is still asymptotic
@@ -387,7 +393,7 @@ def choose_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=
                 break
             chk = wider
         if chk is not None:
-            E, E_safe, H, _tau, trusted = chk
+            E, E_safe, H, _tau, trusted, _dense = chk
             # the measured error at H scaled to the target by the order; never more than CHECK_GROWTH x H,
             # where the error was not measured; without the asymptotic regime the conservative bound, and
             # never longer than the local model's step
@@ -395,7 +401,9 @@ def choose_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=
             dt_est = H * CHECK_GROWTH if e <= 0 else min(H * (TARGET / e) ** (1.0 / p), CHECK_GROWTH * H)
             if not trusted:
                 dt_est, safe = min(dt_est, dt_local), True
-    measured = CHECK_GROWTH * chk[2] if chk is not None and chk[4] else None
+    # the measured step resolves the motion only where the check compared the runs at every coarse step (a
+    # sparser comparison can miss a transient, e.g. Suslov's over t in [0, 1e7])
+    measured = CHECK_GROWTH * chk[2] if chk is not None and chk[4] and chk[5] else None
     dt_est, limit = resolved_step(fi, tab, Y, min(dt_est, T), T, rtol, measured)
     n = max(1, math.ceil(T / min(dt_est, T) - 1e-9))
     dt = T / n

@@ -170,7 +170,7 @@ def test_an_untrusted_check_is_conservative(monkeypatch):
 
     def untrusted(*a, **k):
         out = real(*a, **k)
-        return None if out is None else out[:4] + (False,)
+        return None if out is None else out[:4] + (False,) + out[5:]
 
     monkeypatch.setattr(tol, "_global_check", untrusted)
     dt, info = tol.choose_step(fi, sch, fi.y0, 0.0, 200.0, 1e-6)
