@@ -140,12 +140,13 @@ class Policy:
     scheme (explicit or split); ``beta`` its real stability bound.
     """
 
-    def __init__(self, scheme, *, backend, check_stability=True, adaptive=None, stacklevel=3, choose_order=False):
+    def __init__(self, scheme, *, backend, check_stability=True, adaptive=None, stacklevel=3, choose_order=False,
+                 resolution_limit=None):
         self.sch = scheme
         #: a step chosen for a tolerance may also choose the order (:func:`liefi.tolerance.choose_order`)
         self.choose_order = bool(choose_order)
         #: ``dt`` times the fastest rate that resolves the motion (a step for a tolerance brings its own)
-        self.resolution_limit = RESOLUTION_LIMIT
+        self.resolution_limit = RESOLUTION_LIMIT if resolution_limit is None else float(resolution_limit)
         self.beta = float(scheme.real_stability_bound)
         self.split = scheme.kind == "split"
         self.backend = backend

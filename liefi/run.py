@@ -237,7 +237,7 @@ def deprecation_message(t_span, dt, scheme):
 def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, dense_output=False, errors="raise",
                  y0=None, save_every=None, check_every=1, backend=None, check_stability=True, adaptive=None,
                  monitor_every=None, progress=None, max_saved_bytes=None, drop_exact=True, rtol=None, atol=None,
-                 stacklevel=3) -> Solution:
+                 stacklevel=3, resolution_limit=None) -> Solution:
     """Integrate the feedback integrator ``fi`` over ``t_span`` with a fixed step (module docstring).
 
     The parameters are those of :meth:`liefi.FeedbackIntegrator.run`;
@@ -253,7 +253,9 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
     ``scheme=None``: :data:`liefi.tolerance.DEFAULT_SCHEME`; ``backend=None``:
     compiled when numba is installed, else numpy; ``dt=None``: the step of
     :func:`liefi.tolerance.choose_step` for ``rtol`` (default
-    :data:`liefi.tolerance.DEFAULT_RTOL`) and ``atol``.
+    :data:`liefi.tolerance.DEFAULT_RTOL`) and ``atol``.  ``resolution_limit``: the largest ``dt``
+    times the fastest rate the guard accepts without a warning, for a step chosen for a tolerance before
+    the call (:meth:`liefi.scenes.Scene.run`; default :data:`liefi.stability.RESOLUTION_LIMIT`).
 
     Returns the :class:`~liefi.schemes.Solution` with ``method`` (which method
     ran and why: :func:`liefi.tolerance.describe`), ``stability`` (the
@@ -279,7 +281,7 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
     backend = _tol.default_backend() if backend is None else backend
     # the one policy of the run: its step, its gains and their checks
     policy = Policy(sch, backend=backend, check_stability=check_stability, adaptive=adaptive,
-                    stacklevel=stacklevel + 1, choose_order=not scheme_given)
+                    stacklevel=stacklevel + 1, choose_order=not scheme_given, resolution_limit=resolution_limit)
     dt, t_end, n_steps, check_every = policy.step(fi, y0, t_start, t_end, dt, rtol, atol, check_every=check_every,
                                                   max_steps=MAX_RUN_STEPS)
     chosen = policy.chosen

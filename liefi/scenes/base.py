@@ -504,9 +504,12 @@ class Scene:
                 raise FloatingPointError(f"solve_ivp({method}) returned non-finite values on {self.name!r}")
             t, Y, names, steps, nfev = sol.t, sol.y, fi.names, int(sol.t.size), int(sol.nfev)
         else:
-            sol = fi.run(
-                T, dt=dt, scheme=scheme, save_every=save_every, check_stability=check_stability, adaptive=adaptive,
-                backend=backend,
+            from ..run import run_feedback
+
+            # a step chosen for a tolerance brings the resolution limit its order and tolerance allow
+            sol = run_feedback(
+                fi, T, dt=dt, scheme=scheme, save_every=save_every, check_stability=check_stability, adaptive=adaptive,
+                backend=backend, resolution_limit=None if chosen is None else chosen.get("resolution_limit"),
             )
             method = sol.method
             if chosen is not None:
