@@ -154,10 +154,12 @@ def test_an_untrusted_file_is_removed_and_the_reference_solved_again(store_dir, 
 def test_an_unwritable_store_warns_and_the_run_goes_on(store_dir, monkeypatch):
     _, calls = store_dir
 
-    def full(name, blob):
+    def full(name, blob, prefix=None):
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(store, "_write", full)
+    from liefi.engine import cache
+
+    monkeypatch.setattr(cache, "atomic_write", full)
     with pytest.warns(store.ReferenceStoreWarning, match="cannot be kept"):
         r = _Osc().run(**_KW)
         r.max_error

@@ -326,12 +326,13 @@ class Kernel:
         return first
 
 
-def _atomic_write(path, text):
-    """Write ``text`` to ``path`` atomically (a private temporary file in the same directory, then rename)."""
-    fd, tmp = tempfile.mkstemp(dir=os.path.dirname(path), prefix=".kernel", suffix=".tmp")
+def atomic_write(path, data, prefix=".kernel"):
+    """Write ``data`` (text or bytes) to ``path`` atomically (a private temporary file in the same directory,
+    then rename)."""
+    fd, tmp = tempfile.mkstemp(dir=os.path.dirname(path), prefix=prefix, suffix=".tmp")
     try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
+        with os.fdopen(fd, "wb" if isinstance(data, bytes) else "w") as fh:
+            fh.write(data)
         os.replace(tmp, path)
     except BaseException:
         try:
@@ -402,7 +403,7 @@ def load(source, engine="numba"):
             try:
                 if not _intact(path, text):  # missing, truncated or foreign: numba's cache of it is stale too
                     purge(directory, name)
-                    _atomic_write(path, text)
+                    atomic_write(path, text)
             except OSError as exc:
                 warnings.warn(f"liefi: cannot write the kernel {path} ({exc}); compiling it in memory",
                               KernelCacheWarning, stacklevel=3)
@@ -424,7 +425,7 @@ def heal(kernel):
         if kernel.path is not None:
             purge(os.path.dirname(kernel.path), kernel.name)
             if not _intact(kernel.path, kernel.text):
-                _atomic_write(kernel.path, kernel.text)
+                atomic_write(kernel.path, kernel.text)
         kernel.module = _execute(kernel.name, kernel.path, kernel.text)
         return kernel.module
 

@@ -41,7 +41,6 @@ import importlib.util
 import io
 import os
 import sys
-import tempfile
 import threading
 import warnings
 
@@ -264,7 +263,7 @@ def load(k):
 
 def save(k, values):
     """Keep ``values`` (``{name: array}``) under key ``k``; a failure to write warns once and is otherwise ignored."""
-    from ..engine.cache import tag
+    from ..engine.cache import atomic_write, tag
 
     where = _directory()
     if where is None:
@@ -279,28 +278,13 @@ def save(k, values):
     np.savez(buf, key=np.array(k), names=np.array(names, dtype=str), **arrays)
     payload = buf.getvalue()
     try:
-        _write(name, MAGIC + tag(sign, os.path.basename(name), payload) + payload)
+        atomic_write(name, MAGIC + tag(sign, os.path.basename(name), payload) + payload, prefix=".ref")
     except OSError as exc:
         _warn_once("write", f"liefi: the result cannot be kept in the store {path} ({exc.strerror or exc}); "
                             "the run goes on, and the next run computes it again (a reference is solved again)")
         return False
     _evict(path)
     return True
-
-
-def _write(name, blob):
-    """Write ``blob`` to ``name`` atomically (a private temporary file in the same folder, then rename)."""
-    fd, tmp = tempfile.mkstemp(dir=os.path.dirname(name), prefix=".ref", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(blob)
-        os.replace(tmp, name)
-    except BaseException:
-        try:
-            os.remove(tmp)
-        except OSError:
-            pass
-        raise
 
 
 def _evict(path):
