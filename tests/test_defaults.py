@@ -88,7 +88,7 @@ def test_cli_defaults_keep_every_invariant(name, capsys):
     # first integrals a scene only monitors (reported, not in V: e.g. the rolling disk's Chaplygin integrals)
     # drift with the state error; the claim is on the invariants V keeps
     sc = scenes.get(name)
-    monitored = {i.name for i in getattr(sc, "monitored", lambda v: ())(sc.variant())} - set(d["gains"])
+    monitored = {i.name for i in sc.monitored(sc.variant())} - set(d["gains"])
     kept = {k: v for k, v in d["max_drift"].items() if k not in monitored}
     assert max(kept.values(), default=0.0) <= 1e-10, d["max_drift"]
 

@@ -284,6 +284,12 @@ class Scene:
         t = np.asarray(t, float)
         return self.reference_solution(variant, float(t[-1]) if t.size else 0.0)(t)
 
+    def monitored(self, variant):
+        """First integrals the scene reports without penalizing them (:class:`~liefi.Invariant` of the
+        reduced state): their drift is in ``RunResult.max_drift``, beside the invariants of ``V``.  None by
+        default; a scene whose motion has integrals that ``V`` leaves out lists them here."""
+        return ()
+
     def reference_values(self, t, variant):
         """The reference ``{name: array}`` at the times ``t``: :meth:`exact`, through the reference store.
 
@@ -298,6 +304,13 @@ class Scene:
         from . import store
 
         return store.reference(self, v, t, lambda: self.exact(t, v))
+
+    def _kept(self, key, make):
+        """``make()``, computed once per scene and ``key`` in this process (a reference at given times)."""
+        cache = self.__dict__.setdefault("_refcache", {})
+        if key not in cache:
+            cache[key] = make()
+        return cache[key]
 
     def solve_reference(self, fun, y0, t_final, **kw):
         """``solve_ivp(fun, (0, t_final), y0)`` by DOP853 at the scene's ``reference_rtol``/``atol``: the one
@@ -626,6 +639,11 @@ class Scene:
                         invariants["orthogonality"] = 2.0 * np.sqrt(np.maximum(val, 0.0))
                 else:
                     invariants[k] = np.asarray(val)
+        monitored = [inv for inv in self.monitored(v) if inv.name not in invariants]
+        if monitored and all(n in data for n in self.system.state_names):
+            z = np.stack([np.asarray(data[n], float) for n in self.system.state_names], -1)
+            for inv in monitored:
+                invariants[inv.name] = np.asarray(inv.fun(z), float)
         max_drift = {}
         for k, val in invariants.items():
             base = 0.0 if k.startswith("J_") or k == "orthogonality" else val[0]

@@ -119,9 +119,8 @@ class ChaplyginBall(Scene):
 
     def exact(self, t, variant):
         t = np.asarray(t, float)
-        key = (variant.name, float(t[-1]), len(t))
-        cache = self.__dict__.setdefault("_refcache", {})
-        if key not in cache:
+
+        def solve():
             y0 = np.asarray(self.initial_state(variant), float)
             R0, pos0, V0 = y0[:9].reshape(3, 3), y0[9:11], y0[11:20]
             G0, W0 = V0[6:9], self.Omega0
@@ -137,8 +136,9 @@ class ChaplyginBall(Scene):
             u = self.radius * np.stack([np.sum(Y[11:14] * v, 0), np.sum(Y[14:17] * v, 0)])
             names = self.system.space.group.config_names + self.system.state_names
             vals = np.concatenate([Y[:20], self.inertia[:, None] * W, self.mass * u])
-            cache[key] = {n: vals[i] for i, n in enumerate(names)}
-        return cache[key]
+            return {n: vals[i] for i, n in enumerate(names)}
+
+        return self._kept((variant.name, float(t[-1]), len(t)), solve)
 
     def figures(self, runs, *, tag=""):
         """The contact point's path on the plane (run and reference), then the generic errors and drifts."""

@@ -218,14 +218,14 @@ class HeavyTop(Scene):
 
     def exact(self, t, variant):
         t = np.asarray(t, float)
-        key = (variant.name, float(t[-1]), len(t))
-        cache = self.__dict__.setdefault("_refcache", {})
-        if key not in cache:
+
+        def solve():
             y0 = np.asarray(self.initial_state(variant), float)
             sol = self.solve_reference(euler_poisson(self.inertia, self.mg, self.chi), y0, t[-1], t_eval=t)
             names = tuple(SO3().config_names) + self.system.state_names
-            cache[key] = {n: sol.y[i] for i, n in enumerate(names)}
-        return cache[key]
+            return {n: sol.y[i] for i, n in enumerate(names)}
+
+        return self._kept((variant.name, float(t[-1]), len(t)), solve)
 
     def run_extra(self, scheme, variant, dt, T, save_every, fi):
         if scheme == "splitting":

@@ -179,15 +179,15 @@ class RigidBody(Scene):
 
         if not engine.available():
             return self.numerical_reference(t, variant)
-        key = ("compiled", variant.name, float(t[-1]), len(t))
-        cache = self.__dict__.setdefault("_refcache", {})
-        if key not in cache:
+
+        def solve():
             fi = self.integrator(variant, configuration=True)
             cf = engine.compile_feedback(fi)
             fun = cf.fun(engine.parameters(fi, {k: 0.0 for k in fi.gains}))
             sol = self.solve_reference(fun, fi.y0, t[-1], t_eval=t)
-            cache[key] = {n: sol.y[i] for i, n in enumerate(fi.names)}
-        return cache[key]
+            return {n: sol.y[i] for i, n in enumerate(fi.names)}
+
+        return self._kept(("compiled", variant.name, float(t[-1]), len(t)), solve)
 
     def integrator(self, variant=None, *, gains=None, configuration=None, y0=None):
         """As :meth:`Scene.integrator`; without the configuration there is no penalty to weight."""

@@ -312,17 +312,6 @@ class RollingDisk(RollingReferenceScene):
         ``V`` only by the variant ``integrals-in-V``."""
         return chaplygin_invariants(inertia_matrix(), MASS, RADIUS, max_cos=self.series_max_cos)
 
-    def _result(self, v, scheme, dt, T, fi, t, Y, names, *args, **kw):
-        """The base result, with the drift of :meth:`monitored` along the run added to its invariants."""
-        result = super()._result(v, scheme, dt, T, fi, t, Y, names, *args, **kw)
-        z = np.stack([np.asarray(Y[names.index(n)], float) for n in self.system.state_names], -1)
-        for inv in self.monitored(v):
-            if inv.name not in result.invariants:
-                val = np.asarray(inv.fun(z), float)
-                result.invariants[inv.name] = val
-                result.max_drift[inv.name] = float(np.max(np.abs(val - val[0])))
-        return result
-
     def start_attitude(self):
         return start_attitude()
 
