@@ -291,13 +291,18 @@ def tag(key, name, payload):
 
 def _purge_all(directory):
     """Remove every numba cache file (``.nbi``, ``.nbc``) in ``directory/__pycache__``."""
+    _remove_cached(directory, lambda f: f.endswith((".nbi", ".nbc")))
+
+
+def _remove_cached(directory, matches):
+    """Remove the files of ``directory/__pycache__`` whose name ``matches``; a file already gone is no error."""
     pc = os.path.join(directory, "__pycache__")
     try:
         entries = os.listdir(pc)
     except OSError:
         return
     for f in entries:
-        if f.endswith((".nbi", ".nbc")):
+        if matches(f):
             try:
                 os.remove(os.path.join(pc, f))
             except OSError:
@@ -352,17 +357,7 @@ def _intact(path, text):
 
 def purge(directory, name):
     """Remove numba's (and Python's) cache files of the module ``name`` in ``directory``."""
-    pc = os.path.join(directory, "__pycache__")
-    try:
-        entries = os.listdir(pc)
-    except OSError:
-        return
-    for f in entries:
-        if f.startswith(name + "."):
-            try:
-                os.remove(os.path.join(pc, f))
-            except OSError:
-                pass
+    _remove_cached(directory, lambda f: f.startswith(name + "."))
 
 
 def _execute(name, path, text):
