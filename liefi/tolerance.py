@@ -91,6 +91,9 @@ DEFAULT_RTOL = 1e-6
 PILOT_STEPS = 24
 #: A component's error scale is at least this fraction of the largest size of its part.
 PART_FLOOR = 1e-2
+#: ... in the check's comparisons, over the whole horizon (where each component's size is seen, not a pilot's
+#: window of it): a position beside a winding angle is measured against its own size, not 1e-2 of the angle's.
+CHECK_PART_FLOOR = 1e-3
 #: The schemes among which ``choose_order`` picks, by kind: the same method at orders 4, 6 and 8.
 ORDER_CANDIDATES = {"split": ("imex-rk4", "imex-rk6", "imex-rk8"), "explicit": ("rk4", "rk6", "rk8")}
 #: The first pilot step is the largest ``T / 4^k`` whose relative local error is below this.
@@ -114,12 +117,18 @@ CHECK_FLOOR = 3e5
 #: Common times at which the check's two runs are compared (at least; every coarse step up to this many
 #: steps): dense enough to catch a short transient where the error peaks.
 CHECK_SAMPLES = 4096
+#: ... and every coarse step while a run's saved states take at most this many bytes (a comparison at every
+#: step measures the error of the whole run: its step counts as resolved, :func:`resolved_step`).
+CHECK_BYTES = 2**25
 #: A check whose two runs differ by more than this (relative) is not trusted (not asymptotic).
 CHECK_TRUST = 1e-2
 #: An untrusted check is repeated at half the coarse step while all its tries cost at most this many budgets.
 CHECK_TRIES_BUDGET = 4.0
-#: Times a trusted check that caps the step is repeated at a 4x coarser step.
+#: Longer steps tried, each run and measured, where a trusted check allows more than its coarse step
+#: (:func:`_verify_longer`).
 CHECK_WIDEN = 3
+#: ... each at most this many times the longest step measured so far.
+WIDEN_FACTOR = 4.0
 #: The step is at most this many times the check's coarse step (where the error was measured).
 CHECK_GROWTH = 2.0
 
@@ -249,7 +258,7 @@ def _local_estimate(fi, tab, Y, T, rtol, atol, f=None):
     return C, hC, mag
 
 
-def _size(fi, m):
+def _size(fi, m, floor_fraction=PART_FLOOR):
     """Each component's size ``m``, floored at :data:`PART_FLOOR` times the largest of its part (group
     element, ``x``, momenta).
 
@@ -258,9 +267,10 @@ def _size(fi, m):
     winds up over the run) keeps its own scale.
     """
     parts = _parts(fi)
-    floor = np.stack([np.max(m[..., sl], axis=-1) for sl in parts], -1)
-    idx = np.concatenate([np.full(sl.stop - sl.start, j) for j, sl in enumerate(parts)])
-    return np.maximum(np.maximum(m, PART_FLOOR * floor[..., idx]), 1e-300)
+    floor = np.empty_like(m)
+    for sl in parts:
+        floor[..., sl] = np.max(m[..., sl], axis=-1, keepdims=True)
+    return np.maximum(np.maximum(m, floor_fraction * floor), 1e-300)
 
 
 def _local_step(C, T, p, h):
@@ -320,7 +330,7 @@ def _global_check(fi, sch, y0, t0, T, H, tau, rtol, atol, p, backend):
     from .schemes.core import IntegrationError
 
     n = max(64, int(math.ceil(tau / H)))
-    m = max(1, n // CHECK_SAMPLES)
+    m = max(1, n // max(CHECK_SAMPLES, _samples(y0)))
     n = m * int(math.ceil(n / m))
     H = tau / n
     kw = dict(scheme=sch.name, progress=False, check_stability=False, backend=backend, drop_exact=True)
@@ -335,7 +345,7 @@ def _global_check(fi, sch, y0, t0, T, H, tau, rtol, atol, p, backend):
         return None
     if any(y.shape != ys[0].shape or not np.all(np.isfinite(y)) for y in ys):
         return None
-    size = _size(fi, np.max(np.abs(ys[2]), axis=0))
+    size = _size(fi, np.max(np.abs(ys[2]), axis=0), CHECK_PART_FLOOR)
     d1 = float(np.max(np.abs(ys[0] - ys[2]) / size))
     d2 = float(np.max(np.abs(ys[1] - ys[2]) / size))
     diff = np.abs(ys[1] - ys[2]) / (atol + rtol * size)
@@ -345,6 +355,75 @@ def _global_check(fi, sch, y0, t0, T, H, tau, rtol, atol, p, backend):
         return None
     trusted = d1 <= CHECK_TRUST and not (d2 > 1e3 * np.finfo(float).eps and d1 < 2.0 ** (p - 1) * d2)
     return E, E_safe, H / 2, tau, trusted, m == 1
+
+
+def _samples(y0):
+    """The states of ``y0``'s size that a run may save for a comparison (:data:`CHECK_BYTES`)."""
+    return max(1, int(CHECK_BYTES // (8 * max(1, np.asarray(y0).size))))
+
+
+def _verify_longer(fi, sch, y0, t0, T, chk, rtol, atol, p, backend):
+    r"""``(dt, e, dense)``: a step longer than the trusted check's coarse step, with its run's measured error
+    ``e`` (in units of the tolerance, ``e <= 1``), or ``None``.
+
+    The check measured the error up to its coarse step ``H``; past it the error is not known to follow
+    ``h^p`` (the asymptotic regime may end there).  So a longer step ``dt`` is *run*, over the whole
+    horizon, and compared at every one of its steps (or as many as :data:`CHECK_BYTES` allows:
+    ``dense``) with a run of the same scheme at ``dt / q``, ``q`` the least integer with ``dt / q <= H/2``.
+    That run is inside the measured regime, its error at most ``E (dt / (q H/2))^p <= E`` (``E`` the
+    check's, at ``H/2``), so
+
+    .. math:: e(dt) \le \max_n |y_{dt}(t_n) - y_{dt/q}(t_n)| / (atol + rtol\, s) + E .
+
+    The candidates start from the order's extrapolation ``H (TARGET / e(H))^{1/p}`` and follow each
+    measurement the same way, each at most :data:`WIDEN_FACTOR` times the longest step accepted so far,
+    :data:`CHECK_WIDEN` tries; a step is accepted when ``e <= 1``: the run that follows is the one
+    measured (same scheme, start and ``dt = T/N``), so its error is within the tolerance by measurement,
+    not by a model.
+    """
+    E, _E_safe, h = chk[0], chk[1], chk[2]
+    lo, e_lo = CHECK_GROWTH * h, E * CHECK_GROWTH ** p
+    best = None
+    prop = lo * (TARGET / e_lo) ** (1.0 / p) if e_lo > 0 else math.inf
+    for _ in range(CHECK_WIDEN):
+        cand = min(prop, WIDEN_FACTOR * lo, T / 64)
+        if not cand > 1.05 * lo:
+            break
+        got = _measure(fi, sch, y0, t0, T, cand, h, E, rtol, atol, p, backend)
+        if got is None:
+            break
+        e, dense, cand = got
+        if e <= 1.0:
+            best, lo = (cand, e, dense), cand
+        prop = cand * (TARGET / e) ** (1.0 / p) if e > 0 else math.inf
+    return best
+
+
+def _measure(fi, sch, y0, t0, T, dt, h, E, rtol, atol, p, backend):
+    """``(e, dense, dt)``: the error of the run at ``dt`` (rounded to ``T/N``) against the run at ``dt/q <= h``
+    whose error is at most ``E (dt / (q h))^p`` (:func:`_verify_longer`), or ``None`` when a run fails."""
+    from .schemes.core import IntegrationError
+
+    N = max(1, int(math.ceil(T / dt - 1e-9)))
+    m = max(1, -(-N // _samples(y0)))
+    N = m * int(math.ceil(N / m))
+    dt = T / N
+    q = max(1, int(math.ceil(dt / h - 1e-9)))
+    kw = dict(scheme=sch.name, progress=False, check_stability=False, backend=backend, drop_exact=True)
+    try:
+        import warnings
+
+        with warnings.catch_warnings(), np.errstate(all="ignore"):
+            warnings.simplefilter("ignore")
+            ys = [np.moveaxis(np.asarray(fi.run((t0, t0 + T), dt=dt / k, save_every=k * m, y0=y0, **kw).y), -1, 0)
+                  for k in (1, q)]
+    except (IntegrationError, ArithmeticError, np.linalg.LinAlgError, ValueError, RuntimeError):
+        return None
+    if ys[0].shape != ys[1].shape or not all(np.all(np.isfinite(y)) for y in ys):
+        return None
+    size = _size(fi, np.max(np.abs(ys[1]), axis=0), CHECK_PART_FLOOR)
+    e = float(np.max(np.abs(ys[0] - ys[1]) / (atol + rtol * size))) + E * (dt / (q * h)) ** p
+    return (e, m == 1, dt) if math.isfinite(e) else None
 
 
 def choose_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=None, choose_order=False):
@@ -377,33 +456,31 @@ def choose_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=
         C, h, _ = _local_estimate(fi, tab, Y, T, rtol, atol, f)
         costs = None
     dt_local = min(_local_step(C / TARGET, T, p, h), T)
-    dt_est, chk, safe = dt_local, None, False
+    dt_est, chk, safe, verified = dt_local, None, False, None
     if check and C > 0 and math.isfinite(C):
         dt0, _ = resolved_step(fi, tab, Y, dt_local, T, rtol)
         chk = (None if T / dt0 > MAX_RUN_STEPS else
                _check_plan(fi, sch, tab, np.asarray(y0, float), float(t0), T, dt0, rtol, atol, p, backend))
-        for _ in range(CHECK_WIDEN):
-            # a trusted check that caps the step (the tolerance allows more than CHECK_GROWTH x its step):
-            # measure again at a 4x coarser step, cheaper, and keep it if it is still asymptotic
-            if not (chk is not None and chk[4] and chk[0] * CHECK_GROWTH ** p < TARGET):
-                break
-            wider = _global_check(fi, sch, np.asarray(y0, float), float(t0), T, 8.0 * chk[2], T, rtol, atol, p,
-                                  backend)
-            if wider is None or not wider[4]:
-                break
-            chk = wider
         if chk is not None:
-            E, E_safe, H, _tau, trusted, _dense = chk
-            # the measured error at H scaled to the target by the order; never more than CHECK_GROWTH x H,
-            # where the error was not measured; without the asymptotic regime the conservative bound, and
-            # never longer than the local model's step
+            E, E_safe, H, _tau, trusted, _dense = chk[:6]
+            # the measured error at H scaled to the target by the order; up to CHECK_GROWTH x H the coarse run
+            # measured it; without the asymptotic regime the conservative bound, never longer than the local
+            # model's step
             e = E if trusted else E_safe
             dt_est = H * CHECK_GROWTH if e <= 0 else min(H * (TARGET / e) ** (1.0 / p), CHECK_GROWTH * H)
             if not trusted:
                 dt_est, safe = min(dt_est, dt_local), True
+            elif e * CHECK_GROWTH ** p < TARGET:
+                # the tolerance allows a step past the measured one: run it and measure its error directly
+                verified = _verify_longer(fi, sch, np.asarray(y0, float), float(t0), T, chk, rtol, atol, p,
+                                          backend)
+                if verified is not None:
+                    dt_est = max(dt_est, verified[0])
     # the measured step resolves the motion only where the check compared the runs at every coarse step (a
     # sparser comparison can miss a transient, e.g. Suslov's over t in [0, 1e7])
     measured = CHECK_GROWTH * chk[2] if chk is not None and chk[4] and chk[5] else None
+    if verified is not None and verified[2]:
+        measured = max(measured or 0.0, verified[0])
     dt_est, limit = resolved_step(fi, tab, Y, min(dt_est, T), T, rtol, measured)
     n = max(1, math.ceil(T / min(dt_est, T) - 1e-9))
     dt = T / n
@@ -411,6 +488,8 @@ def choose_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=
         est = (T * C * dt ** p) if C > 0 else 0.0
     else:
         est = (chk[0] if chk[4] else chk[1]) * (dt / chk[2]) ** p
+        if verified is not None and dt > CHECK_GROWTH * chk[2]:
+            est = verified[1] * min(1.0, dt / verified[0]) ** p
     info = {
         "rtol": rtol,
         "atol": float(atol) if atol.ndim == 0 else atol.tolist(),
@@ -424,6 +503,8 @@ def choose_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=
         "check_error": None if chk is None else chk[0],
         "check_trusted": None if chk is None else bool(chk[4]),
         "conservative": safe,
+        "verified_step": None if verified is None else verified[0],
+        "verified_error": None if verified is None else verified[1],
         "resolution_limit": limit,
         "estimated_error": est,
     }
@@ -480,16 +561,34 @@ def resolution_limit(tab, T, omega, rtol, target=None):
     target = TARGET if target is None else target
     if not (omega > 0 and math.isfinite(omega) and T > 0):
         return math.inf
-    th = np.geomspace(1e-4, 4.0, 600)
+    th, err = _mode_error(tab)
     with np.errstate(all="ignore"):
-        err = np.zeros_like(th)
-        for z in (1j * th, th + 0j, -th + 0j):
-            err = np.maximum(err, np.abs(tab.stability_function(z) * np.exp(-z) - 1.0))
         ok = (T * omega / th) * err <= target * rtol
     bad = np.nonzero(~ok)[0]
     if bad.size == 0:
         return float(th[-1])
     return float(th[max(bad[0] - 1, 0)])
+
+
+_MODE_ERROR = {}
+
+
+def _mode_error(tab):
+    """``(theta, max_z |R(z) e^{-z} - 1|)`` on :func:`resolution_limit`'s grid, computed once per tableau."""
+    try:
+        return _MODE_ERROR[tab]
+    except (KeyError, TypeError):
+        pass
+    th = np.geomspace(1e-4, 4.0, 600)
+    with np.errstate(all="ignore"):
+        err = np.zeros_like(th)
+        for z in (1j * th, th + 0j, -th + 0j):
+            err = np.maximum(err, np.abs(tab.stability_function(z) * np.exp(-z) - 1.0))
+    try:
+        _MODE_ERROR[tab] = (th, err)  # a tableau is a frozen dataclass: hashable by its coefficients
+    except TypeError:
+        pass
+    return th, err
 
 
 def resolved_step(fi, tab, Y, dt, T=None, rtol=None, measured=None):
@@ -513,7 +612,7 @@ def resolved_step(fi, tab, Y, dt, T=None, rtol=None, measured=None):
             # job (the bound takes the fastest rate as lasting the whole run: Kepler's pericentre does not)
             limit = max(resolution_limit(tab, T, est.rate / dt, rtol), RESOLUTION_LIMIT)
             if measured:
-                limit = max(limit, est.rate / dt * measured)
+                limit = max(limit, est.rate / dt * measured * (1 + 1e-9))
         if not (est.rate > limit or est.unresolvable):
             break
         # the rate scales with dt: straight to just inside its limit; past the growth limit 0.8x a time
