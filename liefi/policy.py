@@ -4,26 +4,29 @@ The run loop (:mod:`liefi.run`) drives; it asks one :class:`Policy`
 
 * :meth:`Policy.step` -- the step: as given, or for a tolerance (:func:`liefi.tolerance.choose_step`:
   the error estimate, shortened until the step resolves the unforced motion), whole steps to the end;
-* :meth:`Policy.drops` -- the invariants the scheme keeps exactly (:func:`exact_drops`:
+* :meth:`Policy.drops` -- the invariants the scheme keeps exactly (:func:`liefi.gains.exact_drops`:
   their gain is 0, they leave ``V``);
-* :meth:`Policy.start` -- the gains to start with (``gains="auto"``: the accurate
-  rate of :mod:`liefi.gains`, or the contraction rate of a split scheme; fixed
-  gains lowered where ``dt lambda_max`` passes the rate with ``adaptive=True``) and
-  the pre-run verdict (:func:`liefi.stability.check`: a warning at the
-  limit, a refusal 10x past it; the resolution of the unforced dynamics);
+* :meth:`Policy.start` -- the gains to start with, asked of :mod:`liefi.gains` once
+  (:func:`liefi.gains.run_gains`: ``gains="auto"`` the accurate rate, adapted along
+  the run only near the stability limit; fixed gains lowered where ``dt lambda_max``
+  passes the rate with ``adaptive=True``) and the pre-run verdict
+  (:func:`liefi.stability.check`: a warning at the limit, a refusal 10x past it; the
+  resolution of the unforced dynamics);
 * :meth:`Policy.segment_length` and, once per segment, :meth:`Policy.between` --
   the verdict on the segment (the drift of the invariants, ``dt lambda_max``:
   :class:`~liefi.stability.StabilityError` when it exploded past the limit) and
-  the gains and length of the next one (adaptive runs, member by member in an
-  ensemble);
+  the length and gains of the next one (adaptive runs, member by member in an
+  ensemble: :func:`liefi.gains.adapted_gains`, asked once);
 * :meth:`Policy.after` -- the audit of the saved states; :meth:`Policy.failure` --
   what to change, appended to an :class:`~liefi.schemes.IntegrationError`.
 
-Below it the theory, which never calls back up: :mod:`liefi.stability` (the
-Hessian of ``V``, ``lambda_max``, the schemes' bounds, the unforced rates),
-:mod:`liefi.gains` (the drift bound and the accurate rate),
-:mod:`liefi.tolerance` (the error estimate) and :mod:`liefi.guard` (the
-verdicts, the audit and the messages made from their numbers).
+Below it, and never calling back up: :mod:`liefi.gains` (every choice of gains:
+the unit-rate gains, the drift bound and the accurate rate, the contraction rate,
+the gains re-chosen along a run), :mod:`liefi.tolerance` (the error estimate) and
+:mod:`liefi.guard` (the verdicts, the audit and the messages made from their
+numbers), and under them the theory, :mod:`liefi.stability` (the Hessian of
+``V``, ``lambda_max``, the schemes' bounds, the unforced rates, the pilot), which
+chooses nothing.
 """
 
 from __future__ import annotations
@@ -33,13 +36,14 @@ import warnings
 
 import numpy as np
 
-from .gains import accurate_setting, exactly_kept, rate_needs_omega
+from .gains import adapted_gains, exact_drops, run_gains
 from .guard import RunReport, _advice, _audit, _drift_warning, _guard_verdict, _relabel
 from .schemes import steps_for
 from .stability import (
     LIMIT_BAND,
     PILOT_GUARD_EVALS,
     RESOLUTION_LIMIT,
+    RESOLUTION_MEMBERS,
     LiefiStabilityWarning,
     StabilityError,
     _max_evals,
@@ -51,38 +55,8 @@ from .stability import (
     first_integral_defect,
     metric_defect,
     stiffness,
-    unit_rate_gains,
 )
 from .tolerance import DEFAULT_RTOL, check_tolerance, choose_step
-
-
-def exact_drops(fi, sch, y0, *, rtol=1e-12):
-    """``{name: reason}``: the penalized invariants the scheme ``sch`` keeps exactly from ``y0`` (left out of ``V``).
-
-    :func:`liefi.gains.exactly_kept` (a first integral with a constant gradient,
-    untouched by the other invariants' feedback: every Runge--Kutta step keeps it
-    to rounding), for an explicit tableau, and only where the invariant is on its
-    target at every member of ``y0`` (relative ``rtol``): off it, its own
-    feedback is what brings it back.  One vectorized evaluation over the batch.
-    """
-    if getattr(sch, "kind", None) not in ("explicit", "split") or not fi.invariant_names:
-        return {}
-    Y = np.asarray(y0, float).reshape(-1, fi.n)
-    flat = fi.for_batch(np.shape(y0)[:-1]).members()  # every member's own target
-    with np.errstate(all="ignore"):
-        kept = exactly_kept(flat.members(0), sch.name, Y[0])
-        if not kept:
-            return {}
-        jet = flat.invariant_gradients(Y)
-        scales = drift_scales(fi)
-    out = {}
-    for name in kept:
-        j = jet.names.index(name)
-        if np.max(np.abs(jet.residual[..., j])) <= rtol * max(scales.get(name, 1.0), 1e-300):
-            out[name] = (f"kept exactly by {sch.name}: a first integral with a constant gradient that no other "
-                         "feedback term moves, so every Runge-Kutta step keeps it to rounding and its feedback "
-                         "term vanishes identically (liefi.gains.exactly_kept)")
-    return out
 
 
 def _span_length(t0, t_end):
@@ -97,11 +71,6 @@ def _span_length(t0, t_end):
 #: Largest number of states (batch members x saved points) the post-run audit evaluates
 #: (each costs a few field evaluations: the audit stays a few percent of an ensemble's loop).
 AUDIT_STATES = 2000
-#: ``gains="auto"`` on an explicit tableau adapts the gains along the run (at the accurate rate
-#: ``z*``) when ``z*`` is at least this fraction of the real stability bound (Euler: ``z* = 1``).
-AUTO_ADAPT_FRACTION = 0.25
-#: Members of a batch on which the unforced dynamics' resolution is estimated.
-RESOLUTION_MEMBERS = 16
 
 
 def _chunk(s0, n_steps, N, save_every):
@@ -152,7 +121,6 @@ class Policy:
         self.backend = backend
         self.check_stability = bool(check_stability)
         self._adaptive_arg = adaptive
-        self._adaptive_default = adaptive is None
         self.stacklevel = stacklevel
         #: the ``info`` of :func:`liefi.tolerance.choose_step` when the step was chosen for a tolerance
         self.chosen = None
@@ -228,13 +196,7 @@ class Policy:
         self.t0 = float(t0)  # the run starts at t0: step s is at t0 + s dt
         self.n_steps = n_steps
         self.auto = getattr(fi, "gains_mode", "fixed") == "auto"
-        # auto on an explicit tableau: the accurate gains (liefi.gains), fixed unless their rate is
-        # near the stability limit (decided below); on a split scheme: the contraction rate,
-        # adapted along the run
-        self.adaptive = self.auto if self._adaptive_arg is None else bool(self._adaptive_arg)
         self.monitor_every = monitor_every
-        self.rate = self.sch.optimal_rate
-        self.report = RunReport(adaptive=self.adaptive)
         self.beyond_at = None
         self.warned_in_run = False
         self.drift_warned = False
@@ -243,35 +205,13 @@ class Policy:
         self.resolutions = math.nan
         #: the ensemble's shape; members of an ensemble are adapted (and checked) on their own schedule
         self.batch = tuple(getattr(fi, "batch", ()))
-        self.mask = np.full(self.batch, self.adaptive)
-        # the gains to start with and the pre-run checks; O(1) calls over the batch
-        fi, dt, rep = self.fi, self.dt, self.report
-        omega = None
-        if self.auto:
-            # the accurate rate z* (liefi.gains) for this scheme, step and horizon; adapted along
-            # the run (at that rate) only when it sits near the stability limit (never for a split
-            # scheme: its feedback substep is stable at every rate)
-            # every member of an ensemble gets its own rate and gains: those of its single run
-            T = self.n_steps * dt
-            if rate_needs_omega(self.sch.name, dt, T):  # the unforced rates, also the pace of adaptation below
-                omega = dynamics_rates(fi, y0)
-            z, acc = accurate_setting(fi, dt, self.sch.name, T, y0, omega=omega)
-            if self._adaptive_default:
-                self.mask = np.broadcast_to(z >= AUTO_ADAPT_FRACTION * self.beta, self.batch)
-                self.adaptive = bool(np.any(self.mask))
-            if self.adaptive:
-                self.rate = z
-            rep.adaptive = self.adaptive
-        rate = self.rate
-        if self.auto and self.adaptive:
-            unit = unit_rate_gains(fi, y0)
-            run_fi = fi.with_gains(self._merge(acc, {k: v * rate / dt for k, v in unit.items()}, self.mask))
-        elif self.auto:
-            run_fi = fi.with_gains(acc)
-        elif self.adaptive:
-            run_fi = fi.with_gains(self._lowered(fi, y0))
-        else:
-            run_fi = fi
+        # the gains to start with, their rate and which members adapt: one question to liefi.gains
+        # (gains="auto": the accurate rate z*, every member of an ensemble its own; adapted along the
+        # run only where z* sits near the stability limit); then the pre-run checks; O(1) calls
+        # over the batch
+        run_fi, self.rate, self.adaptive, self.mask, omega = run_gains(fi, y0, dt, self.sch, self.n_steps * dt,
+                                                                      adaptive=self._adaptive_arg)
+        self.report = rep = RunReport(adaptive=self.adaptive)
         rep.gains = dict(run_fi.gains)
         self.sched_g = [dict(run_fi.gains)]
         if self.adaptive:  # each member's own pace of adaptation (Policy.segment_length), guard or not
@@ -312,21 +252,6 @@ class Policy:
             self.scales = drift_scales(fi)
             self.delta0, _ = drift(fi, y0, self.scales)
         return run_fi
-
-    @staticmethod
-    def _merge(old, new, sel):
-        """``{k: new[k] where sel else old[k]}``: per-member gains (floats for one trajectory)."""
-        if np.ndim(sel) == 0:
-            return dict(new) if sel else dict(old)
-        return {k: np.where(sel, new[k], old[k]) for k in new}
-
-    def _lowered(self, base, y):
-        """Fixed gains lowered where ``dt lambda_max`` passes the rate (``adaptive=True``), member by member."""
-        lam = np.asarray(stiffness(base, y).lam, float)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            s_ = np.where((lam > 0) & (not self.split), np.minimum(1.0, self.rate / (self.dt * lam)), 1.0)
-        s_ = float(s_) if s_.ndim == 0 else s_
-        return {k: v * s_ if np.ndim(s_) == 0 else np.asarray(v) * s_ for k, v in base.gains.items()}
 
     def segment_length(self, n_steps, save_every=1):
         """Steps between two checks (deterministic: results never depend on timing).
@@ -415,63 +340,59 @@ class Policy:
                 self.drift_warned = True
                 md = metric_defect(run_fi, y)
                 self._warn(("liefi: " + md) if md else _drift_warning(t_now, who, delta, dt, rep.resolution))
+        if not self.adaptive:
+            if (ratio > 1 + LIMIT_BAND and not self.warned_in_run
+                    and (rep.estimate is None or rep.estimate.verdict == "ok")):
+                self.warned_in_run = True
+                self._warn(
+                    f"liefi: at t = {t_now:g} dt*lambda_max = {dt * lam:.4g} exceeds the stability bound "
+                    f"{beta:.4g} of {sch.name} (the stiffness grew along the run). Largest safe dt there: "
+                    f"{beta / lam:.4g} (or every gain x {beta / (dt * lam):.3g}); use gains='auto' or "
+                    "adaptive=True to follow it, or scheme='imex-euler'."
+                )
+            return run_fi, N
+        # the next gains, asked of liefi.gains once: for the whole run, or for the members due now
+        base, rate = self.fi, self.rate
         if sub is not None:
-            return self._between_members(run_fi_all, y, s0, sub, st)
-        if self.adaptive:
-            base = self.fi
-            if self.auto:
-                new = {k: v * self.rate / dt for k, v in unit_rate_gains(base, y).items()}
-            else:
-                new = self._lowered(base, y)
-            if self.monitor_every is None and self.ratio_set is not None:
-                if ratio > self.ratio_set * 1.05 or ratio < self.ratio_set / 1.05:
-                    N = max(10, N // 2)
-                elif self.ratio_set / 1.02 <= ratio <= self.ratio_set * 1.02:
-                    N = min(2 * N, self.N_cap)
-            run_fi = run_fi.with_gains(new)
-            self.ratio_set = (dt * float(np.max(stiffness(run_fi, y).lam, initial=0.0)) / beta
-                              if math.isfinite(beta) else 0.0)
-            rep.gain_times.append(t_now)
-            rep.gain_history.append(dict(new))
-            self.sched_t.append(t_now)
-            self.sched_g.append(dict(new))
-        elif (ratio > 1 + LIMIT_BAND and not self.warned_in_run
-              and (rep.estimate is None or rep.estimate.verdict == "ok")):
-            self.warned_in_run = True
-            self._warn(
-                f"liefi: at t = {t_now:g} dt*lambda_max = {dt * lam:.4g} exceeds the stability bound "
-                f"{beta:.4g} of {sch.name} (the stiffness grew along the run). Largest safe dt there: "
-                f"{beta / lam:.4g} (or every gain x {beta / (dt * lam):.3g}); use gains='auto' or "
-                "adaptive=True to follow it, or scheme='imex-euler'."
-            )
+            keep = np.asarray(self.mask).reshape(-1)[sub] & (self.next_i[sub] == s0)  # those adapted now
+            idx = sub[keep]
+            if not idx.size:  # a segment that ended at a saved index: no member adapts now
+                self._record(s0 * dt, run_fi_all.gains)
+                return run_fi_all, self._left(s0)
+            y = y[keep]
+            base = self.fi.members(idx)
+            rate = rate if np.ndim(rate) == 0 else np.asarray(rate).reshape(-1)[idx]
+        new = adapted_gains(base, y, rate, dt, auto=self.auto, split=self.split)
+        if sub is not None:
+            return self._adapt_members(run_fi_all, y, s0, idx, np.asarray(st.lam, float).reshape(-1)[keep], new)
+        if self.monitor_every is None and self.ratio_set is not None:
+            if ratio > self.ratio_set * 1.05 or ratio < self.ratio_set / 1.05:
+                N = max(10, N // 2)
+            elif self.ratio_set / 1.02 <= ratio <= self.ratio_set * 1.02:
+                N = min(2 * N, self.N_cap)
+        run_fi = run_fi.with_gains(new)
+        self.ratio_set = (dt * float(np.max(stiffness(run_fi, y).lam, initial=0.0)) / beta
+                          if math.isfinite(beta) else 0.0)
+        self._record(t_now, new)
         return run_fi, N
 
-    def _between_members(self, run_fi, y, s0, sub, st):
-        """The adaptation of an ensemble: the members whose own check falls at step ``s0`` (module docstring).
+    def _record(self, t_now, gains):
+        """The gains in effect from ``t_now`` on (the report's history and the audit's schedule)."""
+        self.report.gain_times.append(t_now)
+        self.report.gain_history.append(dict(gains))
+        self.sched_t.append(t_now)
+        self.sched_g.append(dict(gains))
 
-        ``sub``: the flat indices of the members checked now, ``y`` their states and
-        ``st`` their :class:`~liefi.stability.Stiffness`; the others are not evaluated.
+    def _adapt_members(self, run_fi, y, s0, idx, lam, new):
+        """The adaptation of an ensemble: the members ``idx`` whose own check falls at step ``s0`` (module docstring).
+
+        ``y`` their states, ``lam`` their ``lambda_max`` at the gains of the segment
+        that ended, ``new`` their next gains (:func:`liefi.gains.adapted_gains`); the
+        other members keep theirs and their schedule.
         """
-        dt, beta, rep = self.dt, self.beta, self.report
+        dt, beta = self.dt, self.beta
         t_now = s0 * dt
-        mask = np.asarray(self.mask).reshape(-1)
-        keep = mask[sub] & (self.next_i[sub] == s0)  # of the checked members, those adapted now
-        idx = sub[keep]
-        y = y[keep]
-        lam = np.asarray(st.lam, float).reshape(-1)[keep]
         ratio = dt * lam / beta if math.isfinite(beta) else np.zeros_like(lam)
-        if not idx.size:  # a segment that ended at a saved index: no member adapts now
-            rep.gain_times.append(t_now)
-            rep.gain_history.append(dict(run_fi.gains))
-            self.sched_t.append(t_now)
-            self.sched_g.append(dict(run_fi.gains))
-            return run_fi, self._left(s0)
-        base = self.fi.members(idx)
-        if self.auto:
-            rate = self.rate if np.ndim(self.rate) == 0 else np.asarray(self.rate).reshape(-1)[idx]
-            new = {k: v * rate / dt for k, v in unit_rate_gains(base, y).items()}
-        else:
-            new = self._lowered(base, y)
         if self.monitor_every is None:
             rs = self.ratio_set_i[idx]
             with np.errstate(invalid="ignore"):
@@ -492,10 +413,7 @@ class Policy:
         self.ratio_set_i[idx] = dt * lam2 / beta if math.isfinite(beta) else 0.0
         for i in idx:
             self.next_i[i] = s0 + _chunk(s0, self.total, int(self.N_i[i]), self.save_every)[0]
-        rep.gain_times.append(t_now)
-        rep.gain_history.append(dict(gains))
-        self.sched_t.append(t_now)
-        self.sched_g.append(dict(gains))
+        self._record(t_now, gains)
         return run_fi, self._left(s0)
 
     # --- after ------------------------------------------------------------------------------
