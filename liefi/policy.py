@@ -357,14 +357,14 @@ class Policy:
             keep = np.asarray(self.mask).reshape(-1)[sub] & (self.next_i[sub] == s0)  # those adapted now
             idx = sub[keep]
             if not idx.size:  # a segment that ended at a saved index: no member adapts now
-                self._record(s0 * dt, run_fi_all.gains)
+                self._record(t_now, run_fi_all.gains)
                 return run_fi_all, self._left(s0)
             y = y[keep]
             base = self.fi.members(idx)
             rate = rate if np.ndim(rate) == 0 else np.asarray(rate).reshape(-1)[idx]
         new = adapted_gains(base, y, rate, dt, auto=self.auto, split=self.split)
         if sub is not None:
-            return self._adapt_members(run_fi_all, y, s0, idx, np.asarray(st.lam, float).reshape(-1)[keep], new)
+            return self._adapt_members(run_fi_all, y, s0, t_now, idx, np.asarray(st.lam, float).reshape(-1)[keep], new)
         if self.monitor_every is None and self.ratio_set is not None:
             if ratio > self.ratio_set * 1.05 or ratio < self.ratio_set / 1.05:
                 N = max(10, N // 2)
@@ -383,15 +383,14 @@ class Policy:
         self.sched_t.append(t_now)
         self.sched_g.append(dict(gains))
 
-    def _adapt_members(self, run_fi, y, s0, idx, lam, new):
+    def _adapt_members(self, run_fi, y, s0, t_now, idx, lam, new):
         """The adaptation of an ensemble: the members ``idx`` whose own check falls at step ``s0`` (module docstring).
 
-        ``y`` their states, ``lam`` their ``lambda_max`` at the gains of the segment
+        ``y`` their states at the time ``t_now``, ``lam`` their ``lambda_max`` at the gains of the segment
         that ended, ``new`` their next gains (:func:`liefi.gains.adapted_gains`); the
         other members keep theirs and their schedule.
         """
         dt, beta = self.dt, self.beta
-        t_now = s0 * dt
         ratio = dt * lam / beta if math.isfinite(beta) else np.zeros_like(lam)
         if self.monitor_every is None:
             rs = self.ratio_set_i[idx]
