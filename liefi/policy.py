@@ -10,15 +10,16 @@ The run loop (:mod:`liefi.run`) drives; it asks one :class:`Policy`
   (:func:`liefi.gains.run_gains`: ``gains="auto"`` the accurate rate, adapted along
   the run only near the stability limit; fixed gains lowered where ``dt lambda_max``
   passes the rate with ``adaptive=True``) and the pre-run verdict
-  (:func:`liefi.stability.check`: a warning at the limit, a refusal 10x past it; the
-  resolution of the unforced dynamics);
+  (:meth:`liefi.guard.Guard.before`: :func:`liefi.stability.check`, a warning at the
+  limit, a refusal 10x past it; the resolution of the unforced dynamics);
 * :meth:`Policy.segment_length` and, once per segment, :meth:`Policy.between` --
-  the verdict on the segment (the drift of the invariants, ``dt lambda_max``:
-  :class:`~liefi.stability.StabilityError` when it exploded past the limit) and
-  the length and gains of the next one (adaptive runs, member by member in an
-  ensemble: :func:`liefi.gains.adapted_gains`, asked once);
+  the verdict on the segment, asked of the guard once (:meth:`liefi.guard.Guard.segment`:
+  the drift of the invariants, ``dt lambda_max``; :class:`~liefi.stability.StabilityError`
+  when it exploded past the limit), and the length and gains of the next one
+  (adaptive runs, member by member in an ensemble: :func:`liefi.gains.adapted_gains`,
+  asked once);
 * :meth:`Policy.after` -- the audit of the saved states; :meth:`Policy.failure` --
-  what to change, appended to an :class:`~liefi.schemes.IntegrationError`.
+  what to change, appended to an :class:`~liefi.schemes.IntegrationError` (the guard's).
 
 Below it, and never calling back up: :mod:`liefi.gains` (every choice of gains:
 the unit-rate gains, the drift bound and the accurate rate, the contraction rate,
@@ -37,25 +38,9 @@ import warnings
 import numpy as np
 
 from .gains import adapted_gains, exact_drops, run_gains
-from .guard import RunReport, _advice, _audit, _drift_warning, _guard_verdict, _relabel
+from .guard import Guard, RunReport
 from .schemes import steps_for
-from .stability import (
-    LIMIT_BAND,
-    PILOT_GUARD_EVALS,
-    RESOLUTION_LIMIT,
-    RESOLUTION_MEMBERS,
-    LiefiStabilityWarning,
-    StabilityError,
-    _max_evals,
-    check,
-    drift,
-    drift_scales,
-    dynamics_rates,
-    estimate,
-    first_integral_defect,
-    metric_defect,
-    stiffness,
-)
+from .stability import RESOLUTION_LIMIT, LiefiStabilityWarning, dynamics_rates, stiffness
 from .tolerance import DEFAULT_RTOL, check_tolerance, choose_step
 
 
@@ -68,9 +53,6 @@ def _span_length(t0, t_end):
     return length if math.isfinite(length) and length > 0 else 1.0
 
 
-#: Largest number of states (batch members x saved points) the post-run audit evaluates
-#: (each costs a few field evaluations: the audit stays a few percent of an ensemble's loop).
-AUDIT_STATES = 2000
 
 
 def _chunk(s0, n_steps, N, save_every):
@@ -177,9 +159,10 @@ class Policy:
         """Whether the run must be watched between segments."""
         return self.check_stability or self.adaptive
 
-    def _warn(self, msg):
+    def _warn(self, msg, depth=0):
+        """Warn (and report) ``msg`` at the caller's level of the run; ``depth``: the frames between here and the policy."""
         self.report.warnings.append(msg)
-        warnings.warn(msg, LiefiStabilityWarning, stacklevel=self.stacklevel + 1)
+        warnings.warn(msg, LiefiStabilityWarning, stacklevel=self.stacklevel + 1 + depth)
 
     # --- the gains and the checks ---------------------------------------------------------
     def start(self, fi, dt, n_steps, y0, *, t0=0.0, monitor_every=None):
@@ -197,9 +180,6 @@ class Policy:
         self.n_steps = n_steps
         self.auto = getattr(fi, "gains_mode", "fixed") == "auto"
         self.monitor_every = monitor_every
-        self.beyond_at = None
-        self.warned_in_run = False
-        self.drift_warned = False
         self.ratio_set = None
         self.sched_t, self.sched_g = [self.t0], []
         self.resolutions = math.nan
@@ -207,8 +187,8 @@ class Policy:
         self.batch = tuple(getattr(fi, "batch", ()))
         # the gains to start with, their rate and which members adapt: one question to liefi.gains
         # (gains="auto": the accurate rate z*, every member of an ensemble its own; adapted along the
-        # run only where z* sits near the stability limit); then the pre-run checks; O(1) calls
-        # over the batch
+        # run only where z* sits near the stability limit); then the pre-run verdict: one question
+        # to the guard; O(1) calls over the batch
         run_fi, self.rate, self.adaptive, self.mask, omega = run_gains(fi, y0, dt, self.sch, self.n_steps * dt,
                                                                       adaptive=self._adaptive_arg)
         self.report = rep = RunReport(adaptive=self.adaptive)
@@ -217,40 +197,10 @@ class Policy:
         if self.adaptive:  # each member's own pace of adaptation (Policy.segment_length), guard or not
             with np.errstate(all="ignore"):
                 self.resolutions = dt * (dynamics_rates(run_fi, y0) if omega is None else omega)
-        if self.check_stability:
-            if not self.adaptive and not self.split:
-                T = self.n_steps * dt
-                budget = min(PILOT_GUARD_EVALS, _max_evals(self.n_steps, self.sch.stages))
-                if self.backend != "numpy":  # a compiled step costs ~1/1000 of a numpy evaluation
-                    budget = min(budget, PILOT_GUARD_EVALS // 2)
-                rep.estimate = check(run_fi, dt, self.sch, t_final=T, y0=y0, max_evals=budget,
-                                     stacklevel=self.stacklevel + 1)
-                rep.resolution = rep.estimate.rate
-                if rep.estimate.verdict in ("limit", "beyond"):
-                    rep.warnings.append(rep.estimate.message())
-            else:
-                # the gains adapt (or the scheme is stiff-safe): only the resolution of the
-                # unforced dynamics can make the run meaningless
-                # (at the few members the resolution is estimated on: the stiffness is not the verdict here)
-                flat = np.asarray(y0, float).reshape(-1, run_fi.n)
-                few = np.unique(np.linspace(0, flat.shape[0] - 1, min(flat.shape[0], RESOLUTION_MEMBERS)).astype(int))
-                est = estimate(run_fi.members(few), dt, self.sch.explicit if self.split else self.sch,
-                               y0=flat[few] if self.batch else y0,
-                               resolution_limit=self.resolution_limit)
-                rep.resolution = est.rate
-                if est.unresolvable:
-                    raise ValueError("dt: " + est.resolution_message() + " Pass check_stability=False to run it anyway.")
-                if est.under_resolved:
-                    self._warn("liefi: " + est.resolution_message())
-                rep.estimate = est
-            flat = np.asarray(y0, float).reshape(-1, run_fi.n)
-            pick = np.unique(np.linspace(0, flat.shape[0] - 1, min(flat.shape[0], RESOLUTION_MEMBERS)).astype(int))
-            msg = first_integral_defect(run_fi.members(pick), flat[pick])
-            if msg:
-                self._warn(msg)
-        if self.active:
-            self.scales = drift_scales(fi)
-            self.delta0, _ = drift(fi, y0, self.scales)
+        self.guard = Guard(self.sch, dt, rep, self._warn, check_stability=self.check_stability,
+                           resolution_limit=self.resolution_limit, t0=self.t0)
+        self.guard.before(run_fi, fi, y0, self.n_steps, adaptive=self.adaptive, backend=self.backend,
+                          watch=self.active, stacklevel=self.stacklevel + 1)
         return run_fi
 
     def segment_length(self, n_steps, save_every=1):
@@ -296,8 +246,7 @@ class Policy:
     # --- between segments ---------------------------------------------------------------
     def between(self, run_fi, y, s0, N):
         """Check after ``s0`` steps at state ``y``; returns ``(run_fi, N)`` for the next segment."""
-        rep, dt, beta, sch = self.report, self.dt, self.beta, self.sch
-        rep.monitors += 1
+        dt, beta = self.dt, self.beta
         t_now = self.t0 + s0 * dt
         y_all = y
         sub = None
@@ -308,48 +257,9 @@ class Policy:
             sub = np.nonzero(due)[0]
             run_fi_all, run_fi = run_fi, run_fi.members(sub)
             y = np.asarray(y, float).reshape(-1, run_fi.n)[sub]
-        with np.errstate(all="ignore"):
-            jet = run_fi.invariant_gradients(y)
-            st = stiffness(run_fi, y)
-            lam = float(np.max(st.lam, initial=0.0))
-        ratio = dt * lam / beta if math.isfinite(beta) else 0.0
-        rep.max_ratio = max(rep.max_ratio, ratio)
-        if ratio > 1 + LIMIT_BAND and self.beyond_at is None:
-            self.beyond_at = t_now
-        if self.check_stability:
-            delta, who = drift(run_fi, y, self.scales, jet)
-            verdict = _guard_verdict(self.beyond_at is not None, delta, self.delta0)
-            if verdict == "error":
-                why = (
-                    f"after dt*lambda_max exceeded the stability bound {beta:.4g} of {sch.name} at "
-                    f"t = {self.beyond_at:g} (now {dt * lam:.4g}; largest safe dt {beta / lam:.4g}, or every "
-                    f"gain x {beta / (dt * lam):.3g}; or gains='auto', adaptive=True, scheme='imex-euler')"
-                )
-                if math.isfinite(rep.resolution) and rep.resolution > self.resolution_limit:
-                    why += (f"; note that dt also under-resolves the unforced dynamics (dt times its fastest "
-                            f"rate = {rep.resolution:.3g}): reduce dt first")
-                md = metric_defect(run_fi, y)
-                if md:
-                    why = "; " + md
-                raise StabilityError(
-                    f"the run became meaningless at t={t_now:g}: the drift of {who} reached {delta:.3g} x its "
-                    f"scale {why}. No result is returned.",
-                    t_now, s0, y_all, [who],
-                )
-            if verdict == "warn" and not self.drift_warned:
-                self.drift_warned = True
-                md = metric_defect(run_fi, y)
-                self._warn(("liefi: " + md) if md else _drift_warning(t_now, who, delta, dt, rep.resolution))
+        # the verdict on the segment: one question to the guard
+        st, _, ratio = self.guard.segment(run_fi, y, t_now, s0, y_all, adaptive=self.adaptive)
         if not self.adaptive:
-            if (ratio > 1 + LIMIT_BAND and not self.warned_in_run
-                    and (rep.estimate is None or rep.estimate.verdict == "ok")):
-                self.warned_in_run = True
-                self._warn(
-                    f"liefi: at t = {t_now:g} dt*lambda_max = {dt * lam:.4g} exceeds the stability bound "
-                    f"{beta:.4g} of {sch.name} (the stiffness grew along the run). Largest safe dt there: "
-                    f"{beta / lam:.4g} (or every gain x {beta / (dt * lam):.3g}); use gains='auto' or "
-                    "adaptive=True to follow it, or scheme='imex-euler'."
-                )
             return run_fi, N
         # the next gains, asked of liefi.gains once: for the whole run, or for the members due now
         base, rate = self.fi, self.rate
@@ -417,22 +327,10 @@ class Policy:
 
     # --- after ------------------------------------------------------------------------------
     def after(self, ts, Ys):
-        """Audit the saved states ``Ys`` (``(n_t, ..., n)``) at times ``ts`` (at most :data:`AUDIT_STATES` states)."""
-        if not self.check_stability:
-            return
-        per = int(np.prod(Ys.shape[1:-1], dtype=int)) if Ys.ndim > 2 else 1
-        pts = max(2, min(2000 if self.backend == "numpy" else 500, AUDIT_STATES // max(per, 1)))
-        w = _audit(self.fi, np.asarray(ts), Ys, self.dt, self.beta, self.sch, self.scales, self.delta0,
-                   (self.sched_t, self.sched_g), max_points=pts, t0=self.t0)
-        if w is not None and not self.drift_warned:
-            self._warn(_drift_warning(w[0], w[1], w[2], self.dt, self.report.resolution))
+        """Audit the saved states ``Ys`` (``(n_t, ..., n)``) at times ``ts`` (:meth:`liefi.guard.Guard.audit`)."""
+        self.guard.audit(self.fi, ts, Ys, (self.sched_t, self.sched_g), backend=self.backend)
 
     # --- failure --------------------------------------------------------------------------
     def failure(self, run_fi, exc, earlier):
         """The :class:`~liefi.schemes.IntegrationError` to raise for ``exc``, with the advice appended."""
-        extra = _advice(run_fi, exc.y, exc.t, self.dt, self.sch, self.beta, earlier)
-        if self.split:
-            extra = (f"The split scheme {self.sch.name} solves (I + dt K W A W^T) mu = K r through the Gram matrix of "
-                     f"the invariants' gradients each step; non-finite numbers there mean the explicit part on X "
-                     f"blew up (reduce dt) or the gains overflow (dt*gain past ~1e300). " + extra)
-        return _relabel(exc, self.dt, self.sch, extra, self.t0)
+        return self.guard.failure(run_fi, exc, earlier)
