@@ -16,7 +16,7 @@ momenta) -- it runs, from the scene's start to ``t_final``:
 ``FI``                 the feedback integrator, RK4 at ``dt`` and explicit Euler at
                        ``dt/4`` (the same number of field evaluations), with the
                        scene's gains, the small gains 0.1 and 1, and the gains
-                       :func:`liefi.stability.auto_gains` picks for the step and
+                       :func:`liefi.gains.auto_gains` picks for the step and
                        scheme (the harness's ``FI-tuned``); and at the paper's
                        settings of the reversible problem (Euler, ``dt = 1e-3``,
                        gains 300 to 1000: 2.5 times the cost); compiled,
@@ -63,7 +63,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 
 from liefi import bench, engine, scenes  # noqa: E402
-from liefi.stability import auto_gains  # noqa: E402
+from liefi.gains import auto_gains  # noqa: E402
 from liefi.schemes import IntegrationError  # noqa: E402
 
 SCENES = ("oscillator", "nonreversible-oscillator", "nonreversible-contact-oscillator", "knife-edge",

@@ -20,7 +20,7 @@ Omega0 = (1, 1, 1), their gains k0 = 50 (penalty), k1 = 100 (energy), k2 = 50
 * ``FI-imex-RK4 accurate``: the split scheme ``imex-rk4`` (RK4 on the free field, then the
   linearly implicit feedback substep, :mod:`liefi.schemes.split`) with the gains
   ``gains="auto"`` takes for it (the rate ``1/sqrt(u)``: a Gauss--Newton step onto the invariant set);
-* ``FI-RK4 auto-1.6``: :func:`liefi.stability.auto_gains` (``dt lambda_max = 1.6``),
+* ``FI-RK4 auto-1.6``: :func:`liefi.gains.auto_gains` (``dt lambda_max = 1.6``),
   the automatic gains before :mod:`liefi.gains`;
 * ``RK4``: no feedback;
 * ``projected RK4``: RK4 and a Newton projection onto ``{R^T R = I, h = h0, C = C0}``
@@ -58,9 +58,9 @@ import numpy as np
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 
 from liefi import engine, scenes  # noqa: E402
-from liefi.gains import accurate_gains  # noqa: E402
+from liefi.gains import accurate_gains, auto_gains  # noqa: E402
 from liefi.scenes.rigid_body import splitting  # noqa: E402
-from liefi.stability import auto_gains, stiffness  # noqa: E402
+from liefi.stability import stiffness  # noqa: E402
 
 K_BC = (50.0, 100.0, 50.0)  # Bae & Chang's k0 (penalty), k1 (energy), k2 (momentum)
 PERIOD = 30.0  # their update period of the adaptive gain (time units)

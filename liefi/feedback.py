@@ -143,7 +143,7 @@ class FeedbackIntegrator:
         ``|r| <= D(z) = delta(z) (1 - |R|^N)/(1 - |R|)`` plus a random walk of
         rounding.  ``gains="auto"`` takes ``z* = argmin D`` (0, no feedback,
         unless it buys a factor 2) and ``k_j = w_j z*/dt`` with ``w_j`` the
-        unit-rate weights of :func:`liefi.stability.unit_rate_gains`
+        unit-rate weights of :func:`liefi.gains.unit_rate_gains`
         (``1/|grad I_j|^2``, scaled so that ``lambda_max(Hess V) = 1``): Euler
         gets ``z* = 1`` (Bae & Chang's ``k = 1/(dt L)``), RK4 ``kappa* ~ 0.26 omega``,
         far below its stability limit, and short horizons ``z* = 0``.  Both
@@ -260,7 +260,7 @@ class FeedbackIntegrator:
 
         # --- gains ---------------------------------------------------------------
         #: "auto": gains chosen from dt and the Hessian of V when a run knows dt
-        #: (liefi.stability.auto_gains); until then unit-rate gains (see below).
+        #: (liefi.gains.auto_gains); until then unit-rate gains (see below).
         self.gains_mode = "auto" if isinstance(gains, str) and gains == "auto" else "fixed"
         self._set_gains(self._parse_gains(1.0 if self.gains_mode == "auto" else gains))
 
@@ -298,7 +298,7 @@ class FeedbackIntegrator:
         if self.gains_mode == "auto":
             # Unit-rate gains (largest eigenvalue of Hess V at y0 equal to 1, every
             # invariant weighted by 1/|grad I_j|^2); run() scales them to dt.
-            from .stability import unit_rate_gains
+            from .gains import unit_rate_gains
 
             self._set_gains(unit_rate_gains(self, y0))
 
@@ -427,7 +427,7 @@ class FeedbackIntegrator:
         """A copy with other (fixed) gains; same system, invariants, targets and ``A``.
 
         ``gains`` as in the constructor (a number or ``{name: k}``; not ``"auto"``).
-        Used by the adaptive runs of :mod:`liefi.stability`, which change the gains
+        Used by the adaptive runs (:mod:`liefi.policy`, :mod:`liefi.gains`), which change the gains
         along a run: the zero set of ``V`` -- the invariant set -- does not depend on them.
         """
         import copy

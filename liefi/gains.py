@@ -1,10 +1,27 @@
-r"""Gains chosen for accuracy: the feedback rate that minimizes a drift bound, per scheme, step and horizon.
+r"""Every choice of gains: the feedback rate that minimizes a drift bound, per scheme, step and horizon.
+
+This module holds all the choosing of gains; the theory it reads (``lambda_max(Hess V)``,
+the unforced rates, the schemes' bounds, the pilot) is :mod:`liefi.stability`, below it,
+and the run's policy (:mod:`liefi.policy`), above it, asks it for a run's gains:
+
+* :func:`unit_rate_gains` (``lambda_max = 1``, Jacobi weights) and :func:`rate_gains`
+  (those at a rate ``z``: every gain chosen through a rate is this product);
+* :func:`accurate_rate`, :func:`accurate_gains` and :func:`accurate_setting` -- the
+  accurate rate ``z*`` (``gains="auto"``; derivation below);
+* :func:`optimal_rate` and :func:`auto_gains` -- the contraction rate ``x*`` that
+  minimizes ``|R(-x)|`` (Bae & Chang's optimal fixed gain for Euler), for a fixed step;
+* :func:`adapted_gains` and :func:`lowered_gains` -- the gains re-chosen along an
+  adaptive run (numeric gains only lowered where ``dt lambda_max`` passes the rate);
+* :func:`exactly_kept` and :func:`exact_drops` -- the invariants that need no gain;
+* :func:`run_gains` -- what a fixed-step run starts with: the gains, the rate they are
+  adapted at and which members adapt (the one question :class:`liefi.policy.Policy`
+  asks here at a run's start; :func:`adapted_gains` the one between its segments).
 
 The feedback term ``-k_j (I_j - I_j0) grad I_j`` relaxes the residual
 ``r_j = I_j - I_j0`` at the rate ``kappa_j = k_j |grad I_j|^2`` (the eigenvalue
 of ``Hess V`` along ``grad I_j`` on the invariant set).  The gain is chosen
 through the dimensionless rate ``z = dt * kappa``: the gains are
-:func:`liefi.stability.unit_rate_gains` (every invariant weighted by
+:func:`unit_rate_gains` (every invariant weighted by
 ``1 / |grad I_j|^2``, the penalty by ``1/2``, largest eigenvalue of
 ``Hess V`` equal to 1) times ``z / dt``.  Both factors are unit-invariant: a
 change of the units of a state variable or of an invariant changes
@@ -113,12 +130,14 @@ identically and only costs work.  Its gain is 0 and it should be left out of
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
 from .schemes import ExplicitRungeKutta, positive_number
 from .schemes import registry as _registry
-from .stability import dynamics_rate, dynamics_rates, unit_rate_gains
+from .schemes import split as _split
+from .stability import _scaled, drift_scales, dynamics_rate, dynamics_rates, estimate, resolve_scheme, stiffness
 
 
 #: Rounding error injected per step, relative to the state's scale (unit roundoff of float64).
@@ -127,6 +146,107 @@ ROUNDOFF = 2.0**-53
 #: substep leaves ``1/(1 + z) < sqrt(u)`` of the residual, below the second-order term
 #: ``O(r^2)`` the linear model leaves out (module docstring, "Split schemes").
 SPLIT_RATE_MAX = 1.0 / math.sqrt(ROUNDOFF)
+#: ``dt lambda_max`` targeted by the contraction gains with a split (stiff-safe) scheme: the
+#: feedback substep damps the stiffest mode by ``1/(1 + 10)`` per step.
+SPLIT_RATE = _split.LinearlyImplicitSplit.optimal_rate
+
+
+# --------------------------------------------------------------------------------
+# unit-rate gains and the contraction rate
+# --------------------------------------------------------------------------------
+
+
+def unit_rate_gains(fi, y=None):
+    """Gains with ``lambda_max(Hess V)(y) = 1``, every invariant weighted by ``1/|grad I_j(y)|^2``.
+
+    The Jacobi scaling of the Gram matrix: each invariant alone would relax at
+    the same rate; the common factor makes the largest eigenvalue 1
+    (:func:`liefi.stability.stiffness`).  The penalty (Hessian eigenvalue 2 on
+    the group) gets weight 1/2.  A vanishing gradient gets the weight of the
+    largest one.  For a batch ``y`` (an ensemble) each member gets its own
+    (arrays of shape ``y.shape[:-1]``): the gains a single run of that member gets.
+    """
+    y = fi.y0 if y is None else np.asarray(y, float)
+    batch = y.shape[:-1]
+    jet = fi.invariant_gradients(y)
+    n2 = np.einsum("...mn,...mn->...m", jet.grad, jet.grad)  # (..., m)
+    top = np.max(n2, axis=-1, initial=0.0)
+    floor = np.maximum(top * 1e-12, 1e-300)
+    w = {nm: np.where(top > 0, 1.0 / np.maximum(n2[..., j], floor), 1.0) for j, nm in enumerate(jet.names)}
+    if fi.use_penalty:
+        w["penalty"] = np.full(batch, 0.5)
+    w = {k: float(v) if np.ndim(v) == 0 else v for k, v in w.items()}
+    trial = fi.for_batch(batch).with_gains({k: w.get(k, 1.0) for k in fi.invariant_names})
+    lam = np.asarray(stiffness(trial, y).lam, float)
+    scale = np.where((lam > 0) & np.isfinite(lam), 1.0 / np.where(lam > 0, lam, 1.0), 1.0)
+    return _scaled(trial.gains, float(scale) if scale.ndim == 0 else scale)
+
+
+def rate_gains(unit, z, dt):
+    """``{name: k * z / dt}``: the unit-rate gains ``unit`` (:func:`unit_rate_gains`) at the rate ``z = dt kappa``.
+
+    ``z`` a number, or an array (one rate per member of an ensemble).  Every
+    gain chosen through a rate -- accurate, contraction, adapted along a run --
+    is this product.
+    """
+    return {k: v * z / dt for k, v in unit.items()}
+
+
+def optimal_rate(scheme):
+    """The ``dt lambda_max`` the contraction gains aim at: the scheme's ``optimal_rate``.
+
+    Euler ``x* = 1`` (Bae & Chang's optimal gain ``1/(dt L)``), Heun 1, RK4
+    ~1.6; split schemes :data:`SPLIT_RATE`.
+    """
+    sch, _ = resolve_scheme(scheme)
+    r = getattr(sch, "optimal_rate", math.nan)
+    return SPLIT_RATE if not (isinstance(r, float) and math.isfinite(r)) else float(r)
+
+
+def auto_gains(fi, dt, scheme="euler", *, y=None, t_final=None):
+    """Fixed gains for ``dt`` and ``scheme``: :func:`unit_rate_gains` scaled to ``dt lambda_max = x*``.
+
+    ``x*`` is :func:`optimal_rate` (1 for Euler: Bae & Chang's ``k = 1/(dt L)``).
+    With ``t_final`` the largest ``lambda_max`` along a pilot up to ``t_final``
+    (:func:`liefi.stability.estimate`) is used, so the gains are safe over the
+    whole run (without adapting).
+    """
+    dt = positive_number(dt, "dt")
+    unit = fi.with_gains(unit_rate_gains(fi, y))
+    lam = 1.0
+    if t_final is not None:
+        lam = max(estimate(unit, dt, scheme, t_final=t_final, y0=y, resolution=False).lam, 1e-300)
+    return _scaled(unit.gains, optimal_rate(scheme) / (dt * lam))
+
+
+def lowered_gains(fi, y, rate, dt, *, split=False):
+    """``fi``'s gains lowered where ``dt lambda_max`` passes ``rate``, member by member (``adaptive=True``).
+
+    Every gain times ``min(1, rate / (dt lambda_max(y)))``; unchanged on a
+    split scheme (``split=True``: its feedback substep is stable at every rate).
+    """
+    lam = np.asarray(stiffness(fi, y).lam, float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s_ = np.where((lam > 0) & (not split), np.minimum(1.0, rate / (dt * lam)), 1.0)
+    s_ = float(s_) if s_.ndim == 0 else s_
+    return {k: v * s_ if np.ndim(s_) == 0 else np.asarray(v) * s_ for k, v in fi.gains.items()}
+
+
+def adapted_gains(fi, y, rate, dt, *, auto, split=False):
+    """The gains of an adaptive run's next segment at the states ``y``, re-chosen from ``fi``'s.
+
+    ``auto=True`` (``gains="auto"``): the unit-rate gains at ``y`` at the run's
+    rate (:func:`rate_gains`; ``rate`` one per member of an ensemble or common);
+    numeric gains: :func:`lowered_gains` (their ratios kept).
+    """
+    if auto:
+        return rate_gains(unit_rate_gains(fi, y), rate, dt)
+    return lowered_gains(fi, y, rate, dt, split=split)
+
+
+# --------------------------------------------------------------------------------
+# the accurate rate: the drift bound and its minimizer
+# --------------------------------------------------------------------------------
 
 
 def _tableau(scheme):
@@ -395,6 +515,26 @@ def exactly_kept(fi, scheme="rk4", y=None, *, n_samples=6, rel=1e-2, tol=1e-10):
     return tuple(jet.names[j] for j in kept)
 
 
+def _accurate(fi, dt, scheme, t_final, y, omega):
+    """``(z*, gains, unit, omega)``: :func:`accurate_setting`, with the unit-rate gains and the unforced rates.
+
+    ``omega`` is computed only where :func:`rate_needs_omega` (``None`` otherwise, unless given).
+    """
+    dt = positive_number(dt, "dt")
+    T = 1000.0 * dt if t_final is None else positive_number(t_final, "t_final")
+    y = fi.y0 if y is None else np.asarray(y, float)
+    if omega is None and rate_needs_omega(scheme, dt, T):
+        omega = unforced_rates(fi, y)
+    z = accurate_rate(scheme, dt, np.zeros(y.shape[:-1]) if omega is None else omega, T)
+    unit = unit_rate_gains(fi, y)
+    gains = rate_gains(unit, z, dt)
+    if np.ndim(z) == 0:
+        gains = {k: float(v) for k, v in gains.items()}
+    for name in exactly_kept(fi, scheme, y):
+        gains[name] = 0.0
+    return z, gains, unit, omega
+
+
 def accurate_setting(fi, dt, scheme="rk4", t_final=None, y=None, *, omega=None):
     """``(z*, gains)``: the accurate rate (:func:`accurate_rate`) and the gains of :func:`accurate_gains`.
 
@@ -403,24 +543,13 @@ def accurate_setting(fi, dt, scheme="rk4", t_final=None, y=None, *, omega=None):
     ``y.shape[:-1]``), the values a single run of that member gets.  ``omega``: the
     unforced rates at ``y`` (:func:`unforced_rates`) when the caller has them already.
     """
-    dt = positive_number(dt, "dt")
-    T = 1000.0 * dt if t_final is None else positive_number(t_final, "t_final")
-    y = fi.y0 if y is None else np.asarray(y, float)
-    if omega is None:
-        omega = unforced_rates(fi, y) if rate_needs_omega(scheme, dt, T) else np.zeros(y.shape[:-1])
-    z = accurate_rate(scheme, dt, omega, T)
-    gains = {k: v * z / dt for k, v in unit_rate_gains(fi, y).items()}
-    if np.ndim(z) == 0:
-        gains = {k: float(v) for k, v in gains.items()}
-    for name in exactly_kept(fi, scheme, y):
-        gains[name] = 0.0
-    return z, gains
+    return _accurate(fi, dt, scheme, t_final, y, omega)[:2]
 
 
 def accurate_gains(fi, dt, scheme="rk4", t_final=None, y=None) -> dict:
     """Gains minimizing the drift bound ``D(z)`` for ``scheme``, ``dt`` and the horizon ``t_final``.
 
-    ``{name: k}`` over ``fi.invariant_names``: :func:`liefi.stability.unit_rate_gains`
+    ``{name: k}`` over ``fi.invariant_names``: :func:`unit_rate_gains`
     at ``y`` (default ``fi.y0``) times ``z*/dt``, ``z* = accurate_rate(scheme, dt,
     omega, t_final)`` with ``omega`` the unforced field's rate at ``y``
     (module docstring); the invariants of :func:`exactly_kept` get 0.
@@ -429,5 +558,98 @@ def accurate_gains(fi, dt, scheme="rk4", t_final=None, y=None) -> dict:
     return accurate_setting(fi, dt, scheme, t_final, y)[1]
 
 
-__all__ = ["accurate_gains", "accurate_rate", "accurate_setting", "drift_bound", "exactly_kept", "local_defect",
-           "rate_needs_omega", "unforced_rate", "SPLIT_RATE_MAX"]
+def exact_drops(fi, sch, y0, *, rtol=1e-12):
+    """``{name: reason}``: the penalized invariants the scheme ``sch`` keeps exactly from ``y0`` (left out of ``V``).
+
+    :func:`exactly_kept` (a first integral with a constant gradient, untouched by
+    the other invariants' feedback: every Runge--Kutta step keeps it to
+    rounding), for an explicit tableau, and only where the invariant is on its
+    target at every member of ``y0`` (relative ``rtol``): off it, its own
+    feedback is what brings it back.  One vectorized evaluation over the batch.
+    """
+    if getattr(sch, "kind", None) not in ("explicit", "split") or not fi.invariant_names:
+        return {}
+    Y = np.asarray(y0, float).reshape(-1, fi.n)
+    flat = fi.for_batch(np.shape(y0)[:-1]).members()  # every member's own target
+    with np.errstate(all="ignore"):
+        kept = exactly_kept(flat.members(0), sch.name, Y[0])
+        if not kept:
+            return {}
+        jet = flat.invariant_gradients(Y)
+        scales = drift_scales(fi)
+    out = {}
+    for name in kept:
+        j = jet.names.index(name)
+        if np.max(np.abs(jet.residual[..., j])) <= rtol * max(scales.get(name, 1.0), 1e-300):
+            out[name] = (f"kept exactly by {sch.name}: a first integral with a constant gradient that no other "
+                         "feedback term moves, so every Runge-Kutta step keeps it to rounding and its feedback "
+                         "term vanishes identically (liefi.gains.exactly_kept)")
+    return out
+
+
+# --------------------------------------------------------------------------------
+# the gains of a run
+# --------------------------------------------------------------------------------
+
+#: ``gains="auto"`` on an explicit tableau adapts the gains along the run (at the accurate rate
+#: ``z*``) when ``z*`` is at least this fraction of the real stability bound (Euler: ``z* = 1``).
+AUTO_ADAPT_FRACTION = 0.25
+
+
+class RunGains(NamedTuple):
+    """What a fixed-step run starts with (:func:`run_gains`)."""
+
+    #: the integrator with the gains the run starts with (``fi`` itself when they are kept as given)
+    fi: object
+    #: ``dt lambda_max`` the adapted gains keep: ``z*`` (``gains="auto"``, one per member of an
+    #: ensemble or common), else the scheme's ``optimal_rate``
+    rate: object
+    #: whether the gains are re-chosen along the run (:func:`adapted_gains`), and for which members (shape: the batch)
+    adaptive: bool
+    mask: np.ndarray
+    #: the unforced rates at the start where ``z*`` needed them (:func:`unforced_rates`), else ``None``
+    omega: object
+
+
+def _merge(old, new, sel):
+    """``{k: new[k] where sel else old[k]}``: per-member gains (floats for one trajectory)."""
+    if np.ndim(sel) == 0:
+        return dict(new) if sel else dict(old)
+    return {k: np.where(sel, new[k], old[k]) for k in new}
+
+
+def run_gains(fi, y, dt, scheme, t_final, *, adaptive=None) -> RunGains:
+    """The gains a fixed-step run of ``fi`` from ``y`` starts with, and whether they adapt along it.
+
+    ``scheme``: a registry scheme (explicit or split); ``t_final``: the run's
+    length.  ``gains="auto"``: the accurate gains (:func:`accurate_setting`),
+    every member of an ensemble its own; with ``adaptive=None`` they are adapted
+    along the run (at ``z*``, the unit-rate gains re-chosen: :func:`adapted_gains`)
+    only for the members whose ``z*`` is at least :data:`AUTO_ADAPT_FRACTION` of
+    the scheme's bound -- never on a split scheme, whose feedback substep is
+    stable at every rate.  Numeric gains are kept, or with ``adaptive=True``
+    lowered where ``dt lambda_max`` passes the scheme's ``optimal_rate``
+    (:func:`lowered_gains`).
+    """
+    batch = tuple(getattr(fi, "batch", ()))
+    auto = getattr(fi, "gains_mode", "fixed") == "auto"
+    adapt = auto if adaptive is None else bool(adaptive)
+    rate = scheme.optimal_rate
+    mask = np.full(batch, adapt)
+    if not auto:
+        run_fi = fi.with_gains(lowered_gains(fi, y, rate, dt, split=scheme.kind == "split")) if adapt else fi
+        return RunGains(run_fi, rate, adapt, mask, None)
+    z, acc, unit, omega = _accurate(fi, dt, scheme.name, t_final, y, None)
+    if adaptive is None:
+        mask = np.broadcast_to(z >= AUTO_ADAPT_FRACTION * float(scheme.real_stability_bound), batch)
+        adapt = bool(np.any(mask))
+    if adapt:
+        rate = z
+        return RunGains(fi.with_gains(_merge(acc, rate_gains(unit, rate, dt), mask)), rate, adapt, mask, omega)
+    return RunGains(fi.with_gains(acc), rate, adapt, mask, omega)
+
+
+__all__ = ["accurate_gains", "accurate_rate", "accurate_setting", "adapted_gains", "auto_gains", "drift_bound",
+           "exact_drops", "exactly_kept", "local_defect", "lowered_gains", "optimal_rate", "rate_gains",
+           "rate_needs_omega", "run_gains", "unforced_rate", "unforced_rates", "unit_rate_gains", "RunGains",
+           "AUTO_ADAPT_FRACTION", "SPLIT_RATE", "SPLIT_RATE_MAX"]

@@ -1,16 +1,20 @@
 """The stability guard: the verdicts and the messages of a run's checks.
 
-The run's policy (:class:`liefi.policy.Policy`) decides the step and the gains;
-the guard turns the theory's numbers (:mod:`liefi.stability`: ``dt lambda_max``
-against the scheme's bound, the invariants' drift, the metric) into verdicts
-and words, and calls nothing above it:
+The run's policy (:class:`liefi.policy.Policy`) decides the step and the gains
+(:mod:`liefi.gains`); the guard turns the theory's numbers (:mod:`liefi.stability`:
+``dt lambda_max`` against the scheme's bound, the invariants' drift, the metric)
+into verdicts and words, and calls nothing above it.  The policy asks one
+:class:`Guard` per run, once at each point of the run:
 
-* :func:`_guard_verdict` -- ``"error"`` when the drift exploded after ``dt
-  lambda_max`` left the bound, ``"warn"`` for a large drift within it;
-* :func:`_audit` -- the same rule on the saved states after a run (a run may
-  have settled into O(1) garbage between two checks);
-* :func:`_advice`, :func:`_relabel`, :func:`data_defect` -- what to change,
-  appended to an :class:`~liefi.schemes.IntegrationError`;
+* :meth:`Guard.before` -- the pre-run verdict (:func:`liefi.stability.check`, or the
+  resolution of the unforced dynamics where the gains adapt);
+* :meth:`Guard.segment` -- after each segment, by the rule of :func:`_guard_verdict`:
+  ``"error"`` when the drift exploded after ``dt lambda_max`` left the bound,
+  ``"warn"`` for a large drift within it;
+* :meth:`Guard.audit` -- the same rule on the saved states after a run
+  (:func:`_audit`: a run may have settled into O(1) garbage between two checks);
+* :meth:`Guard.failure` -- what to change (:func:`_advice`, :func:`_relabel`,
+  :func:`data_defect`), appended to an :class:`~liefi.schemes.IntegrationError`;
 * :class:`RunReport` -- what the checks saw (``solution.stability``).
 """
 
@@ -27,10 +31,17 @@ from .schemes import split as _split
 from .stability import (
     GUARD_DRIFT,
     LIMIT_BAND,
+    PILOT_GUARD_EVALS,
     RESOLUTION_LIMIT,
+    RESOLUTION_MEMBERS,
     StabilityError,
+    _max_evals,
+    check,
+    drift,
     drift_scales,
     dynamics_rate,
+    estimate,
+    first_integral_defect,
     metric_defect,
     stiffness,
 )
@@ -273,3 +284,156 @@ def _relabel(exc, dt, sch, extra, t0=0.0):
         f"{exc.step} (t={t0 + exc.step * dt:g}) in components {comps}; the last finite state is at t={exc.t:g}. {extra}"
     )
     return IntegrationError(msg, exc.t, exc.step, exc.y, comps)
+
+
+#: Largest number of states (batch members x saved points) the post-run audit evaluates
+#: (each costs a few field evaluations: the audit stays a few percent of an ensemble's loop).
+AUDIT_STATES = 2000
+
+
+class Guard:
+    """The checks of one fixed-step run: before it, once per segment and after it (module docstring).
+
+    Asked by the run's policy (:class:`liefi.policy.Policy`), one question at a
+    time; fills in ``report`` (a :class:`RunReport`) and warns through
+    ``warn(message, depth)`` (the policy's warning; ``depth``: the frames
+    between it and the policy).  ``sch``: the registry scheme; ``t0``: the
+    run's start.
+    """
+
+    def __init__(self, sch, dt, report, warn, *, check_stability=True, resolution_limit=RESOLUTION_LIMIT, t0=0.0):
+        self.sch, self.dt, self.report, self.warn = sch, dt, report, warn
+        self.beta = float(sch.real_stability_bound)
+        self.split = sch.kind == "split"
+        self.check_stability = bool(check_stability)
+        self.resolution_limit = resolution_limit
+        self.t0 = float(t0)
+        self.beyond_at = None
+        self.warned_in_run = False
+        self.drift_warned = False
+
+    def before(self, run_fi, fi, y0, n_steps, *, adaptive, backend, watch, stacklevel):
+        """The pre-run verdict, and (``watch``) the drift at the start that the later checks compare with.
+
+        Fixed gains on an explicit tableau: :func:`liefi.stability.check` along a
+        short pilot (a warning at the limit, a refusal 10x past it); adapted
+        gains or a split scheme: only the resolution of the unforced dynamics.
+        ``stacklevel`` as :func:`liefi.stability.check`'s, counted from the caller.
+        """
+        dt, rep = self.dt, self.report
+        if self.check_stability:
+            batch = tuple(getattr(run_fi, "batch", ()))
+            if not adaptive and not self.split:
+                T = n_steps * dt
+                budget = min(PILOT_GUARD_EVALS, _max_evals(n_steps, self.sch.stages))
+                if backend != "numpy":  # a compiled step costs ~1/1000 of a numpy evaluation
+                    budget = min(budget, PILOT_GUARD_EVALS // 2)
+                rep.estimate = check(run_fi, dt, self.sch, t_final=T, y0=y0, max_evals=budget,
+                                     stacklevel=stacklevel + 1)
+                rep.resolution = rep.estimate.rate
+                if rep.estimate.verdict in ("limit", "beyond"):
+                    rep.warnings.append(rep.estimate.message())
+            else:
+                # the gains adapt (or the scheme is stiff-safe): only the resolution of the
+                # unforced dynamics can make the run meaningless
+                # (at the few members the resolution is estimated on: the stiffness is not the verdict here)
+                flat = np.asarray(y0, float).reshape(-1, run_fi.n)
+                few = np.unique(np.linspace(0, flat.shape[0] - 1, min(flat.shape[0], RESOLUTION_MEMBERS)).astype(int))
+                est = estimate(run_fi.members(few), dt, self.sch.explicit if self.split else self.sch,
+                               y0=flat[few] if batch else y0,
+                               resolution_limit=self.resolution_limit)
+                rep.resolution = est.rate
+                if est.unresolvable:
+                    raise ValueError("dt: " + est.resolution_message() + " Pass check_stability=False to run it anyway.")
+                if est.under_resolved:
+                    self.warn("liefi: " + est.resolution_message(), 1)
+                rep.estimate = est
+            flat = np.asarray(y0, float).reshape(-1, run_fi.n)
+            pick = np.unique(np.linspace(0, flat.shape[0] - 1, min(flat.shape[0], RESOLUTION_MEMBERS)).astype(int))
+            msg = first_integral_defect(run_fi.members(pick), flat[pick])
+            if msg:
+                self.warn(msg, 1)
+        if watch:
+            self.scales = drift_scales(fi)
+            self.delta0, _ = drift(fi, y0, self.scales)
+
+    def segment(self, run_fi, y, t_now, s0, y_all, *, adaptive):
+        """The verdict after a segment, at the states ``y`` (the members checked now) at ``t_now``.
+
+        ``dt lambda_max`` against the bound (remembered from the first time it
+        passed it) and, with ``check_stability``, the drift of the invariants:
+        :class:`~liefi.stability.StabilityError` when it exploded after the bound
+        was passed (:func:`_guard_verdict`), a warning for a large drift within
+        it, or (fixed gains) when the stiffness grew past the bound.  ``y_all``:
+        the whole state, for the error.  Returns ``(st, lam, ratio)``: the
+        :class:`~liefi.stability.Stiffness` at ``y``, its largest ``lambda_max``
+        and ``dt lambda_max / beta``.
+        """
+        rep, dt, beta, sch = self.report, self.dt, self.beta, self.sch
+        rep.monitors += 1
+        with np.errstate(all="ignore"):
+            jet = run_fi.invariant_gradients(y)
+            st = stiffness(run_fi, y)
+            lam = float(np.max(st.lam, initial=0.0))
+        ratio = dt * lam / beta if math.isfinite(beta) else 0.0
+        rep.max_ratio = max(rep.max_ratio, ratio)
+        if ratio > 1 + LIMIT_BAND and self.beyond_at is None:
+            self.beyond_at = t_now
+        if self.check_stability:
+            delta, who = drift(run_fi, y, self.scales, jet)
+            verdict = _guard_verdict(self.beyond_at is not None, delta, self.delta0)
+            if verdict == "error":
+                why = (
+                    f"after dt*lambda_max exceeded the stability bound {beta:.4g} of {sch.name} at "
+                    f"t = {self.beyond_at:g} (now {dt * lam:.4g}; largest safe dt {beta / lam:.4g}, or every "
+                    f"gain x {beta / (dt * lam):.3g}; or gains='auto', adaptive=True, scheme='imex-euler')"
+                )
+                if math.isfinite(rep.resolution) and rep.resolution > self.resolution_limit:
+                    why += (f"; note that dt also under-resolves the unforced dynamics (dt times its fastest "
+                            f"rate = {rep.resolution:.3g}): reduce dt first")
+                md = metric_defect(run_fi, y)
+                if md:
+                    why = "; " + md
+                raise StabilityError(
+                    f"the run became meaningless at t={t_now:g}: the drift of {who} reached {delta:.3g} x its "
+                    f"scale {why}. No result is returned.",
+                    t_now, s0, y_all, [who],
+                )
+            if verdict == "warn" and not self.drift_warned:
+                self.drift_warned = True
+                md = metric_defect(run_fi, y)
+                self.warn(("liefi: " + md) if md else _drift_warning(t_now, who, delta, dt, rep.resolution), 1)
+        if (not adaptive and ratio > 1 + LIMIT_BAND and not self.warned_in_run
+                and (rep.estimate is None or rep.estimate.verdict == "ok")):
+            self.warned_in_run = True
+            self.warn(
+                f"liefi: at t = {t_now:g} dt*lambda_max = {dt * lam:.4g} exceeds the stability bound "
+                f"{beta:.4g} of {sch.name} (the stiffness grew along the run). Largest safe dt there: "
+                f"{beta / lam:.4g} (or every gain x {beta / (dt * lam):.3g}); use gains='auto' or "
+                "adaptive=True to follow it, or scheme='imex-euler'.", 1
+            )
+        return st, lam, ratio
+
+    def audit(self, fi, ts, Ys, schedule, *, backend):
+        """After the run: :func:`_audit` on the saved states ``Ys`` (``(n_t, ..., n)``) at times ``ts``.
+
+        At most :data:`AUDIT_STATES` states; ``schedule = (times, gains)``: the
+        gains in effect from each time on.
+        """
+        if not self.check_stability:
+            return
+        per = int(np.prod(Ys.shape[1:-1], dtype=int)) if Ys.ndim > 2 else 1
+        pts = max(2, min(2000 if backend == "numpy" else 500, AUDIT_STATES // max(per, 1)))
+        w = _audit(fi, np.asarray(ts), Ys, self.dt, self.beta, self.sch, self.scales, self.delta0,
+                   schedule, max_points=pts, t0=self.t0)
+        if w is not None and not self.drift_warned:
+            self.warn(_drift_warning(w[0], w[1], w[2], self.dt, self.report.resolution), 1)
+
+    def failure(self, run_fi, exc, earlier):
+        """The :class:`~liefi.schemes.IntegrationError` to raise for ``exc``, with what to change appended."""
+        extra = _advice(run_fi, exc.y, exc.t, self.dt, self.sch, self.beta, earlier)
+        if self.split:
+            extra = (f"The split scheme {self.sch.name} solves (I + dt K W A W^T) mu = K r through the Gram matrix of "
+                     f"the invariants' gradients each step; non-finite numbers there mean the explicit part on X "
+                     f"blew up (reduce dt) or the gains overflow (dt*gain past ~1e300). " + extra)
+        return _relabel(exc, self.dt, self.sch, extra, self.t0)

@@ -4,26 +4,30 @@ The run loop (:mod:`liefi.run`) drives; it asks one :class:`Policy`
 
 * :meth:`Policy.step` -- the step: as given, or for a tolerance (:func:`liefi.tolerance.choose_step`:
   the error estimate, shortened until the step resolves the unforced motion), whole steps to the end;
-* :meth:`Policy.drops` -- the invariants the scheme keeps exactly (:func:`exact_drops`:
+* :meth:`Policy.drops` -- the invariants the scheme keeps exactly (:func:`liefi.gains.exact_drops`:
   their gain is 0, they leave ``V``);
-* :meth:`Policy.start` -- the gains to start with (``gains="auto"``: the accurate
-  rate of :mod:`liefi.gains`, or the contraction rate of a split scheme; fixed
-  gains lowered where ``dt lambda_max`` passes the rate with ``adaptive=True``) and
-  the pre-run verdict (:func:`liefi.stability.check`: a warning at the
+* :meth:`Policy.start` -- the gains to start with, asked of :mod:`liefi.gains` once
+  (:func:`liefi.gains.run_gains`: ``gains="auto"`` the accurate rate, adapted along
+  the run only near the stability limit; fixed gains lowered where ``dt lambda_max``
+  passes the rate with ``adaptive=True``) and the pre-run verdict
+  (:meth:`liefi.guard.Guard.before`: :func:`liefi.stability.check`, a warning at the
   limit, a refusal 10x past it; the resolution of the unforced dynamics);
 * :meth:`Policy.segment_length` and, once per segment, :meth:`Policy.between` --
-  the verdict on the segment (the drift of the invariants, ``dt lambda_max``:
-  :class:`~liefi.stability.StabilityError` when it exploded past the limit) and
-  the gains and length of the next one (adaptive runs, member by member in an
-  ensemble);
+  the verdict on the segment, asked of the guard once (:meth:`liefi.guard.Guard.segment`:
+  the drift of the invariants, ``dt lambda_max``; :class:`~liefi.stability.StabilityError`
+  when it exploded past the limit), and the length and gains of the next one
+  (adaptive runs, member by member in an ensemble: :func:`liefi.gains.adapted_gains`,
+  asked once);
 * :meth:`Policy.after` -- the audit of the saved states; :meth:`Policy.failure` --
-  what to change, appended to an :class:`~liefi.schemes.IntegrationError`.
+  what to change, appended to an :class:`~liefi.schemes.IntegrationError` (the guard's).
 
-Below it the theory, which never calls back up: :mod:`liefi.stability` (the
-Hessian of ``V``, ``lambda_max``, the schemes' bounds, the unforced rates),
-:mod:`liefi.gains` (the drift bound and the accurate rate),
-:mod:`liefi.tolerance` (the error estimate) and :mod:`liefi.guard` (the
-verdicts, the audit and the messages made from their numbers).
+Below it, and never calling back up: :mod:`liefi.gains` (every choice of gains:
+the unit-rate gains, the drift bound and the accurate rate, the contraction rate,
+the gains re-chosen along a run), :mod:`liefi.tolerance` (the error estimate) and
+:mod:`liefi.guard` (the verdicts, the audit and the messages made from their
+numbers), and under them the theory, :mod:`liefi.stability` (the Hessian of
+``V``, ``lambda_max``, the schemes' bounds, the unforced rates, the pilot), which
+chooses nothing.
 """
 
 from __future__ import annotations
@@ -33,56 +37,11 @@ import warnings
 
 import numpy as np
 
-from .gains import accurate_setting, exactly_kept, rate_needs_omega
-from .guard import RunReport, _advice, _audit, _drift_warning, _guard_verdict, _relabel
+from .gains import adapted_gains, exact_drops, run_gains
+from .guard import Guard, RunReport
 from .schemes import steps_for
-from .stability import (
-    LIMIT_BAND,
-    PILOT_GUARD_EVALS,
-    RESOLUTION_LIMIT,
-    LiefiStabilityWarning,
-    StabilityError,
-    _max_evals,
-    check,
-    drift,
-    drift_scales,
-    dynamics_rates,
-    estimate,
-    first_integral_defect,
-    metric_defect,
-    stiffness,
-    unit_rate_gains,
-)
+from .stability import RESOLUTION_LIMIT, LiefiStabilityWarning, dynamics_rates, stiffness
 from .tolerance import DEFAULT_RTOL, check_tolerance, choose_step
-
-
-def exact_drops(fi, sch, y0, *, rtol=1e-12):
-    """``{name: reason}``: the penalized invariants the scheme ``sch`` keeps exactly from ``y0`` (left out of ``V``).
-
-    :func:`liefi.gains.exactly_kept` (a first integral with a constant gradient,
-    untouched by the other invariants' feedback: every Runge--Kutta step keeps it
-    to rounding), for an explicit tableau, and only where the invariant is on its
-    target at every member of ``y0`` (relative ``rtol``): off it, its own
-    feedback is what brings it back.  One vectorized evaluation over the batch.
-    """
-    if getattr(sch, "kind", None) not in ("explicit", "split") or not fi.invariant_names:
-        return {}
-    Y = np.asarray(y0, float).reshape(-1, fi.n)
-    flat = fi.for_batch(np.shape(y0)[:-1]).members()  # every member's own target
-    with np.errstate(all="ignore"):
-        kept = exactly_kept(flat.members(0), sch.name, Y[0])
-        if not kept:
-            return {}
-        jet = flat.invariant_gradients(Y)
-        scales = drift_scales(fi)
-    out = {}
-    for name in kept:
-        j = jet.names.index(name)
-        if np.max(np.abs(jet.residual[..., j])) <= rtol * max(scales.get(name, 1.0), 1e-300):
-            out[name] = (f"kept exactly by {sch.name}: a first integral with a constant gradient that no other "
-                         "feedback term moves, so every Runge-Kutta step keeps it to rounding and its feedback "
-                         "term vanishes identically (liefi.gains.exactly_kept)")
-    return out
 
 
 def _span_length(t0, t_end):
@@ -94,14 +53,6 @@ def _span_length(t0, t_end):
     return length if math.isfinite(length) and length > 0 else 1.0
 
 
-#: Largest number of states (batch members x saved points) the post-run audit evaluates
-#: (each costs a few field evaluations: the audit stays a few percent of an ensemble's loop).
-AUDIT_STATES = 2000
-#: ``gains="auto"`` on an explicit tableau adapts the gains along the run (at the accurate rate
-#: ``z*``) when ``z*`` is at least this fraction of the real stability bound (Euler: ``z* = 1``).
-AUTO_ADAPT_FRACTION = 0.25
-#: Members of a batch on which the unforced dynamics' resolution is estimated.
-RESOLUTION_MEMBERS = 16
 
 
 def _chunk(s0, n_steps, N, save_every):
@@ -152,7 +103,6 @@ class Policy:
         self.backend = backend
         self.check_stability = bool(check_stability)
         self._adaptive_arg = adaptive
-        self._adaptive_default = adaptive is None
         self.stacklevel = stacklevel
         #: the ``info`` of :func:`liefi.tolerance.choose_step` when the step was chosen for a tolerance
         self.chosen = None
@@ -209,9 +159,10 @@ class Policy:
         """Whether the run must be watched between segments."""
         return self.check_stability or self.adaptive
 
-    def _warn(self, msg):
+    def _warn(self, msg, depth=0):
+        """Warn (and report) ``msg`` at the caller's level of the run; ``depth``: the frames between here and the policy."""
         self.report.warnings.append(msg)
-        warnings.warn(msg, LiefiStabilityWarning, stacklevel=self.stacklevel + 1)
+        warnings.warn(msg, LiefiStabilityWarning, stacklevel=self.stacklevel + 1 + depth)
 
     # --- the gains and the checks ---------------------------------------------------------
     def start(self, fi, dt, n_steps, y0, *, t0=0.0, monitor_every=None):
@@ -228,105 +179,29 @@ class Policy:
         self.t0 = float(t0)  # the run starts at t0: step s is at t0 + s dt
         self.n_steps = n_steps
         self.auto = getattr(fi, "gains_mode", "fixed") == "auto"
-        # auto on an explicit tableau: the accurate gains (liefi.gains), fixed unless their rate is
-        # near the stability limit (decided below); on a split scheme: the contraction rate,
-        # adapted along the run
-        self.adaptive = self.auto if self._adaptive_arg is None else bool(self._adaptive_arg)
         self.monitor_every = monitor_every
-        self.rate = self.sch.optimal_rate
-        self.report = RunReport(adaptive=self.adaptive)
-        self.beyond_at = None
-        self.warned_in_run = False
-        self.drift_warned = False
         self.ratio_set = None
         self.sched_t, self.sched_g = [self.t0], []
         self.resolutions = math.nan
         #: the ensemble's shape; members of an ensemble are adapted (and checked) on their own schedule
         self.batch = tuple(getattr(fi, "batch", ()))
-        self.mask = np.full(self.batch, self.adaptive)
-        # the gains to start with and the pre-run checks; O(1) calls over the batch
-        fi, dt, rep = self.fi, self.dt, self.report
-        omega = None
-        if self.auto:
-            # the accurate rate z* (liefi.gains) for this scheme, step and horizon; adapted along
-            # the run (at that rate) only when it sits near the stability limit (never for a split
-            # scheme: its feedback substep is stable at every rate)
-            # every member of an ensemble gets its own rate and gains: those of its single run
-            T = self.n_steps * dt
-            if rate_needs_omega(self.sch.name, dt, T):  # the unforced rates, also the pace of adaptation below
-                omega = dynamics_rates(fi, y0)
-            z, acc = accurate_setting(fi, dt, self.sch.name, T, y0, omega=omega)
-            if self._adaptive_default:
-                self.mask = np.broadcast_to(z >= AUTO_ADAPT_FRACTION * self.beta, self.batch)
-                self.adaptive = bool(np.any(self.mask))
-            if self.adaptive:
-                self.rate = z
-            rep.adaptive = self.adaptive
-        rate = self.rate
-        if self.auto and self.adaptive:
-            unit = unit_rate_gains(fi, y0)
-            run_fi = fi.with_gains(self._merge(acc, {k: v * rate / dt for k, v in unit.items()}, self.mask))
-        elif self.auto:
-            run_fi = fi.with_gains(acc)
-        elif self.adaptive:
-            run_fi = fi.with_gains(self._lowered(fi, y0))
-        else:
-            run_fi = fi
+        # the gains to start with, their rate and which members adapt: one question to liefi.gains
+        # (gains="auto": the accurate rate z*, every member of an ensemble its own; adapted along the
+        # run only where z* sits near the stability limit); then the pre-run verdict: one question
+        # to the guard; O(1) calls over the batch
+        run_fi, self.rate, self.adaptive, self.mask, omega = run_gains(fi, y0, dt, self.sch, self.n_steps * dt,
+                                                                      adaptive=self._adaptive_arg)
+        self.report = rep = RunReport(adaptive=self.adaptive)
         rep.gains = dict(run_fi.gains)
         self.sched_g = [dict(run_fi.gains)]
         if self.adaptive:  # each member's own pace of adaptation (Policy.segment_length), guard or not
             with np.errstate(all="ignore"):
                 self.resolutions = dt * (dynamics_rates(run_fi, y0) if omega is None else omega)
-        if self.check_stability:
-            if not self.adaptive and not self.split:
-                T = self.n_steps * dt
-                budget = min(PILOT_GUARD_EVALS, _max_evals(self.n_steps, self.sch.stages))
-                if self.backend != "numpy":  # a compiled step costs ~1/1000 of a numpy evaluation
-                    budget = min(budget, PILOT_GUARD_EVALS // 2)
-                rep.estimate = check(run_fi, dt, self.sch, t_final=T, y0=y0, max_evals=budget,
-                                     stacklevel=self.stacklevel + 1)
-                rep.resolution = rep.estimate.rate
-                if rep.estimate.verdict in ("limit", "beyond"):
-                    rep.warnings.append(rep.estimate.message())
-            else:
-                # the gains adapt (or the scheme is stiff-safe): only the resolution of the
-                # unforced dynamics can make the run meaningless
-                # (at the few members the resolution is estimated on: the stiffness is not the verdict here)
-                flat = np.asarray(y0, float).reshape(-1, run_fi.n)
-                few = np.unique(np.linspace(0, flat.shape[0] - 1, min(flat.shape[0], RESOLUTION_MEMBERS)).astype(int))
-                est = estimate(run_fi.members(few), dt, self.sch.explicit if self.split else self.sch,
-                               y0=flat[few] if self.batch else y0,
-                               resolution_limit=self.resolution_limit)
-                rep.resolution = est.rate
-                if est.unresolvable:
-                    raise ValueError("dt: " + est.resolution_message() + " Pass check_stability=False to run it anyway.")
-                if est.under_resolved:
-                    self._warn("liefi: " + est.resolution_message())
-                rep.estimate = est
-            flat = np.asarray(y0, float).reshape(-1, run_fi.n)
-            pick = np.unique(np.linspace(0, flat.shape[0] - 1, min(flat.shape[0], RESOLUTION_MEMBERS)).astype(int))
-            msg = first_integral_defect(run_fi.members(pick), flat[pick])
-            if msg:
-                self._warn(msg)
-        if self.active:
-            self.scales = drift_scales(fi)
-            self.delta0, _ = drift(fi, y0, self.scales)
+        self.guard = Guard(self.sch, dt, rep, self._warn, check_stability=self.check_stability,
+                           resolution_limit=self.resolution_limit, t0=self.t0)
+        self.guard.before(run_fi, fi, y0, self.n_steps, adaptive=self.adaptive, backend=self.backend,
+                          watch=self.active, stacklevel=self.stacklevel + 1)
         return run_fi
-
-    @staticmethod
-    def _merge(old, new, sel):
-        """``{k: new[k] where sel else old[k]}``: per-member gains (floats for one trajectory)."""
-        if np.ndim(sel) == 0:
-            return dict(new) if sel else dict(old)
-        return {k: np.where(sel, new[k], old[k]) for k in new}
-
-    def _lowered(self, base, y):
-        """Fixed gains lowered where ``dt lambda_max`` passes the rate (``adaptive=True``), member by member."""
-        lam = np.asarray(stiffness(base, y).lam, float)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            s_ = np.where((lam > 0) & (not self.split), np.minimum(1.0, self.rate / (self.dt * lam)), 1.0)
-        s_ = float(s_) if s_.ndim == 0 else s_
-        return {k: v * s_ if np.ndim(s_) == 0 else np.asarray(v) * s_ for k, v in base.gains.items()}
 
     def segment_length(self, n_steps, save_every=1):
         """Steps between two checks (deterministic: results never depend on timing).
@@ -371,8 +246,7 @@ class Policy:
     # --- between segments ---------------------------------------------------------------
     def between(self, run_fi, y, s0, N):
         """Check after ``s0`` steps at state ``y``; returns ``(run_fi, N)`` for the next segment."""
-        rep, dt, beta, sch = self.report, self.dt, self.beta, self.sch
-        rep.monitors += 1
+        dt, beta = self.dt, self.beta
         t_now = self.t0 + s0 * dt
         y_all = y
         sub = None
@@ -383,95 +257,51 @@ class Policy:
             sub = np.nonzero(due)[0]
             run_fi_all, run_fi = run_fi, run_fi.members(sub)
             y = np.asarray(y, float).reshape(-1, run_fi.n)[sub]
-        with np.errstate(all="ignore"):
-            jet = run_fi.invariant_gradients(y)
-            st = stiffness(run_fi, y)
-            lam = float(np.max(st.lam, initial=0.0))
-        ratio = dt * lam / beta if math.isfinite(beta) else 0.0
-        rep.max_ratio = max(rep.max_ratio, ratio)
-        if ratio > 1 + LIMIT_BAND and self.beyond_at is None:
-            self.beyond_at = t_now
-        if self.check_stability:
-            delta, who = drift(run_fi, y, self.scales, jet)
-            verdict = _guard_verdict(self.beyond_at is not None, delta, self.delta0)
-            if verdict == "error":
-                why = (
-                    f"after dt*lambda_max exceeded the stability bound {beta:.4g} of {sch.name} at "
-                    f"t = {self.beyond_at:g} (now {dt * lam:.4g}; largest safe dt {beta / lam:.4g}, or every "
-                    f"gain x {beta / (dt * lam):.3g}; or gains='auto', adaptive=True, scheme='imex-euler')"
-                )
-                if math.isfinite(rep.resolution) and rep.resolution > self.resolution_limit:
-                    why += (f"; note that dt also under-resolves the unforced dynamics (dt times its fastest "
-                            f"rate = {rep.resolution:.3g}): reduce dt first")
-                md = metric_defect(run_fi, y)
-                if md:
-                    why = "; " + md
-                raise StabilityError(
-                    f"the run became meaningless at t={t_now:g}: the drift of {who} reached {delta:.3g} x its "
-                    f"scale {why}. No result is returned.",
-                    t_now, s0, y_all, [who],
-                )
-            if verdict == "warn" and not self.drift_warned:
-                self.drift_warned = True
-                md = metric_defect(run_fi, y)
-                self._warn(("liefi: " + md) if md else _drift_warning(t_now, who, delta, dt, rep.resolution))
+        # the verdict on the segment: one question to the guard
+        st, _, ratio = self.guard.segment(run_fi, y, t_now, s0, y_all, adaptive=self.adaptive)
+        if not self.adaptive:
+            return run_fi, N
+        # the next gains, asked of liefi.gains once: for the whole run, or for the members due now
+        base, rate = self.fi, self.rate
         if sub is not None:
-            return self._between_members(run_fi_all, y, s0, sub, st)
-        if self.adaptive:
-            base = self.fi
-            if self.auto:
-                new = {k: v * self.rate / dt for k, v in unit_rate_gains(base, y).items()}
-            else:
-                new = self._lowered(base, y)
-            if self.monitor_every is None and self.ratio_set is not None:
-                if ratio > self.ratio_set * 1.05 or ratio < self.ratio_set / 1.05:
-                    N = max(10, N // 2)
-                elif self.ratio_set / 1.02 <= ratio <= self.ratio_set * 1.02:
-                    N = min(2 * N, self.N_cap)
-            run_fi = run_fi.with_gains(new)
-            self.ratio_set = (dt * float(np.max(stiffness(run_fi, y).lam, initial=0.0)) / beta
-                              if math.isfinite(beta) else 0.0)
-            rep.gain_times.append(t_now)
-            rep.gain_history.append(dict(new))
-            self.sched_t.append(t_now)
-            self.sched_g.append(dict(new))
-        elif (ratio > 1 + LIMIT_BAND and not self.warned_in_run
-              and (rep.estimate is None or rep.estimate.verdict == "ok")):
-            self.warned_in_run = True
-            self._warn(
-                f"liefi: at t = {t_now:g} dt*lambda_max = {dt * lam:.4g} exceeds the stability bound "
-                f"{beta:.4g} of {sch.name} (the stiffness grew along the run). Largest safe dt there: "
-                f"{beta / lam:.4g} (or every gain x {beta / (dt * lam):.3g}); use gains='auto' or "
-                "adaptive=True to follow it, or scheme='imex-euler'."
-            )
+            keep = np.asarray(self.mask).reshape(-1)[sub] & (self.next_i[sub] == s0)  # those adapted now
+            idx = sub[keep]
+            if not idx.size:  # a segment that ended at a saved index: no member adapts now
+                self._record(t_now, run_fi_all.gains)
+                return run_fi_all, self._left(s0)
+            y = y[keep]
+            base = self.fi.members(idx)
+            rate = rate if np.ndim(rate) == 0 else np.asarray(rate).reshape(-1)[idx]
+        new = adapted_gains(base, y, rate, dt, auto=self.auto, split=self.split)
+        if sub is not None:
+            return self._adapt_members(run_fi_all, y, s0, t_now, idx, np.asarray(st.lam, float).reshape(-1)[keep], new)
+        if self.monitor_every is None and self.ratio_set is not None:
+            if ratio > self.ratio_set * 1.05 or ratio < self.ratio_set / 1.05:
+                N = max(10, N // 2)
+            elif self.ratio_set / 1.02 <= ratio <= self.ratio_set * 1.02:
+                N = min(2 * N, self.N_cap)
+        run_fi = run_fi.with_gains(new)
+        self.ratio_set = (dt * float(np.max(stiffness(run_fi, y).lam, initial=0.0)) / beta
+                          if math.isfinite(beta) else 0.0)
+        self._record(t_now, new)
         return run_fi, N
 
-    def _between_members(self, run_fi, y, s0, sub, st):
-        """The adaptation of an ensemble: the members whose own check falls at step ``s0`` (module docstring).
+    def _record(self, t_now, gains):
+        """The gains in effect from ``t_now`` on (the report's history and the audit's schedule)."""
+        self.report.gain_times.append(t_now)
+        self.report.gain_history.append(dict(gains))
+        self.sched_t.append(t_now)
+        self.sched_g.append(dict(gains))
 
-        ``sub``: the flat indices of the members checked now, ``y`` their states and
-        ``st`` their :class:`~liefi.stability.Stiffness`; the others are not evaluated.
+    def _adapt_members(self, run_fi, y, s0, t_now, idx, lam, new):
+        """The adaptation of an ensemble: the members ``idx`` whose own check falls at step ``s0`` (module docstring).
+
+        ``y`` their states at the time ``t_now``, ``lam`` their ``lambda_max`` at the gains of the segment
+        that ended, ``new`` their next gains (:func:`liefi.gains.adapted_gains`); the
+        other members keep theirs and their schedule.
         """
-        dt, beta, rep = self.dt, self.beta, self.report
-        t_now = s0 * dt
-        mask = np.asarray(self.mask).reshape(-1)
-        keep = mask[sub] & (self.next_i[sub] == s0)  # of the checked members, those adapted now
-        idx = sub[keep]
-        y = y[keep]
-        lam = np.asarray(st.lam, float).reshape(-1)[keep]
+        dt, beta = self.dt, self.beta
         ratio = dt * lam / beta if math.isfinite(beta) else np.zeros_like(lam)
-        if not idx.size:  # a segment that ended at a saved index: no member adapts now
-            rep.gain_times.append(t_now)
-            rep.gain_history.append(dict(run_fi.gains))
-            self.sched_t.append(t_now)
-            self.sched_g.append(dict(run_fi.gains))
-            return run_fi, self._left(s0)
-        base = self.fi.members(idx)
-        if self.auto:
-            rate = self.rate if np.ndim(self.rate) == 0 else np.asarray(self.rate).reshape(-1)[idx]
-            new = {k: v * rate / dt for k, v in unit_rate_gains(base, y).items()}
-        else:
-            new = self._lowered(base, y)
         if self.monitor_every is None:
             rs = self.ratio_set_i[idx]
             with np.errstate(invalid="ignore"):
@@ -492,30 +322,15 @@ class Policy:
         self.ratio_set_i[idx] = dt * lam2 / beta if math.isfinite(beta) else 0.0
         for i in idx:
             self.next_i[i] = s0 + _chunk(s0, self.total, int(self.N_i[i]), self.save_every)[0]
-        rep.gain_times.append(t_now)
-        rep.gain_history.append(dict(gains))
-        self.sched_t.append(t_now)
-        self.sched_g.append(dict(gains))
+        self._record(t_now, gains)
         return run_fi, self._left(s0)
 
     # --- after ------------------------------------------------------------------------------
     def after(self, ts, Ys):
-        """Audit the saved states ``Ys`` (``(n_t, ..., n)``) at times ``ts`` (at most :data:`AUDIT_STATES` states)."""
-        if not self.check_stability:
-            return
-        per = int(np.prod(Ys.shape[1:-1], dtype=int)) if Ys.ndim > 2 else 1
-        pts = max(2, min(2000 if self.backend == "numpy" else 500, AUDIT_STATES // max(per, 1)))
-        w = _audit(self.fi, np.asarray(ts), Ys, self.dt, self.beta, self.sch, self.scales, self.delta0,
-                   (self.sched_t, self.sched_g), max_points=pts, t0=self.t0)
-        if w is not None and not self.drift_warned:
-            self._warn(_drift_warning(w[0], w[1], w[2], self.dt, self.report.resolution))
+        """Audit the saved states ``Ys`` (``(n_t, ..., n)``) at times ``ts`` (:meth:`liefi.guard.Guard.audit`)."""
+        self.guard.audit(self.fi, ts, Ys, (self.sched_t, self.sched_g), backend=self.backend)
 
     # --- failure --------------------------------------------------------------------------
     def failure(self, run_fi, exc, earlier):
         """The :class:`~liefi.schemes.IntegrationError` to raise for ``exc``, with the advice appended."""
-        extra = _advice(run_fi, exc.y, exc.t, self.dt, self.sch, self.beta, earlier)
-        if self.split:
-            extra = (f"The split scheme {self.sch.name} solves (I + dt K W A W^T) mu = K r through the Gram matrix of "
-                     f"the invariants' gradients each step; non-finite numbers there mean the explicit part on X "
-                     f"blew up (reduce dt) or the gains overflow (dt*gain past ~1e300). " + extra)
-        return _relabel(exc, self.dt, self.sch, extra, self.t0)
+        return self.guard.failure(run_fi, exc, earlier)

@@ -245,7 +245,7 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
     memory the saved output may use (default: :data:`DEFAULT_SAVE_BYTES` with
     ``save_every=None``, half the available memory with an explicit stride).
     ``drop_exact`` (default True): leave out of ``V`` the invariants the scheme
-    keeps exactly (:func:`liefi.policy.exact_drops`); ``solution.dropped`` lists them
+    keeps exactly (:func:`liefi.gains.exact_drops`); ``solution.dropped`` lists them
     (``{"name", "reason"}``).  ``t_eval``, ``events`` and ``dense_output`` as
     ``solve_ivp``'s, on the cubic Hermite interpolant of :mod:`liefi.dense`.
     ``errors``: ``"raise"`` (default) or ``"return"``: a failed run returns the

@@ -1,4 +1,4 @@
-r"""Where a feedback integrator is stable, said before it runs; automatic and adaptive gains.
+r"""Where a feedback integrator is stable, said before it runs: the stiffness, the bounds, the pilot.
 
 The feedback term ``-A grad V`` of ``y' = X(y) - A grad V(y)`` is stiff by
 design.  On the invariant set ``V = 0`` every residual ``I_j - I_j0`` vanishes,
@@ -22,26 +22,31 @@ the invariant set the terms ``(I_j - I_j0) Hess I_j`` are dropped (they are of
 the size of the drift; ``stiffness(..., exact=True)`` includes them by finite
 differences of ``grad V``).
 
-What this module does with that number:
+What this module does with that number -- the theory, which chooses no gains
+and calls nothing above it:
 
 * :func:`stiffness` -- ``lambda_max`` over a whole batch at once (vectorized
-  Gram matrices, ``O(1)`` calls per run); :func:`estimate` -- the scheme's
-  bound (read from the scheme, :mod:`liefi.schemes.registry`), the largest safe
-  ``dt`` and gain, at the start (or, with ``t_final``, along a cheap pilot of
-  the extended field for ``liefi stability --estimate``); :func:`check` warns
-  (:class:`LiefiStabilityWarning`) from ``dt lambda_max >= 0.99 beta`` and
-  refuses (``ValueError``) past ``10 beta``.  The run module
-  (:mod:`liefi.run`) consults it through the guard policy (:mod:`liefi.guard`).
-* Automatic gains (``gains="auto"``): every invariant weighted by
-  ``1/|grad I_j|^2`` (the penalty by ``1/2``), all scaled so that
-  ``dt lambda_max = x*``, the scheme's ``optimal_rate`` (``x* = 1``
-  for Euler: the optimal fixed gain ``k = 1/(dt L)`` of Bae & Chang, "Feedback
-  integrators revisited", arXiv:2512.01528, with ``L`` the Lipschitz constant
-  of ``grad V`` at unit gain), and re-chosen along the run (their Hessian-based
-  adaptive gain, updated periodically) -- needed where the stiffness grows, e.g.
-  the Heisenberg system, whose ``|grad J|^2`` grows like ``|q|^2``.
+  Gram matrices, ``O(1)`` calls per run); :func:`stable_dt` -- the largest
+  stable step for a spectrum; :func:`resolve_scheme` -- the scheme's bound
+  (read from the scheme, :mod:`liefi.schemes.registry`).
+* The unforced motion: :func:`dynamics_rates` (the spectral radius of
+  ``dX/dy``), :func:`dynamics_growth` and :func:`growth_step` (how much the
+  scheme amplifies it), :func:`pilot` (a cheap preview of it) and
+  :func:`metric_defect` (where the metric degenerates along it).
+* :func:`estimate` -- the largest safe ``dt`` and gain, at the start (or, with
+  ``t_final``, along the pilot, for ``liefi stability --estimate``);
+  :func:`check` warns (:class:`LiefiStabilityWarning`) from ``dt lambda_max >=
+  0.99 beta`` and refuses (``ValueError``) past ``10 beta``.
 * :func:`drift` and :func:`drift_scales` -- the invariants' drift relative to
   their scale, which the guard watches.
+
+Above it, :mod:`liefi.gains` chooses the gains from these numbers (the unit-rate
+gains ``1/|grad I_j|^2``, the accurate rate, the contraction rate ``x*`` of
+Bae & Chang, "Feedback integrators revisited", arXiv:2512.01528, and the gains
+re-chosen along an adaptive run -- needed where the stiffness grows, e.g. the
+Heisenberg system, whose ``|grad J|^2`` grows like ``|q|^2``); the guard
+(:mod:`liefi.guard`) turns them into verdicts; the run's policy
+(:mod:`liefi.policy`) asks both, once per segment.
 
 The (dt, gain) maps, the extreme-case battery and the stiff work-precision
 study are experiments: :mod:`liefi.experiments`.
@@ -50,15 +55,13 @@ study are experiments: :mod:`liefi.experiments`.
 from __future__ import annotations
 
 import math
-import time
 import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from .reduction import core as _core
 from .drift import drift, drift_scales, first_integral_defect  # noqa: F401 -- part of this module's API
-from .schemes import IntegrationError, positive_number
+from .schemes import IntegrationError
 from .schemes import positive_int as _positive_int  # noqa: F401
 from .schemes import registry as _registry
 from .schemes import split as _stiff
@@ -71,9 +74,6 @@ REFUSE_RATIO = 10.0
 RESOLUTION_LIMIT = 0.2
 #: Refuse when the scheme amplifies the unforced motion by more than this per step (``max |R(dt mu)|``).
 GROWTH_LIMIT = 1.05
-#: ``dt lambda_max`` targeted by automatic gains with a split (stiff-safe) scheme: the
-#: feedback substep damps the stiffest mode by ``1/(1 + 10)`` per step.
-SPLIT_RATE = _stiff.LinearlyImplicitSplit.optimal_rate
 #: Fraction of a run's right-hand-side evaluations the pre-run pilot may spend (and its cap).
 PILOT_FRACTION = 0.05
 PILOT_MAX_EVALS = 6000
@@ -148,17 +148,6 @@ def _R(sch, z):
 def real_stability_bound(scheme):
     """The scheme's real stability bound ``beta`` (:attr:`liefi.schemes.rk.ExplicitRungeKutta.real_stability_bound`)."""
     return resolve_scheme(scheme)[1]
-
-
-def optimal_rate(scheme):
-    """The ``dt lambda_max`` automatic gains aim at: the scheme's ``optimal_rate``.
-
-    Euler ``x* = 1`` (Bae & Chang's optimal gain ``1/(dt L)``), Heun 1, RK4
-    ~1.6; split schemes :data:`SPLIT_RATE`.
-    """
-    sch, _ = resolve_scheme(scheme)
-    r = getattr(sch, "optimal_rate", math.nan)
-    return SPLIT_RATE if not (isinstance(r, float) and math.isfinite(r)) else float(r)
 
 
 # --------------------------------------------------------------------------------
@@ -736,49 +725,3 @@ def check(fi, dt, scheme="euler", *, t_final=None, y0=None, max_evals=None, stac
     if est.under_resolved:
         warnings.warn("liefi: " + est.resolution_message(), LiefiStabilityWarning, stacklevel=stacklevel + 1)
     return est
-
-
-# --------------------------------------------------------------------------------
-# automatic gains
-# --------------------------------------------------------------------------------
-
-
-def unit_rate_gains(fi, y=None):
-    """Gains with ``lambda_max(Hess V)(y) = 1``, every invariant weighted by ``1/|grad I_j(y)|^2``.
-
-    The Jacobi scaling of the Gram matrix: each invariant alone would relax at
-    the same rate; the common factor makes the largest eigenvalue 1.  The
-    penalty (Hessian eigenvalue 2 on the group) gets weight 1/2.  A vanishing
-    gradient gets the weight of the largest one.  For a batch ``y`` (an
-    ensemble) each member gets its own (arrays of shape ``y.shape[:-1]``): the
-    gains a single run of that member gets.
-    """
-    y = fi.y0 if y is None else np.asarray(y, float)
-    batch = y.shape[:-1]
-    jet = fi.invariant_gradients(y)
-    n2 = np.einsum("...mn,...mn->...m", jet.grad, jet.grad)  # (..., m)
-    top = np.max(n2, axis=-1, initial=0.0)
-    floor = np.maximum(top * 1e-12, 1e-300)
-    w = {nm: np.where(top > 0, 1.0 / np.maximum(n2[..., j], floor), 1.0) for j, nm in enumerate(jet.names)}
-    if fi.use_penalty:
-        w["penalty"] = np.full(batch, 0.5)
-    w = {k: float(v) if np.ndim(v) == 0 else v for k, v in w.items()}
-    trial = fi.for_batch(batch).with_gains({k: w.get(k, 1.0) for k in fi.invariant_names})
-    lam = np.asarray(stiffness(trial, y).lam, float)
-    scale = np.where((lam > 0) & np.isfinite(lam), 1.0 / np.where(lam > 0, lam, 1.0), 1.0)
-    return _scaled(trial.gains, float(scale) if scale.ndim == 0 else scale)
-
-
-def auto_gains(fi, dt, scheme="euler", *, y=None, t_final=None):
-    """Fixed gains for ``dt`` and ``scheme``: :func:`unit_rate_gains` scaled to ``dt lambda_max = x*``.
-
-    ``x*`` is :func:`optimal_rate` (1 for Euler: Bae & Chang's ``k = 1/(dt L)``).
-    With ``t_final`` the largest ``lambda_max`` along a pilot up to ``t_final``
-    is used, so the gains are safe over the whole run (without adapting).
-    """
-    dt = positive_number(dt, "dt")
-    unit = fi.with_gains(unit_rate_gains(fi, y))
-    lam = 1.0
-    if t_final is not None:
-        lam = max(estimate(unit, dt, scheme, t_final=t_final, y0=y, resolution=False).lam, 1e-300)
-    return _scaled(unit.gains, optimal_rate(scheme) / (dt * lam))

@@ -80,6 +80,18 @@ def test_ensemble_equals_single_runs(suslov3, backend, scheme, gains, T):
         np.testing.assert_allclose(g, [s.stability.gains["energy"] for s in singles], rtol=1e-12)
 
 
+def test_an_adapted_ensemble_that_starts_late_records_its_gains_at_the_single_runs_times(suslov3):
+    """Over t in [5, 7] each member's gains change at the times of its single run (t0 + steps * dt)."""
+    sc, fi, Y = suslov3
+    ens = _quiet(liefi.FeedbackIntegrator(sc.system, Y, gains="auto", configuration=fi.configuration).run,
+                 (5.0, 7.0), dt=1e-2, scheme="euler", backend="numpy")
+    one = _quiet(liefi.FeedbackIntegrator(sc.system, Y[0], gains="auto", configuration=fi.configuration).run,
+                 (5.0, 7.0), dt=1e-2, scheme="euler", backend="numpy")
+    assert ens.stability.adaptive and one.stability.gain_times
+    assert ens.stability.gain_times == one.stability.gain_times
+    assert min(ens.stability.gain_times) > 5.0
+
+
 @pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("scheme", ["heun", "imex-rk4"])
 def test_gains_and_targets_that_differ_between_members(suslov3, backend, scheme):

@@ -32,6 +32,7 @@ import liefi
 from liefi import scenes
 from liefi.feedback import FeedbackIntegrator
 from liefi.schemes import SCHEMES, IntegrationError
+from liefi import gains as G
 from liefi import stability as S
 from liefi.experiments import battery as B
 from liefi.experiments import stability_maps as M
@@ -75,9 +76,9 @@ def test_real_stability_bound_matches_the_known_values_and_the_stability_polynom
 
 
 def test_optimal_rate_minimizes_the_stability_function():
-    assert S.optimal_rate("euler") == pytest.approx(1.0)  # R(-x) = 1 - x: the stiff mode removed in one step
-    assert S.optimal_rate("heun") == pytest.approx(1.0)
-    x = S.optimal_rate("rk4")
+    assert G.optimal_rate("euler") == pytest.approx(1.0)  # R(-x) = 1 - x: the stiff mode removed in one step
+    assert G.optimal_rate("heun") == pytest.approx(1.0)
+    x = G.optimal_rate("rk4")
     R = np.abs(SCHEMES["rk4"].stability_polynomial(-np.linspace(0, 2.785, 300)))
     assert abs(SCHEMES["rk4"].stability_polynomial(np.array([-x]))[0]) <= R.min() + 1e-6
     assert math.isinf(S.resolve_scheme("imex-euler")[1])
@@ -206,12 +207,69 @@ def test_adaptive_with_fixed_gains_only_lowers_them():
 
 def test_unit_rate_and_auto_gains():
     fi = scenes.get("knife-edge").integrator()
-    unit = fi.with_gains(S.unit_rate_gains(fi))
+    unit = fi.with_gains(G.unit_rate_gains(fi))
     assert S.stiffness(unit, fi.y0).lam == pytest.approx(1.0)
-    auto = fi.with_gains(S.auto_gains(fi, 1e-3, "euler"))
+    auto = fi.with_gains(G.auto_gains(fi, 1e-3, "euler"))
     assert 1e-3 * S.stiffness(auto, fi.y0).lam == pytest.approx(1.0)  # Bae & Chang: k = 1/(dt L)
     fa = scenes.get("knife-edge").integrator(gains="auto")
     assert fa.gains_mode == "auto" and S.stiffness(fa, fa.y0).lam == pytest.approx(1.0)
+
+
+def test_every_choice_of_gains_lives_in_gains_and_the_theory_calls_nothing_above_it():
+    """stability.py: the stiffness, the bounds, the pilot; gains.py: every gain chosen from them."""
+    import ast
+    import pathlib
+
+    for name in ("unit_rate_gains", "auto_gains", "optimal_rate", "rate_gains", "lowered_gains", "adapted_gains",
+                 "run_gains", "exact_drops"):
+        assert callable(getattr(G, name)) and not hasattr(S, name), name
+    src = pathlib.Path(S.__file__).read_text()
+    above = {"gains", "policy", "guard", "tolerance", "run", "feedback", "scenes"}
+    for n in ast.walk(ast.parse(src)):  # lazy imports included
+        if isinstance(n, ast.ImportFrom) and n.level:
+            assert (n.module or "").split(".")[0] not in above, ast.unparse(n)
+
+
+def test_run_gains_are_the_gains_a_run_starts_with():
+    sc = scenes.get("knife-edge")
+    fi = sc.integrator(gains="auto")
+    dt, T = 1e-2, 1.0
+    euler, rk4 = liefi.schemes.registry.get("euler"), liefi.schemes.registry.get("rk4")
+    # Euler: z* = 1, near the bound 2: adapted at z*, from the unit-rate gains at the rate z*
+    g = G.run_gains(fi, fi.y0, dt, euler, T)
+    z, _ = G.accurate_setting(fi, dt, "euler", T)
+    assert g.adaptive and g.rate == z and g.omega is not None
+    assert g.fi.gains == G.rate_gains(G.unit_rate_gains(fi), z, dt)
+    assert dt * float(S.stiffness(g.fi, fi.y0).lam) == pytest.approx(z, rel=1e-9)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        sol = fi.run(T, dt=dt, scheme="euler", backend="numpy")
+    assert sol.stability.adaptive and sol.stability.gains == g.fi.gains
+    # RK4: z* far below the bound: the accurate gains, fixed
+    g = G.run_gains(fi, fi.y0, dt, rk4, T)
+    assert not g.adaptive and g.fi.gains == G.accurate_setting(fi, dt, "rk4", T)[1]
+    # numeric gains, adaptive=True: lowered to the scheme's optimal rate where dt lambda_max passes it
+    big = sc.integrator(gains=1e3)
+    g = G.run_gains(big, big.y0, dt, rk4, T, adaptive=True)
+    assert g.adaptive and g.rate == G.optimal_rate("rk4")
+    assert dt * float(S.stiffness(g.fi, big.y0).lam) == pytest.approx(G.optimal_rate("rk4"), rel=1e-12)
+    small = sc.integrator(gains=1e-3)
+    assert G.run_gains(small, small.y0, dt, rk4, T, adaptive=True).fi.gains == small.gains  # below: kept
+    assert G.run_gains(small, small.y0, dt, rk4, T).fi is small  # not adapted: as given
+
+
+def test_adapted_gains_keep_the_rate_at_the_new_state():
+    sc = scenes.get("heisenberg")
+    fi = sc.integrator("generic", gains="auto")
+    y = fi.y0.copy()
+    y[fi.nc:] *= 3.0  # the stiffness grows with the state: the gains follow it
+    dt, rate = 1e-3, 0.7
+    new = fi.with_gains(G.adapted_gains(fi, y, rate, dt, auto=True))
+    assert dt * float(S.stiffness(new, y).lam) == pytest.approx(rate, rel=1e-9)
+    fixed = sc.integrator("generic", gains=1e4)
+    low = fixed.with_gains(G.adapted_gains(fixed, y, rate, dt, auto=False))
+    assert dt * float(S.stiffness(low, y).lam) == pytest.approx(rate, rel=1e-12)
+    assert G.adapted_gains(fixed, y, rate, dt, auto=False, split=True) == fixed.gains  # a split scheme: kept
 
 
 def test_heisenberg_generic_runs_with_adaptive_auto_gains_where_fixed_gains_are_refused():

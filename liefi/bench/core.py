@@ -8,7 +8,7 @@ tolerances ``rtol`` (each run from the scene's start to ``t_final``):
                     ``euler``, ``heun``, ``rk4``, with the scene's gains and with each fixed
                     gain k of :data:`FI_GAINS` on every invariant (column ``gain``)
 ``FI-tuned``        the feedback integrator with fixed gains matched to ``dt`` and the scheme
-                    (:func:`liefi.stability.auto_gains`: ``dt lambda_max(Hess V)`` at the
+                    (:func:`liefi.gains.auto_gains`: ``dt lambda_max(Hess V)`` at the
                     scheme's optimal rate along a pilot run), same schemes
 ``FI-accurate``     the feedback integrator with the gains of :func:`liefi.gains.accurate_gains`
                     (least drift bound for the scheme, ``dt`` and ``t_final``; zero on the
@@ -262,7 +262,7 @@ def run_task(task):
                 cf = _engine.compile_constrained(fi, projection=True)
                 p, proj = np.zeros(0), _engine.projection_targets(fi)
             elif method == "FI-tuned":
-                from ..stability import auto_gains
+                from ..gains import auto_gains
 
                 fi = fi.with_gains(auto_gains(fi, task["dt"], scheme, y=fi.y0, t_final=T))
                 out["message"] = "gains " + ", ".join(f"{k}={v:.3g}" for k, v in fi.gains.items())

@@ -465,7 +465,7 @@ class Scene:
         clock = (time.process_time(), getattr(self, "reference_seconds", 0.0))
         if backend is None:
             backend = "auto" if importlib.util.find_spec("numba") is not None else "numpy"
-        from ..stability import positive_number
+        from ..schemes import positive_number
 
         v = self.variant(variant) if not isinstance(variant, Variant) else variant
         T = positive_number(self.t_final if t_final is None else t_final, "t_final", "must be a positive number")
@@ -501,7 +501,7 @@ class Scene:
             ivp = _schemes.get(scheme, kind="scipy")
             method = ivp.method
             if getattr(fi, "gains_mode", "fixed") == "auto":
-                from ..stability import auto_gains
+                from ..gains import auto_gains
 
                 fi = fi.with_gains(auto_gains(fi, dt, "euler"))
             if check_stability:

@@ -95,7 +95,7 @@ class LinearlyImplicitSplit:
     real_stability_bound = float("inf")
     #: Stable for every gain and step (the feedback substep is A-stable).
     stiff_safe = True
-    #: ``dt lambda_max`` of the contraction gains (:func:`liefi.stability.auto_gains`; ``gains="auto"``
+    #: ``dt lambda_max`` of the contraction gains (:func:`liefi.gains.auto_gains`; ``gains="auto"``
     #: takes the accurate rate of :mod:`liefi.gains` instead): the substep damps the stiffest mode by 1/11.
     optimal_rate = 10.0
 
