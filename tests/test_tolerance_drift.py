@@ -34,5 +34,5 @@ def test_the_drift_cap_follows_the_gauss_newton_residual():
     assert tol._drift_cap(1.0, L / 2, 0.0, p) == math.inf
     assert tol._drift_cap(1.0, 10 * L, 5 * L, p) == math.inf  # the shorter run drifts as much: rounding's floor
     cap = tol._drift_cap(2.0, 1e6 * L, 1e-3 * L, p)
-    assert math.isclose(cap, 2.0 * 1e-6 ** (1 / 18), rel_tol=1e-12)
+    assert math.isclose(cap, 2.0 * (tol.DRIFT_AIM * 1e-6) ** (1 / 18), rel_tol=1e-12)
     assert tol._drift_cap(1.0, math.inf, 0.0, p) == 0.0
