@@ -20,7 +20,7 @@ def test_a_loose_tolerance_keeps_the_invariants_at_rounding():
     assert info["verified_step"] is not None and dt > 2 * info["check_step"] * (1 + 1e-9), info
     r = sc.run(scheme="imex-rk4", gains="auto", t_final=300.0, rtol=rtol, choose_order=True)
     assert r.dt == dt
-    assert max(r.max_drift.values()) <= 1e-12, r.max_drift  # 5e-9 before
+    assert max(r.max_drift.values()) <= tol.DRIFT_LEVEL, r.max_drift  # 5e-9 before
     sizes = {k: np.max(np.abs(r[k] - r.errors[k])) if k in r.names else 1.0 for k in r.max_error}
     rel = max(r.max_error[k] / sizes[k] for k in r.max_error if sizes[k] > 0)
     assert rel <= 10 * rtol, (rel, r.dt)
@@ -30,7 +30,7 @@ def test_the_drift_cap_follows_the_gauss_newton_residual():
     """``_drift_cap``: no cap at rounding (below the level, or a floor a shorter step does not lower); above it
     the step at which ``K e^2 ~ dt^{2(p+1)}`` falls to the level."""
     L, p = tol.DRIFT_LEVEL, 8
-    assert 1e-13 < L < 1e-12
+    assert 1e-13 < L < 1e-11
     assert tol._drift_cap(1.0, L / 2, 0.0, p) == math.inf
     assert tol._drift_cap(1.0, 10 * L, 5 * L, p) == math.inf  # the shorter run drifts as much: rounding's floor
     cap = tol._drift_cap(2.0, 1e6 * L, 1e-3 * L, p)
