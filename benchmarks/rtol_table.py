@@ -33,8 +33,8 @@ T = float(args[1]) if len(args) > 1 else 1000.0
 rtols = [float(r) for r in (args[2].split(",") if len(args) > 2 else ["1e-4", "1e-6", "1e-8", "1e-10"])]
 scheme = opts.get("scheme")
 print(f"T = {T:g}, scheme {scheme or 'chosen by cost'}")
-print("| scene | rtol | scheme | dt | steps | achieved rel. error | err/rtol | max drift (rel.) | CPU s | choose s |")
-print("|---|---|---|---|---|---|---|---|---|---|")
+print("| scene | rtol | scheme | dt | steps | achieved rel. error | err/rtol | max drift (rel.) | CPU s | choose s | reference |")
+print("|---|---|---|---|---|---|---|---|---|---|---|")
 for n in names:
     sc = scenes.get(n)
     if "ref-rtol" in opts:  # a tighter reference than the scene's (its error is the floor of the column)
@@ -47,7 +47,7 @@ for n in names:
             choose = time.process_time() - t  # kept on the scene: the run below reuses it
             res = sc.run(scheme=scheme or "imex-rk4", gains="auto", t_final=T, rtol=r, choose_order=scheme is None)
         except Exception as exc:  # a row that fails says why and the table goes on
-            print(f"| {n} | {r:.0e} | failed: {type(exc).__name__}: {str(exc)[:120]} |||||||||", flush=True)
+            print(f"| {n} | {r:.0e} | failed: {type(exc).__name__}: {str(exc)[:120]} ||||||||||", flush=True)
             continue
         if "fine-ref" in opts:  # the same scheme at a divisor of the step, at the run's saved points
             fi = sc.integrator(v, gains="auto")
@@ -57,9 +57,11 @@ for n in names:
             Yf = np.moveaxis(np.asarray(fine.y), -1, 0)
             rel = max(np.max(np.abs(res[k] - Yf[:, i])) / max(np.max(np.abs(Yf[:, i])), 1e-300)
                       for i, k in enumerate(fi.names) if k in sc.error_variables and k in res.names)
+            ref = f"{res.scheme} at dt/{q}"
         else:
             rel = max(res.max_error[k] / max(np.max(np.abs(res[k] - res.errors[k])) if k in res.names else 1.0,
                                              1e-300) for k in res.max_error)
+            ref = "exact" if sc.reference == "exact" else f"{sc.reference} at {sc.reference_rtol:g}"
         drift = max(res.max_drift.values()) if res.max_drift else 0.0
         print(f"| {n} | {r:.0e} | {res.scheme} | {res.dt:.4g} | {res.steps} | {rel:.2e} | {rel / r:.2g} | "
-              f"{drift:.1e} | {res.cpu_seconds:.3f} | {choose:.3f} |", flush=True)
+              f"{drift:.1e} | {res.cpu_seconds:.3f} | {choose:.3f} | {ref} |", flush=True)
