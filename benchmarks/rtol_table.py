@@ -33,7 +33,8 @@ T = float(args[1]) if len(args) > 1 else 1000.0
 rtols = [float(r) for r in (args[2].split(",") if len(args) > 2 else ["1e-4", "1e-6", "1e-8", "1e-10"])]
 scheme = opts.get("scheme")
 print(f"T = {T:g}, scheme {scheme or 'chosen by cost'}")
-print("| scene | rtol | scheme | dt | steps | achieved rel. error | err/rtol | max drift (rel.) | CPU s | choose s | reference |")
+print("| scene | rtol | scheme | dt | steps | achieved rel. error | err/rtol | max drift (rel.) | CPU s | choose s "
+      "| reference |")
 print("|---|---|---|---|---|---|---|---|---|---|---|")
 for n in names:
     sc = scenes.get(n)

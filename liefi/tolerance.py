@@ -404,8 +404,8 @@ def _drift_cap(dt, drift, floor, p):
     r"""The longest step whose run keeps the invariants at rounding, from the drift ``drift`` measured at ``dt``.
 
     One Gauss--Newton step onto the invariant set leaves ``K e^2`` of the tableau's per-step defect
-    ``e = c dt^{p+1}`` (measured: ``K`` 0.2 to 1.1 on the Chaplygin sleighs, Suslov, the oscillator, the roller racer), so the
-    drift scales like ``dt^{2(p+1)}`` and the cap is ``dt (a L / drift)^{1 / (2(p+1))}``, ``L`` =
+    ``e = c dt^{p+1}`` (measured: ``K`` 0.2 to 1.1 on the Chaplygin sleighs, Suslov, the oscillator, the roller
+    racer), so the drift scales like ``dt^{2(p+1)}`` and the cap is ``dt (a L / drift)^{1 / (2(p+1))}``, ``L`` =
     :data:`DRIFT_LEVEL`, ``a`` = :data:`DRIFT_AIM`.  ``inf`` when the drift is at rounding: below ``L``, or within
     :data:`DRIFT_FLOOR_RATIO` of ``floor``, the drift of a run at a shorter step (rounding that no step lowers).
     """
