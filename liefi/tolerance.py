@@ -52,7 +52,15 @@ invariant set the split step's error is the error of its tableau on ``X``
    untrusted check is halved while :data:`CHECK_TRIES_BUDGET` budgets allow; if still untrusted the
    step comes from the conservative bound ``2^p max_t |y_{H/2} - y_{H/4}|``, never longer than the
    local model's step (``info["conservative"]``).  A prefix extrapolated linearly is not safe: the
-   rattleback's error jumps 300x between t = 1 and t = 2;
+   rattleback's error jumps 300x between t = 1 and t = 2.
+   **The invariants at rounding** (:func:`_drift_cap`): the one Gauss--Newton step of the split scheme
+   leaves ``K e^2`` of the tableau's per-step defect ``e`` of the invariants (measured ``K`` 0.2--1.1),
+   below rounding at the default tolerance but not at a loose one's long steps (the Chaplygin sleigh on
+   SO(2) at ``1e-4``, ``dt omega = 2.4``: ``e = 7e-5``, drift ``3e-9``).  So the runs the check already
+   makes report their drift (:func:`liefi.drift.drift`): a run at the coarse step, or a longer candidate,
+   whose drift is above :data:`DRIFT_LEVEL` and more than :data:`DRIFT_FLOOR_RATIO` times the drift of
+   the shorter run it was compared with is refused, and the step is cut to where ``K e^2 ~ dt^{2(p+1)}``
+   reaches the level.  Its cost: the invariants evaluated at the saved states of runs already made;
 6. **the order** (``choose_order``, the default when no scheme is named): the
    candidates of :data:`ORDER_CANDIDATES` (the tableau on ``X`` at orders 4,
    6 and 8: :data:`liefi.schemes.rk.RK4`, Butcher's ``RK6``, DOP853's ``RK8``)
@@ -82,8 +90,8 @@ unchanged (one step, one gain for the whole run) and costs one pilot of a few
 dozen numpy steps.  The measurement is in ``docs/choosing-a-method.md``.
 
 A tolerance controls the error of the *state*; the invariants are at rounding
-whatever the tolerance (the split feedback step), so ``rtol`` is not a knob for
-them.
+whatever the tolerance (the split feedback step, at a step whose measured drift
+is at rounding: step 5), so ``rtol`` is not a knob for them.
 """
 
 from __future__ import annotations
@@ -141,6 +149,18 @@ CHECK_WIDEN = 3
 WIDEN_FACTOR = 4.0
 #: The step is at most this many times the check's coarse step (where the error was measured).
 CHECK_GROWTH = 2.0
+#: The invariants' relative drift (:func:`liefi.drift.drift`, against their scales at the start) that counts as
+#: rounding: ``1e4 u`` (``2.2e-12``), ten times the highest floor of evaluating the invariants in floating point
+#: that no step lowers (the non-reversible knife edge: ``1.5e-13 = 700 u`` whatever the step).  Below it the
+#: drift need not follow the step: the roller racer's stays at ``1.2e-12`` from ``dt = 0.92`` to ``1.01``.
+DRIFT_LEVEL = 1e4 * np.finfo(float).eps
+#: A run's drift above :data:`DRIFT_LEVEL` is the step's when it is more than this many times the drift of the
+#: run at a shorter step it was compared with (the Gauss--Newton residual falls like ``dt^{2(p+1)}``; a floor
+#: that a shorter step does not lower is the evaluation's rounding, not the step's).
+DRIFT_FLOOR_RATIO = 4.0
+#: The step a drift above the level is cut to aims at this fraction of :data:`DRIFT_LEVEL`: the measured drift
+#: falls a little slower than ``dt^{2(p+1)}`` (Kepler at order 8: ``dt^{16.8}``, not ``dt^{18}``).
+DRIFT_AIM = 0.25
 
 
 def default_backend():
@@ -364,7 +384,36 @@ def _global_check(fi, sch, y0, t0, T, H, tau, rtol, atol, p, backend):
     if not (math.isfinite(E) and math.isfinite(E_safe)):
         return None
     trusted = d1 <= CHECK_TRUST and not (d2 > 1e3 * np.finfo(float).eps and d1 < 2.0 ** (p - 1) * d2)
-    return E, E_safe, H / 2, tau, trusted, m == 1
+    return E, E_safe, H / 2, tau, trusted, m == 1, _run_drift(fi, ys[0]), _run_drift(fi, ys[2])
+
+
+def _run_drift(fi, ys):
+    """The largest relative drift of the invariants over a run's saved states ``ys`` (:func:`liefi.drift.drift`,
+    scales at the start); ``0`` where it cannot be evaluated (no invariant: nothing to keep)."""
+    from .drift import drift, drift_scales
+
+    try:
+        with np.errstate(all="ignore"):
+            d = drift(fi, np.asarray(ys, float), drift_scales(fi, ys[0]))[0]
+    except (ArithmeticError, np.linalg.LinAlgError, ValueError, TypeError, KeyError, IndexError):
+        return 0.0
+    return float(d) if math.isfinite(d) else math.inf
+
+
+def _drift_cap(dt, drift, floor, p):
+    r"""The longest step whose run keeps the invariants at rounding, from the drift ``drift`` measured at ``dt``.
+
+    One Gauss--Newton step onto the invariant set leaves ``K e^2`` of the tableau's per-step defect
+    ``e = c dt^{p+1}`` (measured: ``K`` 0.2 to 1.1 on the Chaplygin sleighs, Suslov, the oscillator, the roller
+    racer), so the drift scales like ``dt^{2(p+1)}`` and the cap is ``dt (a L / drift)^{1 / (2(p+1))}``, ``L`` =
+    :data:`DRIFT_LEVEL`, ``a`` = :data:`DRIFT_AIM`.  ``inf`` when the drift is at rounding: below ``L``, or within
+    :data:`DRIFT_FLOOR_RATIO` of ``floor``, the drift of a run at a shorter step (rounding that no step lowers).
+    """
+    if not drift > max(DRIFT_LEVEL, DRIFT_FLOOR_RATIO * floor):
+        return math.inf
+    if not math.isfinite(drift):
+        return 0.0
+    return dt * (DRIFT_AIM * DRIFT_LEVEL / drift) ** (1.0 / (2.0 * (p + 1)))
 
 
 def _samples(y0):
@@ -393,25 +442,28 @@ def _verify_longer(fi, sch, y0, t0, T, chk, rtol, atol, p, backend):
     """
     E, _E_safe, h = chk[0], chk[1], chk[2]
     lo, e_lo = CHECK_GROWTH * h, E * CHECK_GROWTH ** p
-    best = None
+    best, hi = None, math.inf  # hi: the least step cut for its drift so far (no later candidate past it)
     prop = lo * (TARGET / e_lo) ** (1.0 / p) if e_lo > 0 else math.inf
     for _ in range(CHECK_WIDEN):
-        cand = min(prop, WIDEN_FACTOR * lo, T / 64)
+        cand = min(prop, hi, WIDEN_FACTOR * lo, T / 64)
         if not cand > 1.05 * lo:
             break
         got = _measure(fi, sch, y0, t0, T, cand, h, E, rtol, atol, p, backend)
         if got is None:
             break
-        e, dense, cand = got
-        if e <= 1.0:
+        e, dense, cand, drift, floor = got
+        cap = _drift_cap(cand, drift, floor, p)
+        if e <= 1.0 and cap == math.inf:
             best, lo = (cand, e, dense), cand
+        hi = min(hi, cap)
         prop = cand * (TARGET / e) ** (1.0 / p) if e > 0 else math.inf
     return best
 
 
 def _measure(fi, sch, y0, t0, T, dt, h, E, rtol, atol, p, backend):
-    """``(e, dense, dt)``: the error of the run at ``dt`` (rounded to ``T/N``) against the run at ``dt/q <= h``
-    whose error is at most ``E (dt / (q h))^p`` (:func:`_verify_longer`), or ``None`` when a run fails."""
+    """``(e, dense, dt, drift, floor)``: the error of the run at ``dt`` (rounded to ``T/N``) against the run at
+    ``dt/q <= h`` whose error is at most ``E (dt / (q h))^p`` (:func:`_verify_longer`), and the invariants' drift
+    of the two runs (:func:`_run_drift`), or ``None`` when a run fails."""
     from .schemes.core import IntegrationError
 
     N = max(1, int(math.ceil(T / dt - 1e-9)))
@@ -433,7 +485,7 @@ def _measure(fi, sch, y0, t0, T, dt, h, E, rtol, atol, p, backend):
         return None
     size = _size(fi, np.max(np.abs(ys[1]), axis=0), CHECK_PART_FLOOR)
     e = float(np.max(np.abs(ys[0] - ys[1]) / (atol + rtol * size))) + E * (dt / (q * h)) ** p
-    return (e, m == 1, dt) if math.isfinite(e) else None
+    return (e, m == 1, dt, _run_drift(fi, ys[0]), _run_drift(fi, ys[1])) if math.isfinite(e) else None
 
 
 def choose_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=None, choose_order=False):
@@ -466,7 +518,7 @@ def choose_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=
         C, h, _ = _local_estimate(fi, tab, Y, T, rtol, atol, f)
         costs = None
     dt_local = min(_local_step(C / TARGET, T, p, h), T)
-    dt_est, chk, safe, verified = dt_local, None, False, None
+    dt_est, chk, safe, verified, drift_cap = dt_local, None, False, None, math.inf
     if check and C > 0 and math.isfinite(C):
         dt0, _ = resolved_step(fi, tab, Y, dt_local, T, rtol)
         chk = (None if T / dt0 > MAX_RUN_STEPS else
@@ -478,9 +530,12 @@ def choose_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=
             # model's step
             e = E if trusted else E_safe
             dt_est = H * CHECK_GROWTH if e <= 0 else min(H * (TARGET / e) ** (1.0 / p), CHECK_GROWTH * H)
+            # the invariants at rounding: the coarse run's drift, against the finest run's (rounding's floor)
+            drift_cap = _drift_cap(CHECK_GROWTH * H, chk[6], chk[7], p)
+            dt_est = min(dt_est, drift_cap)
             if not trusted:
                 dt_est, safe = min(dt_est, dt_local), True
-            elif e * CHECK_GROWTH ** p < TARGET:
+            elif e * CHECK_GROWTH ** p < TARGET and drift_cap == math.inf:
                 # the tolerance allows a step past the measured one: run it and measure its error directly
                 verified = _verify_longer(fi, sch, np.asarray(y0, float), float(t0), T, chk, rtol, atol, p,
                                           backend)
@@ -515,6 +570,8 @@ def choose_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=
         "conservative": safe,
         "verified_step": None if verified is None else verified[0],
         "verified_error": None if verified is None else verified[1],
+        "check_drift": None if chk is None else chk[6],
+        "drift_step_limit": None if drift_cap == math.inf else drift_cap,
         "resolution_limit": limit,
         "estimated_error": est,
     }
