@@ -41,7 +41,7 @@ from .gains import adapted_gains, exact_drops, run_gains
 from .guard import Guard, RunReport
 from .schemes import steps_for
 from .stability import RESOLUTION_LIMIT, LiefiStabilityWarning, dynamics_rates, stiffness
-from .tolerance import DEFAULT_RTOL, check_tolerance, choose_step
+from .tolerance import DEFAULT_RTOL, LiefiToleranceWarning, check_tolerance, choose_step, unmeasured_message
 
 
 def _span_length(t0, t_end):
@@ -137,6 +137,9 @@ class Policy:
         dt, self.chosen = choose_step(fi.for_batch(np.shape(y_pilot)[:-1]), self.sch, y_pilot, t_start, t_end,
                                       rtol, atol, backend=self.backend, choose_order=self.choose_order)
         self._set_scheme(self.chosen["scheme"])  # the order chosen for the tolerance
+        if self.chosen.get("unmeasured"):
+            warnings.warn(unmeasured_message(self.chosen, dt, t_start, t_end), LiefiToleranceWarning,
+                          stacklevel=self.stacklevel + 2)
         self.resolution_limit = self.chosen.get("resolution_limit", RESOLUTION_LIMIT)
         if (t_end - t_start) / dt > max_steps:
             raise ValueError(f"rtol: {rtol!r} needs {(t_end - t_start) / dt:.3g} steps over t in [{t_start:g}, "

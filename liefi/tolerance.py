@@ -127,6 +127,8 @@ CHECK_COARSEST = 64.0
 #: :meth:`liefi.FeedbackIntegrator.run`); where the local model already predicts more, the check is not run
 #: (its runs would cost minutes before the refusal).
 MAX_RUN_STEPS = 10**8
+#: A run of fewer steps than this is not checked (the local model alone: the check would cost more than the run).
+CHECK_MIN_STEPS = 256
 #: The check's two runs cost at most this fraction of the run the local model predicts.
 CHECK_BUDGET = 0.25
 #: ... or at most this many field evaluations when that is more (a few milliseconds of compiled loop; compiled
@@ -161,6 +163,24 @@ DRIFT_FLOOR_RATIO = 4.0
 #: The step a drift above the level is cut to aims at this fraction of :data:`DRIFT_LEVEL`: the measured drift
 #: falls a little slower than ``dt^{2(p+1)}`` (Kepler at order 8: ``dt^{16.8}``, not ``dt^{18}``).
 DRIFT_AIM = 0.25
+
+
+class LiefiToleranceWarning(UserWarning):
+    """A step chosen for a tolerance whose global error could not be measured (:func:`choose_step`'s check failed).
+
+    The step is then the local model's (errors adding up linearly in ``t``); a motion that amplifies errors
+    exponentially (a chaotic or unstable one: the rattleback's spin reversals over long horizons) can end far
+    above ``rtol``.
+    """
+
+
+def unmeasured_message(info, dt, t0, t_end):
+    """The warning of a step chosen for a tolerance whose check could not be made (``info["unmeasured"]``)."""
+    return (f"rtol={info['rtol']:g}: the global error of dt={dt:.6g} over t in [{t0:g}, {t_end:g}] could not be "
+            "measured (the check's runs at a coarser step diverged or left the data's domain); the step is the "
+            "local error model's, which assumes the errors add up linearly in t. A motion that amplifies errors "
+            "(chaotic or unstable) can end far above rtol: compare with a run at dt/2 (dt=...) or shorten the "
+            "horizon")
 
 
 def default_backend():
@@ -322,7 +342,7 @@ def _check_plan(fi, sch, tab, y0, t0, T, dt0, rtol, atol, p, backend):
     a check outside the asymptotic regime is repeated at half the step while all the tries cost at most
     :data:`CHECK_TRIES_BUDGET` budgets, and the last gives the conservative bound.
     """
-    if T / dt0 < 256:
+    if T / dt0 < CHECK_MIN_STEPS:
         return None
     # the floor is a few milliseconds of compiled loop; on numpy (an evaluation costs ~1000x) only the fraction
     floor = CHECK_FLOOR / max(1, int(getattr(sch, "stages", 1))) if backend != "numpy" else 0.0
@@ -498,8 +518,9 @@ def choose_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=
     kind; the order is the one of :data:`ORDER_CANDIDATES` with the least predicted cost (step 6),
     named by ``info["scheme"]``.
     ``info``: ``{"rtol", "atol", "scheme", "order", "local_error_constant", "pilot_step",
-    "local_step", "check_step", "check_span", "check_error", "estimated_error"}`` (errors relative
-    to the tolerance; ``check_*`` ``None`` without the check).
+    "local_step", "check_step", "check_span", "check_error", "estimated_error", "unmeasured", ...}``
+    (errors relative to the tolerance; ``check_*`` ``None`` without the check; ``unmeasured`` true when a
+    run long enough to be checked could not be: the run warns, :class:`LiefiToleranceWarning`).
     """
     rtol, atol = check_tolerance(rtol, atol)
     tab = _tableau(sch)
@@ -518,11 +539,14 @@ def choose_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=
         C, h, _ = _local_estimate(fi, tab, Y, T, rtol, atol, f)
         costs = None
     dt_local = min(_local_step(C / TARGET, T, p, h), T)
-    dt_est, chk, safe, verified, drift_cap = dt_local, None, False, None, math.inf
+    dt_est, chk, safe, verified, drift_cap, unmeasured = dt_local, None, False, None, math.inf, False
     if check and C > 0 and math.isfinite(C):
         dt0, _ = resolved_step(fi, tab, Y, dt_local, T, rtol)
         chk = (None if T / dt0 > MAX_RUN_STEPS else
                _check_plan(fi, sch, tab, np.asarray(y0, float), float(t0), T, dt0, rtol, atol, p, backend))
+        # a run long enough to be checked whose check could not be made (its coarse runs diverged or left the
+        # data's domain): the step is the local model's alone, and the run says so (LiefiToleranceWarning)
+        unmeasured = chk is None and CHECK_MIN_STEPS <= T / dt0 <= MAX_RUN_STEPS
         if chk is not None:
             E, E_safe, H, _tau, trusted, _dense = chk[:6]
             # the measured error at H scaled to the target by the order; up to CHECK_GROWTH x H the coarse run
@@ -574,6 +598,7 @@ def choose_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=
         "drift_step_limit": None if drift_cap == math.inf else drift_cap,
         "resolution_limit": limit,
         "estimated_error": est,
+        "unmeasured": unmeasured,
     }
     if costs is not None:
         info["predicted_cost"] = costs
@@ -705,6 +730,8 @@ def describe(scheme, dt, gains_mode, backend, *, chosen=None, scheme_given=False
     if chosen is not None:
         how = ("checked by two short runs at a coarse step" if chosen.get("check_error") is not None
                else "global error ~ T C dt^p")
+        if chosen.get("unmeasured"):
+            how = "global error ~ T C dt^p, not measured: the check's runs at a coarser step failed"
         if chosen.get("conservative"):
             how = ("the check's runs were not in the asymptotic regime within its budget: the conservative bound "
                    "2^p |y_{H/2} - y_{H/4}|, a shorter step than the estimate's")
