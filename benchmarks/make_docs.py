@@ -48,7 +48,11 @@ def log(msg):
     print(f"[{time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr, flush=True)
 
 
-def _grid_select(task):
+def _grid_select(task, methods=None):
+    """The grid's part of :func:`liefi.bench.build_tasks`: ``FI/solve_ivp`` with LSODA only, and only the
+    families of ``methods`` (``--methods``, comma-separated; ``None``: every family)."""
+    if methods and task["method"] not in methods.split(","):
+        return False
     return not (task["method"] == "FI/solve_ivp" and task["scheme"] != "LSODA")
 
 
@@ -59,7 +63,7 @@ def _grid_tasks(a, names):
     for name in names:
         sc = scenes.get(name)
         out[name] = [t for t in bench.build_tasks(sc, a.t_final, dts=[sc.dt * f for f in factors],
-                                                  repeats=a.repeats) if _grid_select(t)]
+                                                  repeats=a.repeats) if _grid_select(t, a.methods)]
     return out
 
 
@@ -80,9 +84,10 @@ def grid(a, names):
             sc = scenes.get(name)
             dts = [sc.dt * f for f in factors]
             expected[name] = [t for t in bench.build_tasks(sc, a.t_final, dts=dts, repeats=a.repeats)
-                              if _grid_select(t)]
+                              if _grid_select(t, a.methods)]
             try:
-                rows = bench.work_precision(sc, a.t_final, a.out, ex, log=log, dts=dts, select=_grid_select,
+                rows = bench.work_precision(sc, a.t_final, a.out, ex, log=log, dts=dts,
+                                            select=lambda t: _grid_select(t, a.methods),
                                             repeats=a.repeats, plots=not a.no_plots)
             except KeyboardInterrupt:
                 bench.write_summary(a.out, expected)
@@ -238,7 +243,8 @@ def main(argv=None):
     ap.add_argument("--repeats", type=int, default=bench.REPEATS,
                     help=f"grid: timed runs per task, the least CPU time kept (default {bench.REPEATS})")
     ap.add_argument("--gains", default="0.1,1", help="long: fixed FI gains ('scene': the scene's)")
-    ap.add_argument("--methods", default=None, help="long: only these families (FI,no-feedback,projection)")
+    ap.add_argument("--methods", default=None, help="only these families, comma-separated (long: FI,no-feedback,projection; grid and "
+                    "summary: any of liefi.bench.METHODS, e.g. every one but FI-rtol)")
     ap.add_argument("--schemes", default="rk4,imex-rk4", help="long: the fixed-step schemes (default rk4,imex-rk4)")
     ap.add_argument("--no-plots", action="store_true", dest="no_plots", help="grid: the CSVs and stores only")
     ap.add_argument("--n-save", type=int, default=10000, dest="n_save")

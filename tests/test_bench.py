@@ -100,6 +100,44 @@ def test_failed_run_is_a_row_not_an_exception():
     assert r["status"] == "diverged" and "non-finite" in r["message"]
 
 
+def test_a_solve_ivp_run_past_its_cpu_cap_is_a_failed_row(monkeypatch):
+    """LSODA at rtol 1e-3 lets the perturbed Kepler orbit fall into r = 0 and retries a non-finite step
+    for ever: the cap stops it, the run is a row that says why, and the caller's SIGPROF handler is back."""
+    from liefi.bench import core
+
+    monkeypatch.setattr(core, "IVP_CPU_CAP", 0.5)
+    before = signal.getsignal(signal.SIGPROF)
+    t0 = time.process_time()
+    r = bench.run_task(dict(scene="perturbed-kepler", variant="orbit", method="constrained", scheme="LSODA", dt=None,
+                            rtol=1e-3, t_final=1000.0, configuration=True, n_save=100, gain=None, repeats=1))
+    assert r["status"] == "failed" and "IVP_CPU_CAP" in r["message"] and "0.5 s of CPU" in r["message"]
+    assert time.process_time() - t0 < 10.0
+    assert signal.getsignal(signal.SIGPROF) is before and signal.getitimer(signal.ITIMER_PROF) == (0.0, 0.0)
+    # a run that ends within the cap is untouched by it
+    with core.cpu_cap(30.0):
+        pass
+    r = bench.run_task(dict(scene="perturbed-kepler", variant="orbit", method="constrained", scheme="LSODA", dt=None,
+                            rtol=1e-5, t_final=100.0, configuration=True, n_save=100, gain=None, repeats=1))
+    assert r["status"] == "ok"
+
+
+def test_numerical_reference_is_at_the_scene_tolerances(monkeypatch):
+    """The harness's reference integrates at the scene's reference_rtol/atol, not at one fixed tolerance."""
+    import scipy.integrate
+
+    seen = {}
+
+    def spy(*args, **kw):
+        seen.update(kw)
+        raise RuntimeError("spied")
+
+    monkeypatch.setattr(scipy.integrate, "solve_ivp", spy)
+    sc = scenes.get("perturbed-kepler")
+    with pytest.raises(RuntimeError, match="spied"):
+        bench.reference(sc, sc.variant(), sc.integrator(configuration=True), 1.0)
+    assert (seen["rtol"], seen["atol"]) == (sc.reference_rtol, sc.reference_atol) != (1e-12, 1e-12)
+
+
 def test_run_sweep_is_executor_independent():
     """The same tasks through a thread pool give exactly the serial results."""
     tasks = bench.build_tasks("suslov", 0.2, dts=[5e-3], rtols=[1e-6], schemes=("euler",), ivp_methods=("RK45",),
