@@ -34,15 +34,15 @@ def _quiet(f, *a, **k):
 # --- the reference store's key ------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("attr", ["m", "a", "v0"])
+@pytest.mark.parametrize("attr", ["g", "alpha", "J"])
 def test_store_key_is_exact_in_every_float_parameter(attr):
     """A parameter changed by 1e-9 relative gives another key; equal parameters give the same key.
 
-    ``a`` and ``m`` of the Chaplygin sleigh do not enter its start ``initial_state`` (hashed by its bytes),
-    so only the parameter's own text in the key tells the two scenes apart."""
+    The knife edge's gravity ``g``, slope ``alpha`` and inertia ``J`` change its reference but not its start
+    ``initial_state`` (hashed by its bytes), so only the parameter's own text in the key tells the two apart."""
     from liefi.scenes import store
 
-    sc = scenes.get("chaplygin")
+    sc = scenes.get("knife-edge")
     v = sc.variant(None)
     t = np.linspace(0.0, 1.0, 5)
     base = store.key(sc, v, ("reference", t))
@@ -52,6 +52,7 @@ def test_store_key_is_exact_in_every_float_parameter(attr):
     assert store.key(same, v, ("reference", t)) == base
     near = type(sc)()
     setattr(near, attr, float(getattr(sc, attr)) * (1.0 + 1e-9))
+    np.testing.assert_array_equal(near.initial_state(v), sc.initial_state(v))  # the start is the same
     assert store.key(near, v, ("reference", t)) != base, f"{attr} * (1 + 1e-9) reads the old reference back"
     # the times, too (an array): a shift by 1e-9 relative is another reference
     assert store.key(sc, v, ("reference", t * (1.0 + 1e-9))) != base
