@@ -195,48 +195,57 @@ def test_unit_rate_gains_relax_every_penalty_at_one_rate(name):
 
 # --- the tolerance check's estimates against the true error ----------------------------------------
 
-_KNIFE = None
+_SCENES = {}
 
 
-def _knife():
-    global _KNIFE
-    if _KNIFE is None:
-        sc = scenes.get("knife-edge")
-        _KNIFE = sc, sc.integrator(gains="auto")
-    return _KNIFE
+def _scene(name="knife-edge"):
+    """``(scene, integrator with gains="auto")``, built once per test session."""
+    if name not in _SCENES:
+        sc = scenes.get(name)
+        _SCENES[name] = sc, sc.integrator(gains="auto")
+    return _SCENES[name]
 
 
-def _true_error(dt, T, scheme, rtol):
-    """The knife edge's global error at ``dt`` over ``[0, T]`` against its exact solution, in the check's norm
-    (units of ``rtol`` times each component's size, floored as the check floors it)."""
+def _true_error(dt, T, scheme, rtol, name="knife-edge", every=1):
+    """The global error at ``dt`` over ``[0, T]`` against the scene's exact solution, in the check's norm
+    (units of ``rtol`` times each component's size, floored as the check floors it), at every ``every``-th
+    step."""
     from liefi import tolerance
 
-    sc, fi = _knife()
-    r = _quiet(fi.run, (0.0, T), dt=dt, scheme=scheme, backend="numpy", check_stability=False)
+    sc, fi = _scene(name)
+    r = _quiet(fi.run, (0.0, T), dt=dt, scheme=scheme, backend="numpy", check_stability=False, save_every=every)
     ex = sc.exact(r.t, sc.variant(None))
     Y = np.stack([ex[n] for n in fi.names], -1)
     size = tolerance._size(fi, np.max(np.abs(Y), 0), tolerance.CHECK_PART_FLOOR)
     return float(np.max(np.abs(np.moveaxis(np.asarray(r.y), -1, 0) - Y) / (rtol * size)))
 
 
-@pytest.mark.parametrize("scheme, T, H", [("imex-rk4", 10.0, 0.1), ("imex-rk4", 20.0, 20 / 64),
-                                          ("imex-heun", 10.0, 0.1)])
-def test_tolerance_check_estimate_is_the_true_error(scheme, T, H):
-    """The check's Richardson estimate ``E`` of the error of its run at ``H/2`` is within 3 % of the true error
-    (the knife edge's exact solution), and the check trusts it (asymptotic regime): the Richardson factor
-    ``1/(1 - 2^-p)`` and the trust ratio ``2^(p-1)`` are what make both true."""
+@pytest.mark.parametrize("name, scheme, T, H, asymptotic", [
+    ("knife-edge", "imex-rk4", 10.0, 0.1, True),
+    ("knife-edge", "imex-rk4", 20.0, 20 / 64, True),
+    ("knife-edge", "imex-heun", 10.0, 0.1, True),
+    ("kepler", "imex-heun", 60.0, 60 / 64, False),  # the pericentre passages barely resolved
+])
+def test_tolerance_check_estimate_is_the_true_error(name, scheme, T, H, asymptotic):
+    """The check's Richardson estimate ``E`` of the error of its run at ``H/2`` against the true error (the
+    scene's exact solution), at the coarse steps where the check compares the runs: where the check trusts
+    it, within 3 %; in the asymptotic regime the check trusts it; the conservative bound ``E_safe`` is a
+    bound.  The Richardson factor ``1/(1 - 2^-p)`` and the trust
+    test (the ratio ``2^(p-1)`` of the differences, at most :data:`~liefi.tolerance.CHECK_TRUST` relative) are
+    what make these true: Kepler's coarse check is off by 37 % and must not be trusted."""
     from liefi import tolerance
     from liefi.schemes import registry
 
-    _, fi = _knife()
+    _, fi = _scene(name)
     sch = registry.get(scheme)
     p = int(tolerance._tableau(sch).order)
     rtol = 1e-6
     chk = tolerance._global_check(fi, sch, fi.y0, 0.0, T, H, T, rtol, 0.0, p, "numpy")
     E, E_safe, h, trusted = chk[0], chk[1], chk[2], chk[4]
-    truth = _true_error(h, T, scheme, rtol)
-    assert trusted, chk
-    assert E / truth == pytest.approx(1.0, abs=0.03), (E, truth)
+    truth = _true_error(h, T, scheme, rtol, name, every=2)  # at the coarse steps, where the check compares
+    assert trusted == asymptotic, chk
+    if trusted:
+        assert E / truth == pytest.approx(1.0, abs=0.03), (E, truth)
     assert E_safe >= truth  # the conservative bound is a bound
 
 
@@ -247,7 +256,7 @@ def test_longer_step_error_counts_the_fine_runs_own_error():
     from liefi import tolerance
     from liefi.schemes import registry
 
-    _, fi = _knife()
+    _, fi = _scene()
     for scheme in ("imex-heun", "imex-rk4"):
         sch = registry.get(scheme)
         p = int(tolerance._tableau(sch).order)
@@ -266,7 +275,7 @@ def test_chosen_step_estimate_is_the_true_error():
     from liefi import tolerance
     from liefi.schemes import registry
 
-    _, fi = _knife()
+    _, fi = _scene()
     for rtol in (1e-4, 1e-6):
         dt, info = _quiet(tolerance.choose_step, fi, registry.get("imex-rk4"), fi.y0, 0.0, 20.0, rtol,
                           backend="numpy")
