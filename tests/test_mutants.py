@@ -224,7 +224,8 @@ def _true_error(dt, T, scheme, rtol, name="knife-edge", every=1):
     ("knife-edge", "imex-rk4", 10.0, 0.1, True),
     ("knife-edge", "imex-rk4", 20.0, 20 / 64, True),
     ("knife-edge", "imex-heun", 10.0, 0.1, True),
-    ("kepler", "imex-heun", 60.0, 60 / 64, False),  # the pericentre passages barely resolved
+    ("kepler", "imex-heun", 40.0, 40 / 64, False),  # halving H does not shrink the difference: not trusted
+    ("kepler", "imex-heun", 60.0, 60 / 64, False),  # the runs differ by 2 % relative: not trusted
 ])
 def test_tolerance_check_estimate_is_the_true_error(name, scheme, T, H, asymptotic):
     """The check's Richardson estimate ``E`` of the error of its run at ``H/2`` against the true error (the
@@ -232,7 +233,7 @@ def test_tolerance_check_estimate_is_the_true_error(name, scheme, T, H, asymptot
     it, within 3 %; in the asymptotic regime the check trusts it; the conservative bound ``E_safe`` is a
     bound.  The Richardson factor ``1/(1 - 2^-p)`` and the trust
     test (the ratio ``2^(p-1)`` of the differences, at most :data:`~liefi.tolerance.CHECK_TRUST` relative) are
-    what make these true: Kepler's coarse check is off by 37 % and must not be trusted."""
+    what make these true: Kepler's coarse checks are off by 9 % and 37 % and must not be trusted."""
     from liefi import tolerance
     from liefi.schemes import registry
 
