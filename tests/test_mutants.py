@@ -258,16 +258,16 @@ def test_longer_step_error_counts_the_fine_runs_own_error():
     from liefi.schemes import registry
 
     _, fi = _scene()
-    for scheme in ("imex-heun", "imex-rk4"):
-        sch = registry.get(scheme)
-        p = int(tolerance._tableau(sch).order)
-        T, rtol = 10.0, 1e-6
-        chk = tolerance._global_check(fi, sch, fi.y0, 0.0, T, 0.2, T, rtol, 0.0, p, "numpy")
-        E, h = chk[0], chk[2]
-        e, _, dt, _, _ = tolerance._measure(fi, sch, fi.y0, 0.0, T, 2 * h, h, E, rtol, 0.0, p, "numpy")
-        assert dt == pytest.approx(2 * h)
-        truth = _true_error(dt, T, scheme, rtol)
-        assert 0.98 * truth <= e <= 1.1 * truth, (scheme, e, truth)
+    scheme = "imex-heun"  # order 2: without E the measured error would be 3/4 of the truth
+    sch = registry.get(scheme)
+    p = int(tolerance._tableau(sch).order)
+    T, rtol = 10.0, 1e-6
+    chk = tolerance._global_check(fi, sch, fi.y0, 0.0, T, 0.2, T, rtol, 0.0, p, "numpy")
+    E, h = chk[0], chk[2]
+    e, _, dt, _, _ = tolerance._measure(fi, sch, fi.y0, 0.0, T, 2 * h, h, E, rtol, 0.0, p, "numpy")
+    assert dt == pytest.approx(2 * h)
+    truth = _true_error(dt, T, scheme, rtol)
+    assert 0.98 * truth <= e <= 1.1 * truth, (scheme, e, truth)
 
 
 def test_chosen_step_estimate_is_the_true_error():
@@ -277,12 +277,11 @@ def test_chosen_step_estimate_is_the_true_error():
     from liefi.schemes import registry
 
     _, fi = _scene()
-    for rtol in (1e-4, 1e-6):
-        dt, info = _quiet(tolerance.choose_step, fi, registry.get("imex-rk4"), fi.y0, 0.0, 20.0, rtol,
-                          backend="numpy")
-        assert info["check_trusted"] and not info["conservative"], info
-        truth = _true_error(dt, 20.0, "imex-rk4", rtol)
-        assert info["estimated_error"] / truth == pytest.approx(1.0, abs=0.1), (rtol, info, truth)
+    rtol = 1e-6
+    dt, info = _quiet(tolerance.choose_step, fi, registry.get("imex-rk4"), fi.y0, 0.0, 20.0, rtol, backend="numpy")
+    assert info["check_trusted"] and not info["conservative"], info
+    truth = _true_error(dt, 20.0, "imex-rk4", rtol)
+    assert info["estimated_error"] / truth == pytest.approx(1.0, abs=0.1), (info, truth)
 
 
 # --- the adaptive policy's cap on its check interval -------------------------------------------------
