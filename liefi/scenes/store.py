@@ -92,6 +92,8 @@ def _canon(x):
         return repr(x)
     if isinstance(x, (int, np.integer)):
         return f"i{int(x)}"
+    if isinstance(x, np.floating) and np.finfo(type(x)).nmant > 52:  # extended precision: float() would round it
+        return f"l{np.format_float_scientific(x, unique=True)}"
     if isinstance(x, (float, np.floating)):
         return f"f{float(x).hex()}"
     if isinstance(x, complex):
@@ -100,6 +102,11 @@ def _canon(x):
         if x.dtype == object:
             raise _NotData("an object array")
         a = np.ascontiguousarray(x)
+        if a.dtype.kind in "fc" and np.finfo(a.dtype).nmant > 52:
+            # extended precision: its bytes hold padding; the shortest text that reads back each value
+            parts = (a.real, a.imag) if a.dtype.kind == "c" else (a,)
+            text = ",".join(np.format_float_scientific(v, unique=True) for part in parts for v in part.ravel())
+            return f"a{a.dtype.str}{a.shape}{hashlib.sha256(text.encode()).hexdigest()}"
         return f"a{a.dtype.str}{a.shape}{hashlib.sha256(a.tobytes()).hexdigest()}"
     if isinstance(x, (tuple, list)):
         return "(" + ",".join(_canon(i) for i in x) + ")"
