@@ -3,12 +3,12 @@
 Each test checks a defining property against an independent route (a closed form, a complex-step
 derivative, an exact solution, finite differences), so that the planted change fails it:
 
-* the reference store's key tells apart parameters that differ by 1e-9 relative;
+* the reference store's key tells apart parameters that differ by 1e-9 relative (and long doubles by one ulp);
 * ``MechanicsSystem.velocities`` inverts ``state`` on a model with a vector potential ``b(q) != 0``;
 * ``to_xarray`` keeps the run's own times on ``(t0, t_final)`` with ``t0 != 0``;
 * the rattleback's ``heading_rate`` is the rate of ``psi = atan2(R_21, R_11)`` at a large tilt;
 * the unit-rate gains relax every penalized invariant (and the penalty) at one rate;
-* the tolerance check's error estimates against the true global error of the knife edge (exact solution);
+* the tolerance check's error estimates against the true global error (knife edge and Kepler: exact solutions);
 * the adaptive policy never checks less often than its cap allows;
 * every ``ATTITUDE_CASIMIRS`` gradient is its value's complex-step derivative.
 """
