@@ -124,9 +124,12 @@ class FeedbackIntegrator:
         ensemble: every member keeps its own targets (its own initial energy,
         ...), and with ``gains="auto"`` its own gains, so that each member's
         trajectory is the one it has when run alone.
-    invariants : sequence
+    invariants : sequence, optional
         Which invariants ``V`` penalizes: ``"constraints"`` (every ``J_i``, target 0),
         ``"energy"`` (``h~`` or ``h`` by ``energy=``), and :class:`Invariant` objects.
+        Default ``("constraints", "energy")`` followed by the Casimirs the phase
+        space carries (``system.space.casimirs``: the six attitude Casimirs of a
+        rolling body, :data:`liefi.rolling.ATTITUDE_CASIMIRS`; none elsewhere).
     gains : float, dict or "auto"
         Default ``"auto"``.  One number for every gain, or ``{name: k}`` with names ``"J_1"``...,
         ``"energy"``, ``"penalty"``, the invariants' names; ``"constraints"`` sets every ``J_i``.
@@ -176,7 +179,7 @@ class FeedbackIntegrator:
         system: NonholonomicSystem,
         y0,
         *,
-        invariants=("constraints", "energy"),
+        invariants=None,
         gains="auto",
         energy="extended",
         configuration=True,
@@ -214,6 +217,8 @@ class FeedbackIntegrator:
         self.batch = y0.shape[:-1]
 
         # --- which invariants -------------------------------------------------
+        if invariants is None:
+            invariants = ("constraints", "energy") + tuple(sp.casimirs)
         self.use_constraints = False
         self.use_energy = False
         self.user = []

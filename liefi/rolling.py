@@ -99,10 +99,14 @@ ATTITUDE_CASIMIRS = tuple(_pair(i, j) for i in range(3) for j in range(i, 3))
 
 
 def rolling_space():
-    """``((so(3) x R^2) x| (R^3)^3)*``: ``SO(3) x R^2`` with the whole attitude advected, ``a_0 = (e_1, e_2, e_3)``."""
+    """``((so(3) x R^2) x| (R^3)^3)*``: ``SO(3) x R^2`` with the whole attitude advected, ``a_0 = (e_1, e_2, e_3)``.
+
+    The space carries :data:`ATTITUDE_CASIMIRS` (``casimirs=``), so a
+    :class:`~liefi.FeedbackIntegrator` of a rolling body penalizes them by default.
+    """
     G = SO3() * Rn(2)
     rep = Representation(G, block=(0, 3), copies=3, names=ATTITUDE_NAMES)
-    return LieGroupPhaseSpace(G, advected=rep, a0=np.eye(3).ravel())
+    return LieGroupPhaseSpace(G, advected=rep, a0=np.eye(3).ravel(), casimirs=ATTITUDE_CASIMIRS)
 
 
 def _cross(a, b):
