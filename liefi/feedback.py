@@ -212,6 +212,8 @@ class FeedbackIntegrator:
             )
         if not np.all(np.isfinite(y0)):
             raise ValueError("y0: contains non-finite numbers")
+        if getattr(system, "start_check", None) is not None:
+            system.start_check(y0, self.configuration)  # a start that is no state of this system (e.g. a rolling body's)
         self.y0 = y0
         #: the shape of the ensemble (``()`` for one trajectory): per-member gains and targets have it
         self.batch = y0.shape[:-1]
