@@ -123,7 +123,8 @@ class FeedbackIntegrator:
         targets of the energy and user invariants.  A batch of states is an
         ensemble: every member keeps its own targets (its own initial energy,
         ...), and with ``gains="auto"`` its own gains, so that each member's
-        trajectory is the one it has when run alone.
+        trajectory is the one it has when run alone.  A system with a
+        ``start_check`` (a rolling body's) refuses a start that is no state of it.
     invariants : sequence, optional
         Which invariants ``V`` penalizes: ``"constraints"`` (every ``J_i``, target 0),
         ``"energy"`` (``h~`` or ``h`` by ``energy=``), and :class:`Invariant` objects.
@@ -213,7 +214,7 @@ class FeedbackIntegrator:
         if not np.all(np.isfinite(y0)):
             raise ValueError("y0: contains non-finite numbers")
         if getattr(system, "start_check", None) is not None:
-            system.start_check(y0, self.configuration)  # a start that is no state of this system (e.g. a rolling body's)
+            system.start_check(y0, self.configuration)  # a start that is no state of the system (a rolling body's)
         self.y0 = y0
         #: the shape of the ensemble (``()`` for one trajectory): per-member gains and targets have it
         self.batch = y0.shape[:-1]

@@ -181,10 +181,10 @@ def _check_scales(m, moments, g, L):
                      ("the largest moment of inertia", moments[-1]), ("m L^2", mL2), ("m g L", m * g * L)):
         if v != 0 and not lo <= v <= hi:
             raise ValueError(
-                f"mass, inertia, gravity: {label} = {v:.3g} is outside {lo:.0e} .. {hi:.0e} (L = {L:.3g}, the body's size "
-                "from the contact function), where the mass tensor I + m w w^T, its inverse and the potential "
-                "m g <Gamma, r> overflow or underflow in double precision; express the body in units where m, I "
-                "and the size of r are moderate numbers (e.g. g or t instead of kg, mm or km instead of m)")
+                f"mass, inertia, gravity: {label} = {v:.3g} is outside {lo:.0e} .. {hi:.0e} (L = {L:.3g}, the "
+                "body's size from the contact function), where the mass tensor I + m w w^T, its inverse and the "
+                "potential m g <Gamma, r> overflow or underflow in double precision; express the body in units "
+                "where m, I and the size of r are moderate numbers (e.g. g or t instead of kg, mm or km instead of m)")
     if L > 0:
         ratio = max(mL2 / moments[0], moments[-1] / mL2)
         if ratio > INERTIA_RATIO_MAX:
@@ -365,7 +365,8 @@ def _check_start(y, configuration, metric, rows, r_at, contact):
     flat = y.reshape(-1, y.shape[-1])
     V = flat[:, nc:nc + 9]
     rows3 = V.reshape(-1, 3, 3)
-    member = (lambda i: "") if y.ndim == 1 else (lambda i: f" (member {tuple(int(k) for k in np.unravel_index(i, y.shape[:-1]))})")
+    def member(i):  # which member of an ensemble
+        return "" if y.ndim == 1 else f" (member {tuple(int(k) for k in np.unravel_index(i, y.shape[:-1]))})"
     fix = "pass the rows of a rotation matrix R, or use liefi.rolling.rolling_start(system, R, Omega)"
     off = np.max(np.abs(rows3 @ np.swapaxes(rows3, -1, -2) - np.eye(3)), axis=(-2, -1))
     i = int(np.argmax(off))
