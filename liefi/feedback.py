@@ -123,10 +123,14 @@ class FeedbackIntegrator:
         targets of the energy and user invariants.  A batch of states is an
         ensemble: every member keeps its own targets (its own initial energy,
         ...), and with ``gains="auto"`` its own gains, so that each member's
-        trajectory is the one it has when run alone.
-    invariants : sequence
+        trajectory is the one it has when run alone.  A system with a
+        ``start_check`` (a rolling body's) refuses a start that is no state of it.
+    invariants : sequence, optional
         Which invariants ``V`` penalizes: ``"constraints"`` (every ``J_i``, target 0),
         ``"energy"`` (``h~`` or ``h`` by ``energy=``), and :class:`Invariant` objects.
+        Default ``("constraints", "energy")`` followed by the Casimirs the phase
+        space carries (``system.space.casimirs``: the six attitude Casimirs of a
+        rolling body, :data:`liefi.rolling.ATTITUDE_CASIMIRS`; none elsewhere).
     gains : float, dict or "auto"
         Default ``"auto"``.  One number for every gain, or ``{name: k}`` with names ``"J_1"``...,
         ``"energy"``, ``"penalty"``, the invariants' names; ``"constraints"`` sets every ``J_i``.
@@ -176,7 +180,7 @@ class FeedbackIntegrator:
         system: NonholonomicSystem,
         y0,
         *,
-        invariants=("constraints", "energy"),
+        invariants=None,
         gains="auto",
         energy="extended",
         configuration=True,
@@ -209,11 +213,15 @@ class FeedbackIntegrator:
             )
         if not np.all(np.isfinite(y0)):
             raise ValueError("y0: contains non-finite numbers")
+        if getattr(system, "start_check", None) is not None:
+            system.start_check(y0, self.configuration)  # a start that is no state of the system (a rolling body's)
         self.y0 = y0
         #: the shape of the ensemble (``()`` for one trajectory): per-member gains and targets have it
         self.batch = y0.shape[:-1]
 
         # --- which invariants -------------------------------------------------
+        if invariants is None:
+            invariants = ("constraints", "energy") + tuple(sp.casimirs)
         self.use_constraints = False
         self.use_energy = False
         self.user = []

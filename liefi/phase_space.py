@@ -64,15 +64,25 @@ class PhaseSpace:
         Dimension of the shape space ``X`` (coordinates ``x``; 0 for none).
     names : sequence of str, optional
         Names of the shape coordinates (default ``x_1 ... x_n``).
+    casimirs : sequence of Invariant, optional
+        Casimir functions of the space's bracket that its users should hold
+        (e.g. the six ``<rho_i, rho_j>`` of a rolling body's advected attitude,
+        :data:`liefi.rolling.ATTITUDE_CASIMIRS`): first integrals of every field
+        on the space, which :class:`~liefi.FeedbackIntegrator` penalizes by
+        default.  Default none.
     """
 
-    def __init__(self, group: LieGroup, n: int = 0, names=None, *, advected=None, a0=None):
+    #: Casimirs that :class:`~liefi.FeedbackIntegrator` penalizes by default (``casimirs=``)
+    casimirs = ()
+
+    def __init__(self, group: LieGroup, n: int = 0, names=None, *, advected=None, a0=None, casimirs=()):
         if not isinstance(group, LieGroup):
             raise TypeError(f"group: expected a liefi.groups.LieGroup, got {group!r}")
         if int(n) != n or n < 0:
             raise ValueError(f"n: expected a non-negative integer (dimension of X), got {n!r}")
         self.group = group
         self.n = int(n)
+        self.casimirs = tuple(casimirs)
         self.d = group.dim
         self.D = self.d + self.n
         #: the representation of ``G`` on ``V`` where ``Gamma`` lives (None: no advected vector)
@@ -205,8 +215,8 @@ class LieGroupPhaseSpace(PhaseSpace):
     ``(Gamma, mu)`` (the heavy top: ``(Gamma, Pi)``).
     """
 
-    def __init__(self, group: LieGroup, *, advected=None, a0=None):
-        super().__init__(group, 0, advected=advected, a0=a0)
+    def __init__(self, group: LieGroup, *, advected=None, a0=None, casimirs=()):
+        super().__init__(group, 0, advected=advected, a0=a0, casimirs=casimirs)
 
     def __repr__(self):
         return f"LieGroupPhaseSpace({self.group!r}{self._advected_repr()})"

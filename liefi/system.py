@@ -75,6 +75,12 @@ class NonholonomicSystem:
     check : bool
         Check the data at ``sample`` (symmetry, positive definiteness,
         independence, complex-step safety).  Default True.
+    start_check : callable, optional
+        ``start_check(y0, configuration)``: called by :class:`~liefi.FeedbackIntegrator`
+        with its start (``(g, z)``, or ``z`` when ``configuration`` is False; any
+        batch shape); raises ``ValueError`` naming what makes ``y0`` no state of
+        this system.  :func:`liefi.rolling.rolling_body` sets it (orthonormal
+        attitude rows, no slip at the contact).  Default none.
 
     Attributes
     ----------
@@ -107,6 +113,7 @@ class NonholonomicSystem:
         sample=None,
         orthonormalize: bool = False,
         check: bool = True,
+        start_check=None,
     ):
         if not isinstance(space, PhaseSpace):
             raise TypeError(f"space: expected a liefi PhaseSpace, got {space!r}")
@@ -116,8 +123,12 @@ class NonholonomicSystem:
             metric_derivative=metric_derivative, constraints_derivative=constraints_derivative,
             potential_gradient=potential_gradient, vector_potential=vector_potential,
             vector_potential_derivative=vector_potential_derivative, sample=sample, orthonormalize=orthonormalize,
-            check=check,
+            check=check, start_check=start_check,
         )
+        if start_check is not None and not callable(start_check):
+            raise TypeError(f"start_check: expected a function start_check(y0, configuration), got {start_check!r}")
+        #: ``start_check(y0, configuration)`` or None (the constructor's ``start_check=``)
+        self.start_check = start_check
         self.space = space
         # The data are functions of the data point y = (x, Gamma) (n + k numbers): of
         # the shape x alone without an advected vector; with one, the user writes
