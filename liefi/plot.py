@@ -82,7 +82,8 @@ def drift(sol, *, ax=None, member=0, invariants=None):
             raise ValueError(f"invariants: {k!r} is not monitored; the invariants are {tuple(series)}")
         v = np.asarray(series[k], dtype=float)
         v = v.reshape((-1, v.shape[-1]))[member] if v.ndim > 1 else v
-        _pl.logplot(ax, sol.t, v - targets[k], label=_pl.label(k), lw=1)
+        target = targets[k] if np.ndim(targets[k]) == 0 else np.ravel(targets[k])[member]  # per member
+        _pl.logplot(ax, sol.t, v - target, label=_pl.label(k), lw=1)
     ax.set_yscale("log")
     ax.set_xlabel("$t$")
     ax.set_title("invariant drift $|I(t) - I_0|$")

@@ -1,0 +1,141 @@
+"""Results a user can trust (issue 23): exports with one column per quantity and nothing hidden, figures
+that show a rolling body readably, a path drawn between the steps, an animation helper, and clear
+errors for bad input to projections, constants, masses, tolerances and starts."""
+
+import dataclasses
+import warnings
+
+import numpy as np
+import pytest
+
+import liefi
+from liefi import scenes
+
+KNIFE = ("x", "y", "phi", "p_x", "p_y", "p_phi")
+
+
+@pytest.fixture(scope="module")
+def knife():
+    fi = scenes.get("knife-edge").integrator(gains=1.0)
+    return fi, fi.run(0.3, dt=1e-2, scheme="rk4")
+
+
+def _named(sol, **renames):
+    """The knife-edge run with some components renamed (as a user's own system would name them)."""
+    return dataclasses.replace(sol, names=tuple(renames.get(n, n) for n in sol.names))
+
+
+# --- exports -----------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def ensemble():
+    """An ensemble whose members have their own energy targets (an integrator built on a batch)."""
+    sc = scenes.get("knife-edge")
+    base = sc.integrator(gains=1.0)
+    Y0 = np.stack([base.y0, base.y0])
+    Y0[1, 5] = 0.6
+    fi = liefi.FeedbackIntegrator(sc.system, Y0, gains=1.0, configuration=base.configuration)
+    return fi, fi.run(0.1, dt=1e-2, scheme="rk4")
+
+
+def test_to_xarray_of_an_ensemble_with_per_member_targets(ensemble, tmp_path):
+    xr = pytest.importorskip("xarray")
+    fi, sol = ensemble
+    assert np.ndim(fi.targets["energy"]) == 1  # one target per member
+    ds = sol.to_xarray()
+    h0 = fi.invariant_values(sol.y[..., 0])["h~"]
+    np.testing.assert_array_equal(ds["h~"].attrs["target"], fi.targets["energy"])
+    np.testing.assert_allclose(ds["h~"].attrs["target"], h0, rtol=1e-15)
+    assert ds["J_1"].attrs["target"] == 0.0 and ds["x"].dims == ("member", "t")
+    path = tmp_path / "ens.nc"
+    ds.to_netcdf(path, engine="scipy")
+    with xr.open_dataset(path, engine="scipy") as back:
+        xr.testing.assert_identical(ds, back.load())
+
+
+def test_plot_drift_of_an_ensemble_member_with_its_own_target(ensemble):
+    pytest.importorskip("matplotlib")
+    import liefi.plot
+
+    fi, sol = ensemble
+    ax = liefi.plot.drift(sol, member=1, invariants=["h~"])
+    (line,) = ax.get_lines()
+    drift = np.asarray(line.get_ydata(), dtype=float)
+    assert drift.size == sol.t.size and np.nanmax(drift) < 1e-9  # against member 1's own energy (0.18), not 0.125
+
+
+def test_energy_is_one_column_not_two(knife):
+    pd = pytest.importorskip("pandas")
+    pytest.importorskip("xarray")
+    fi, sol = knife
+    df = sol.to_dataframe(invariants=True)
+    ds = sol.to_xarray()
+    h = fi.invariant_values(sol.y.T)
+    for cols in (list(df.columns), list(ds.data_vars)):
+        assert "energy" not in cols and cols.count("h~") == 1 and "h" in cols
+        assert len(cols) == len(set(cols)) == fi.n + 3  # the states, J_1, h, h~ (p_phi is a state and an invariant)
+    assert isinstance(df, pd.DataFrame) and ds.attrs["energy"] == "h~"
+    np.testing.assert_array_equal(ds["h~"].to_numpy(), h["energy"])  # the penalized energy is h~
+    assert ds["h~"].attrs["target"] == fi.targets["energy"]
+
+
+def test_names_that_repeat_are_refused_in_both_exports(knife):
+    pytest.importorskip("pandas")
+    pytest.importorskip("xarray")
+    _, sol = knife
+    bad = _named(sol, y="x", phi="z")  # x, x, z, ...
+    for export in (bad.to_dataframe, bad.to_xarray):
+        with pytest.raises(ValueError, match=r"names: .*'x' at \[0, 1\].*distinct names"):
+            export()
+
+
+@pytest.mark.parametrize("name", ["h", "h~", "J_1", "energy"])
+def test_a_component_named_as_an_invariant_hides_nothing(knife, name):
+    pytest.importorskip("pandas")
+    pytest.importorskip("xarray")
+    fi, sol = knife
+    own = _named(sol, phi=name)
+    inv = fi.invariant_values(sol.y.T)
+    df = own.to_dataframe(invariants=True)
+    ds = own.to_xarray()
+    for table in (df, ds):
+        np.testing.assert_array_equal(np.asarray(table[name]), sol["phi"])  # the component under its name
+        for k in ("J_1", "h", "h~"):  # every invariant is there, under its name or suffixed
+            key = f"{k}_invariant" if k == name else k
+            np.testing.assert_array_equal(np.asarray(table[key]), inv[k])
+    if name != "energy":
+        assert df.attrs["renamed"] == ds.attrs["renamed"] == f"{name}->{name}_invariant"
+        assert ds[f"{name}_invariant"].attrs["name"] == name
+
+
+def test_a_component_named_t(knife, tmp_path):
+    pytest.importorskip("pandas")
+    xr = pytest.importorskip("xarray")
+    _, sol = knife
+    own = _named(sol, phi="t")
+    ds = own.to_xarray()
+    np.testing.assert_array_equal(ds["t"].to_numpy(), sol.t)
+    np.testing.assert_array_equal(ds["t_state"].to_numpy(), sol["phi"])
+    assert ds["t_state"].attrs["name"] == "t" and ds.attrs["renamed"] == "t->t_state"
+    df = own.to_dataframe()
+    np.testing.assert_array_equal(df["t_state"].to_numpy(), sol["phi"])
+    assert df.reset_index()["t"].tolist() == sol.t.tolist()  # the index and the column both survive
+
+
+def test_non_latin1_names_round_trip_through_netcdf3(knife, tmp_path):
+    pytest.importorskip("pandas")
+    xr = pytest.importorskip("xarray")
+    _, sol = knife
+    own = _named(sol, phi="θ", p_phi="p_θ")
+    ds = own.to_xarray()
+    path = tmp_path / "theta.nc"
+    ds.to_netcdf(path, engine="scipy")
+    with xr.open_dataset(path, engine="scipy") as back:
+        back = back.load()
+    xr.testing.assert_identical(ds, back)
+    by_name = {v.attrs.get("name", k): k for k, v in back.data_vars.items()}
+    np.testing.assert_array_equal(back[by_name["θ"]].to_numpy(), sol["phi"])
+    np.testing.assert_array_equal(back[by_name["p_θ"]].to_numpy(), sol["p_phi"])
+    assert back.attrs["state_names"].split(",")[2] == "θ"
+    assert "θ" in own.to_dataframe().columns  # pandas keeps the name as given
