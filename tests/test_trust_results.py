@@ -139,3 +139,84 @@ def test_non_latin1_names_round_trip_through_netcdf3(knife, tmp_path):
     np.testing.assert_array_equal(back[by_name["p_θ"]].to_numpy(), sol["p_phi"])
     assert back.attrs["state_names"].split(",")[2] == "θ"
     assert "θ" in own.to_dataframe().columns  # pandas keeps the name as given
+
+
+# --- bad input ---------------------------------------------------------------------------------------------
+
+
+def test_projecting_a_state_with_nan_names_it():
+    sys_ = scenes.get("knife-edge").system
+    with pytest.raises(ValueError, match=r"^z: contains non-finite numbers .*\['p_x'\]"):
+        sys_.project([0.0, 0.0, 0.3, np.nan, 0.0, 0.5])
+    with pytest.raises(ValueError, match=r"^z: contains non-finite .*\['p_y'\] of the states at batch index \[\[1\]\]"):
+        sys_.project([[0.0, 0.0, 0.3, 1.0, 0.0, 0.5], [0.0, 0.0, 0.3, 1.0, np.inf, 0.5]])
+    with pytest.raises(ValueError, match=r"^z: expected a state of 6 numbers .*got shape \(7,\)"):
+        sys_.project(np.ones(7))
+    z = sys_.project([0.0, 0.0, 0.3, 1.0, 0.0, 0.5])  # a good state still projects onto J = 0
+    assert np.all(np.isfinite(z)) and z[2] == 0.3
+
+
+def _sleigh():
+    sp = pytest.importorskip("sympy")
+    me = pytest.importorskip("sympy.physics.mechanics")
+    x, y, theta = me.dynamicsymbols("x y theta")
+    m, I, a = sp.symbols("m I a")
+    N = me.ReferenceFrame("N")
+    B = N.orientnew("B", "Axis", [theta, N.z])
+    O = me.Point("O")
+    O.set_vel(N, 0)
+    P = O.locatenew("P", x * N.x + y * N.y)
+    P.set_vel(N, P.pos_from(O).dt(N))
+    G = P.locatenew("G", a * B.x)
+    G.set_vel(N, G.pos_from(O).dt(N))
+    body = me.RigidBody("body", G, B, m, (me.inertia(B, 0, 0, I), G))
+    blade = [me.dot(P.vel(N), B.y)]
+    L = me.Lagrangian(N, body)
+    return me.LagrangesMethod(L, [x, y, theta], nonhol_coneqs=blade, frame=N), {"m": 1.0, "I": 0.5, "a": 0.3}
+
+
+@pytest.mark.parametrize("value, says", [("abc", r"expected a real number \(or one per member\), got 'abc'"),
+                                         (1 + 2j, r"complex values .*expected a real number")])
+def test_bad_constants_are_named(value, says):
+    model, constants = _sleigh()
+    with pytest.raises(ValueError, match=r"^constants\['m'\]: " + says):
+        liefi.from_mechanics(model, constants=dict(constants, m=value))
+    fine = liefi.from_mechanics(model, constants=constants)
+    with pytest.raises(ValueError, match=r"^constants\['a'\]: " + says):
+        fine.constants = {"a": value}
+
+
+@pytest.mark.parametrize("make, name", [
+    (lambda r, v: r.rolling_body(v, [1.0, 1.0, 1.0], r.sphere(1.0)), "mass"),
+    (lambda r, v: r.rolling_body(1.0, [1.0, 1.0, 1.0], r.sphere(1.0), gravity=v), "gravity"),
+    (lambda r, v: r.sphere(v), "radius"),
+    (lambda r, v: r.disk(v), "radius"),
+])
+@pytest.mark.parametrize("value", ["abc", 1 + 2j, [1.0, 2.0]])
+def test_bad_rolling_numbers_are_named(make, name, value):
+    from liefi import rolling
+
+    with pytest.raises(ValueError, match=rf"^{name}: (expected|complex values)"):
+        make(rolling, value)
+
+
+@pytest.mark.parametrize("atol", [1e-8 + 1j, "abc", [1e-8j] * 6])
+def test_bad_atol_is_named(knife, atol):
+    fi, _ = knife
+    with pytest.raises(ValueError, match=r"^atol: .*(expected a number >= 0|complex values)"):
+        fi.run(0.1, rtol=1e-6, atol=atol, backend="numpy")
+
+
+@pytest.mark.parametrize("kw", [{"dt": 1e-2, "scheme": "rk4"}, {"rtol": 1e-6}])
+def test_complex_or_text_start_is_named_not_cast(knife, kw):
+    fi, _ = knife
+    y0 = fi.y0.astype(complex)
+    y0[3] += 1e-3j
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no ComplexWarning on the way: the imaginary part is not dropped
+        with pytest.raises(ValueError, match=r"^y0: complex values .*expected a state of 6 real numbers"):
+            fi.run(0.1, y0=y0, backend="numpy", **kw)
+        with pytest.raises(ValueError, match=r"^y0: expected a state of 6 real numbers .*got \['abc'"):
+            fi.run(0.1, y0=["abc"] * 6, backend="numpy", **kw)
+        with pytest.raises(ValueError, match=r"^y0: contains non-finite numbers .*\['p_phi'\]"):
+            fi.run(0.1, y0=np.r_[fi.y0[:5], np.nan], backend="numpy", **kw)
