@@ -220,3 +220,103 @@ def test_complex_or_text_start_is_named_not_cast(knife, kw):
             fi.run(0.1, y0=["abc"] * 6, backend="numpy", **kw)
         with pytest.raises(ValueError, match=r"^y0: contains non-finite numbers .*\['p_phi'\]"):
             fi.run(0.1, y0=np.r_[fi.y0[:5], np.nan], backend="numpy", **kw)
+
+
+# --- figures ---------------------------------------------------------------------------------------------
+
+
+def _rolling_solution(with_dense):
+    """A rolling body's run, made by hand: a ball of radius 1 whose centre of mass, 0.1 off its geometric centre,
+    goes round a circle of radius 2 while the ball turns about the vertical, in liefi.rolling's 25 components.
+    ``with_dense``: ``sol.sol(t)`` is the exact motion (what a dense output of the run gives between the steps)."""
+    from liefi import rolling
+
+    def state(t):
+        t = np.asarray(t, dtype=float)
+        c, s = np.cos(t), np.sin(t)
+        R = np.zeros(t.shape + (3, 3))
+        R[..., 0, 0], R[..., 0, 1], R[..., 1, 0], R[..., 1, 1], R[..., 2, 2] = c, -s, s, c, 1.0
+        Y = np.concatenate([R.reshape(t.shape + (9,)), np.stack([2 * c, 2 * s], -1), rolling.attitude_state(R),
+                            np.zeros(t.shape + (5,))], -1)
+        return np.moveaxis(Y, -1, 0)
+
+    t = np.linspace(0.0, 2 * np.pi, 9)  # 8 long steps: a polygon if drawn at the steps
+    names = tuple(f"R{i}{j}" for i in (1, 2, 3) for j in (1, 2, 3)) + ("r_1", "r_2") + rolling.ATTITUDE_NAMES + (
+        "Pi_1", "Pi_2", "Pi_3", "p_1", "p_2")
+    sol = liefi.Solution(t, state(t), "rk4", t[1], t.size - 1, 4 * (t.size - 1), 0.0, names=names,
+                         sol=state if with_dense else None)
+    return sol, rolling.sphere(1.0, offset=(0.1, 0.0, 0.0))
+
+
+def test_overview_of_a_rolling_body_draws_a_readable_selection(tmp_path):
+    pytest.importorskip("matplotlib")
+    import liefi.plot
+
+    sol, _ = _rolling_solution(True)
+    assert len(sol.names) == 25
+    fig = liefi.plot.overview(sol)
+    states = fig.axes[0]
+    labels = [t.get_text() for t in states.get_legend().get_texts()]
+    assert len(states.get_lines()) == len(labels) == 10 <= liefi.plot.MAX_STATES
+    from liefi.plotting import label
+
+    shown = ("r_1", "r_2", "Gamma_1", "Gamma_2", "Gamma_3", "Pi_1", "Pi_2", "Pi_3", "p_1", "p_2")
+    assert labels == [label(n) for n in shown]  # not R11..R33, rho1_*, rho2_*: the attitude shows through Gamma
+    assert "10 of 25" in states.get_title()
+    fig.savefig(tmp_path / "rolling.png")  # lays the legend out
+    box, legend = states.get_window_extent(), states.get_legend().get_window_extent()
+    assert legend.height < box.height and legend.width < box.width  # the legend fits in its panel
+    every = liefi.plot.states(sol, names=sol.names)  # all of them when asked
+    assert len(every.get_lines()) == 25
+
+
+def test_path_is_drawn_between_the_steps_from_the_dense_output():
+    pytest.importorskip("matplotlib")
+    import liefi.plot
+
+    sol, _ = _rolling_solution(True)
+    ax = liefi.plot.path(sol)
+    xs, ys = ax.get_lines()[0].get_data()
+    assert xs.size >= 16 * (sol.t.size - 1)  # not only the 9 saved states
+    np.testing.assert_allclose(np.hypot(xs, ys), 2.0, rtol=1e-14)  # on the circle, not on its chords
+    assert liefi.plot._max_turn(xs, ys) < 5.0  # smooth, where the 9 saved states turn by 45 degrees
+    coarse, _ = _rolling_solution(False)
+    with pytest.warns(UserWarning, match=r"path: drawn through the 9 saved states only.*45 degrees.*dense_output=True"):
+        ax = liefi.plot.path(coarse)
+    assert ax.get_lines()[0].get_data()[0].size == 9
+
+
+def _gif_frames(path):
+    from PIL import Image
+
+    with Image.open(path) as im:
+        assert im.format == "GIF"
+        return im.n_frames, im.size
+
+
+def test_animate_a_planar_body_writes_a_gif(knife, tmp_path):
+    pytest.importorskip("matplotlib")
+    import liefi.plot
+
+    _, sol = knife
+    out = liefi.plot.animate(sol, tmp_path / "knife.gif", frames=4, dpi=40)
+    assert out == tmp_path / "knife.gif" and _gif_frames(out) == (4, (168, 168))
+    with pytest.raises(ValueError, match=r"^filename: .*ending in \.gif"):
+        liefi.plot.animate(sol, tmp_path / "knife.mp4", frames=4)
+    with pytest.raises(ValueError, match=r"^frames: "):
+        liefi.plot.animate(sol, tmp_path / "k.gif", frames=0)
+
+
+def test_animate_a_rolling_body_draws_its_contact_path(tmp_path):
+    pytest.importorskip("matplotlib")
+    import liefi.plot
+    from liefi import rolling
+
+    sol, ball = _rolling_solution(True)
+    out = liefi.plot.animate(sol, tmp_path / "ball.gif", contact=ball, frames=3, dpi=40)
+    assert _gif_frames(out)[0] == 3
+    # the contact point is under the geometric centre: the centre of mass minus R (0.1, 0, 0), horizontally
+    P = rolling.contact_point(sol.y[9:11].T, sol.y[11:20].T, ball)
+    np.testing.assert_allclose(P, sol.y[9:11].T - 0.1 * sol.y[[0, 3]].T, atol=1e-15)
+    with pytest.raises(ValueError, match=r"contact: the contact point needs the components"):
+        liefi.plot.animate(_named(_rolling_solution(False)[0], r_1="q"), tmp_path / "x.gif", contact=ball, frames=2)
