@@ -130,11 +130,12 @@ def states(sol, names=None, *, ax=None, member=0):
 def drift(sol, *, ax=None, member=0, invariants=None):
     """``|I(t) - I_0|`` of every monitored invariant (or those in ``invariants``), on a log scale."""
     _pl.require_matplotlib()
-    from .export import invariant_series, invariant_targets
+    from .export import energy_name, invariant_series, invariant_targets
 
-    series = invariant_series(sol)
+    series = invariant_series(sol)  # "energy" is h~ or h: one series per quantity
     targets = invariant_targets(sol)
-    names = [k for k in series if k != "energy"] if invariants is None else list(invariants)
+    names = list(series) if invariants is None else [
+        energy_name(sol.integrator) if k == "energy" else k for k in invariants]
     ax = _axes(ax)
     for k in names:
         if k not in series:

@@ -320,3 +320,14 @@ def test_animate_a_rolling_body_draws_its_contact_path(tmp_path):
     np.testing.assert_allclose(P, sol.y[9:11].T - 0.1 * sol.y[[0, 3]].T, atol=1e-15)
     with pytest.raises(ValueError, match=r"contact: the contact point needs the components"):
         liefi.plot.animate(_named(_rolling_solution(False)[0], r_1="q"), tmp_path / "x.gif", contact=ball, frames=2)
+
+
+def test_drift_of_energy_is_that_of_h_tilde(knife):
+    pytest.importorskip("matplotlib")
+    import liefi.plot
+
+    _, sol = knife
+    a = liefi.plot.drift(sol, invariants=["energy"]).get_lines()[0].get_ydata()
+    b = liefi.plot.drift(sol, invariants=["h~"]).get_lines()[0].get_ydata()
+    np.testing.assert_array_equal(a, b)
+    assert len(liefi.plot.drift(sol).get_lines()) == 4  # J_1, h, h~, p_phi: energy not drawn twice
