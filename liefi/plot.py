@@ -83,12 +83,20 @@ def _dense(sol, t, Y, member):
 
 
 def _max_turn(xs, ys):
-    """The largest turn (degrees) of the polyline ``(xs, ys)`` at one of its vertices."""
-    d = np.diff(np.stack([xs, ys]), axis=1)
-    d = d[:, np.hypot(*d) > 1e-12 * max(1.0, float(np.max(np.abs(np.stack([xs, ys])), initial=0.0)))]
-    if d.shape[1] < 2:
+    """The largest visible turn (degrees) of the polyline ``(xs, ys)`` at one of its vertices.
+
+    A turn counts where both segments at the vertex are longer than 1 % of the
+    path's extent: a cusp of the motion itself (the knife edge stops and turns
+    back) is approached by ever shorter segments and draws no corner.
+    """
+    d = np.diff(np.stack([np.asarray(xs, float), np.asarray(ys, float)]), axis=1)
+    length = np.hypot(*d)
+    span = max(float(np.ptp(xs)), float(np.ptp(ys))) if d.shape[1] else 0.0
+    if d.shape[1] < 2 or span == 0.0:
         return 0.0
-    return float(np.degrees(np.max(np.abs(np.diff(np.unwrap(np.arctan2(d[1], d[0])))))))
+    turn = np.degrees(np.abs(np.diff(np.unwrap(np.arctan2(d[1], d[0])))))
+    seen = np.minimum(length[:-1], length[1:]) > 0.01 * span
+    return float(np.max(turn[seen], initial=0.0))
 
 
 def _index(sol, name, what):

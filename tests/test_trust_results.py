@@ -331,3 +331,14 @@ def test_drift_of_energy_is_that_of_h_tilde(knife):
     b = liefi.plot.drift(sol, invariants=["h~"]).get_lines()[0].get_ydata()
     np.testing.assert_array_equal(a, b)
     assert len(liefi.plot.drift(sol).get_lines()) == 4  # J_1, h, h~, p_phi: energy not drawn twice
+
+
+def test_a_cusp_of_the_motion_is_not_taken_for_a_corner():
+    t = np.linspace(0.0, 2 * np.pi, 2001)
+    cycloid_x, cycloid_y = t - np.sin(t), 1 - np.cos(t)  # a cusp at both ends: the motion stops and turns
+    cusp_x, cusp_y = np.r_[cycloid_x, 2 * np.pi + cycloid_x[1:]], np.r_[cycloid_y, cycloid_y[1:]]
+    import liefi.plot
+
+    assert liefi.plot._max_turn(cusp_x, cusp_y) < 2.0
+    s = np.linspace(0.0, 2 * np.pi, 9)
+    assert liefi.plot._max_turn(np.cos(s), np.sin(s)) == pytest.approx(45.0)
