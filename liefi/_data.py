@@ -7,22 +7,60 @@ import numpy as np
 from . import _diff
 
 
-def as_float_array(value, name):
-    """``np.array(value, dtype=float)``, or a ``ValueError`` naming ``name`` (strings, ragged lists ...)."""
+def as_float_array(value, name, what="an array of real numbers"):
+    """``np.array(value, dtype=float)``, or a ``ValueError`` naming ``name`` and ``what`` it expects
+    (strings, complex numbers, ragged lists ...).  The one check of users' numbers: :func:`as_float`
+    and :func:`as_state` call it."""
     try:
         raw = np.asarray(value)
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name}: expected an array of real numbers, got {value!r} ({exc})") from None
+        raise ValueError(f"{name}: expected {what}, got {value!r} ({exc})") from None
     if np.iscomplexobj(raw) and np.any(raw.imag != 0):
         raise ValueError(
-            f"{name}: complex values (largest imaginary part {np.max(np.abs(raw.imag)):.3g}); liefi "
-            "needs real data -- pass the real array you meant (liefi does not drop imaginary parts)"
+            f"{name}: complex values (largest imaginary part {np.max(np.abs(raw.imag)):.3g}), expected {what}; "
+            "liefi needs real data -- pass the real numbers you meant (liefi does not drop imaginary parts)"
         )
     try:
         with np.errstate(all="ignore"):
             return np.array(raw.real if np.iscomplexobj(raw) else value, dtype=float)
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name}: expected an array of real numbers, got {value!r} ({exc})") from None
+        raise ValueError(f"{name}: expected {what}, got {value!r} ({exc})") from None
+
+
+def as_float(value, name, what="a real number"):
+    """``float(value)`` for one real number (not a bool), or a ``ValueError`` naming ``name`` and ``what``.
+
+    ``"abc"``, ``1 + 2j``, ``[1, 2]`` and ``True`` are refused by name rather than with
+    Python's ``could not convert string to float`` or ``float() argument ... not 'complex'``.
+    """
+    if isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"{name}: expected {what}, got {value!r} (a bool is not a number)")
+    x = as_float_array(value, name, what)
+    if x.ndim:
+        raise ValueError(f"{name}: expected {what}, got {value!r} (shape {x.shape})")
+    return float(x)
+
+
+def as_state(value, name, names):
+    """``value`` as a float array of states ``(..., len(names))``, or a ``ValueError`` naming ``name``.
+
+    Strings, complex numbers, a wrong last axis and non-finite entries are refused
+    by name (a NaN would otherwise come back as NaN, silently); the message names
+    the components that are not finite and their indices in the batch.
+    """
+    names = tuple(names)
+    x = as_float_array(value, name, f"a state of {len(names)} real numbers {names}")
+    if x.shape[-1:] != (len(names),):
+        raise ValueError(f"{name}: expected a state of {len(names)} numbers {names} (or a batch of them, "
+                         f"shape (..., {len(names)})), got shape {x.shape}")
+    bad = ~np.isfinite(x)
+    if np.any(bad):
+        which = [names[i] for i in np.flatnonzero(bad.reshape(-1, len(names)).any(axis=0))]
+        where = np.argwhere(bad.reshape(x.shape[:-1] + (-1,)).any(axis=-1))[:3].tolist() if x.ndim > 1 else None
+        raise ValueError(f"{name}: contains non-finite numbers (nan or inf) in {which}"
+                         + (f" of the states at batch index {where}" if where else "")
+                         + "; pass finite numbers")
+    return x
 
 
 def check_real(value, name, x):

@@ -59,6 +59,8 @@ class _Constants:
 
     def parse(self, constants):
         """An array ``(..., P)`` from a mapping ``{symbol or name: value(s)}`` or an array."""
+        from . import _data
+
         P = len(self.symbols)
         if isinstance(constants, dict):
             given = {}
@@ -66,7 +68,7 @@ class _Constants:
                 name = key if isinstance(key, str) else str(key)
                 if name not in self.names:
                     raise ValueError(f"constants: {name!r} is not a parameter of the model; its parameters are {list(self.names)}")
-                given[name] = np.asarray(val, float)
+                given[name] = _data.as_float_array(val, f"constants[{name!r}]", "a real number (or one per member)")
             missing = [s for s in self.names if s not in given and self.values is None]
             if missing:
                 raise ValueError(f"constants: no value for {missing}; pass constants={{{', '.join(f'{s}: ...' for s in missing)}}}")

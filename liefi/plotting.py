@@ -76,7 +76,7 @@ def require_matplotlib():
     return matplotlib
 
 
-_GREEK = {"Pi", "theta", "phi", "psi", "lambda", "mu", "xi", "alpha", "omega", "Omega"}
+_GREEK = {"Pi", "theta", "phi", "psi", "lambda", "mu", "xi", "alpha", "omega", "Omega", "Gamma", "rho"}
 
 
 def _tex_word(w):

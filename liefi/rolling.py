@@ -64,7 +64,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import _diff
-from ._data import as_float_array
+from ._data import as_float, as_float_array
 from .feedback import Invariant
 from .groups import SO3, Representation, Rn
 from .phase_space import LieGroupPhaseSpace
@@ -256,7 +256,7 @@ def rolling_body(mass, inertia, contact, gravity=9.81, *, sample=None, scaling="
         attitude rows not orthonormal, a configuration ``R`` other than the rows,
         a slipping contact, or one where the contact function is no surface's.
     """
-    m = float(mass)
+    m = as_float(mass, "mass", "a positive number")
     if not np.isfinite(m) or m <= 0:
         raise ValueError(f"mass: expected a positive number, got {mass!r}")
     I = as_float_array(inertia, "inertia")
@@ -276,7 +276,7 @@ def rolling_body(mass, inertia, contact, gravity=9.81, *, sample=None, scaling="
     if moments[0] <= 0:
         raise ValueError(f"inertia: must be positive definite (a rigid body's principal moments about its centre of "
                          f"mass are positive), got the moments {moments.tolist()}")
-    g = float(gravity)
+    g = as_float(gravity, "gravity", "a non-negative number")
     if not np.isfinite(g) or g < 0:
         raise ValueError(f"gravity: expected a non-negative number, got {gravity!r}")
     if not callable(contact):
@@ -408,6 +408,36 @@ def attitude_state(R):
     return np.asarray(R, float).reshape(np.shape(R)[:-2] + (9,))
 
 
+def contact_point(position, attitude, contact):
+    r"""The contact point on the plane, from the centre of mass' place and the attitude.
+
+    The contact point is ``c + R r(Gamma)`` (``c`` the centre of mass, ``r`` the
+    contact function in body axes); its horizontal components are
+    ``e_i . R r = <R^T e_i, r> = <rho_i, r>``, so
+
+    .. math:: (x_c, y_c) = (x, y) + (\langle \rho_1, r(\Gamma) \rangle, \langle \rho_2, r(\Gamma) \rangle).
+
+    Parameters
+    ----------
+    position : array_like (..., 2)
+        ``(x, y)``, the centre of mass' horizontal place (the state's ``r_1, r_2``).
+    attitude : array_like (..., 9)
+        ``(rho_1, rho_2, Gamma)``, the rows of ``R`` (:data:`ATTITUDE_NAMES`, :func:`attitude_state`).
+    contact : callable
+        The body's contact function ``r(Gamma)`` (:func:`sphere`, :func:`ellipsoid`, :func:`disk`).
+
+    Returns
+    -------
+    ndarray (..., 2)
+    """
+    V = as_float_array(attitude, "attitude")
+    c = as_float_array(position, "position")
+    if V.shape[-1:] != (9,) or c.shape[-1:] != (2,):
+        raise ValueError(f"contact_point: expected position (..., 2) and attitude (..., 9), got {c.shape} and {V.shape}")
+    r = np.asarray(contact(V[..., 6:9]), dtype=float)
+    return c + np.stack([np.einsum("...i,...i->...", V[..., 0:3], r), np.einsum("...i,...i->...", V[..., 3:6], r)], -1)
+
+
 def rolling_start(system, R, Omega, position=(0.0, 0.0)):
     """The full start ``(R, x, y, rho_1, rho_2, Gamma, Pi, p)`` of a rolling body on the constraint set.
 
@@ -435,7 +465,7 @@ def sphere(radius, offset=(0.0, 0.0, 0.0)):
 
     (``offset`` in body axes; the Chaplygin ball has ``offset = 0``.)  Uses ``|Gamma| = 1``.
     """
-    a = float(radius)
+    a = as_float(radius, "radius", "a positive number")
     if not np.isfinite(a) or a <= 0:
         raise ValueError(f"radius: expected a positive number, got {radius!r}")
     c = _vector(offset, "offset")
@@ -479,7 +509,7 @@ def disk(radius):
     ``r(Gamma) = -radius (Gamma - Gamma_3 e_3) / sqrt(Gamma_1^2 + Gamma_2^2)``: the
     lowest point of the rim (singular when the disk lies flat, ``Gamma = +-e_3``).
     """
-    a = float(radius)
+    a = as_float(radius, "radius", "a positive number")
     if not np.isfinite(a) or a <= 0:
         raise ValueError(f"radius: expected a positive number, got {radius!r}")
 

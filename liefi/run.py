@@ -40,6 +40,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ._data import as_state
 from ._progress import Progress, stderr_is_terminal
 from .schemes import IntegrationError, Solution, integrate, positive_int
 from .schemes import registry as _registry
@@ -276,6 +277,8 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
                          "chosen for the tolerance")
     if errors not in ("raise", "return"):
         raise ValueError(f"errors: expected 'raise' or 'return', got {errors!r}")
+    if y0 is not None:  # before the step is chosen from it (a complex or string y0 named, not cast)
+        y0 = as_state(y0, "y0", fi.names)
     scheme_given, dt_given = scheme is not None, dt is not None
     sch = _fixed_step_scheme(scheme if scheme_given else _tol.DEFAULT_SCHEME)
     backend = _tol.default_backend() if backend is None else backend
@@ -292,12 +295,6 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
         monitor_every = positive_int(monitor_every, "monitor_every")
     if y0 is None:
         y0 = fi.y0
-    else:
-        y0 = np.asarray(y0, dtype=float) if not isinstance(y0, str) else y0
-        if not isinstance(y0, np.ndarray) or y0.shape[-1:] != (fi.n,):
-            raise ValueError(f"y0: expected a state of {fi.n} numbers {fi.names}, got {np.shape(y0)}")
-        if not np.all(np.isfinite(y0)):
-            raise ValueError("y0: contains non-finite numbers")
     if evs and y0.ndim > 1:
         raise ValueError(f"events: only for a single trajectory (y0 of shape ({fi.n},)), got a batch of shape "
                          f"{y0.shape}; run the members one by one to locate their events")

@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._data import DataFunction, as_float_array, check_real
+from ._data import DataFunction, as_float_array, as_state, check_real
 from . import reduction as _red
 from .phase_space import PhaseSpace
 
@@ -471,7 +471,13 @@ class NonholonomicSystem:
         return np.concatenate([x, P])
 
     def project(self, z):
-        """Projection onto ``J = 0``, see :func:`liefi.reduction.project`."""
+        """Projection onto ``J = 0``, see :func:`liefi.reduction.project`.
+
+        ``z``: real states ``(..., nz)``; a string, a wrong length or a non-finite
+        entry is a ``ValueError`` naming ``z`` (complex ``z``, a complex step, passes).
+        """
+        if not np.iscomplexobj(z):
+            z = as_state(z, "z", self.state_names)
         return _red.project(self, z)
 
     def reconstruction(self, g, z, *, extended=True):

@@ -101,6 +101,8 @@ import math
 
 import numpy as np
 
+from ._data import as_float_array
+
 #: The scheme :meth:`liefi.FeedbackIntegrator.run` and ``liefi run`` run unless told otherwise.
 DEFAULT_SCHEME = "imex-rk4"
 #: The relative tolerance of a run given neither ``dt`` nor ``rtol``.
@@ -200,8 +202,8 @@ def check_tolerance(rtol, atol):
         raise ValueError(f"rtol: expected a number, got {rtol!r}") from None
     if not (1e-13 <= r < 1.0):
         raise ValueError(f"rtol: must lie in [1e-13, 1) (below 1e-13 rounding dominates any step), got {rtol!r}")
-    a = np.asarray(0.0 if atol is None else atol, dtype=float) if not isinstance(atol, str) else None
-    if a is None or not np.all(np.isfinite(a)) or np.any(a < 0):
+    a = as_float_array(0.0 if atol is None else atol, "atol", "a number >= 0 (or one per component)")
+    if not np.all(np.isfinite(a)) or np.any(a < 0):
         raise ValueError(f"atol: expected a number >= 0 (or one per component), got {atol!r}")
     return r, a
 

@@ -54,7 +54,8 @@ def test_to_xarray_has_states_time_and_invariants(body_run):
     np.testing.assert_array_equal(ds["t"].to_numpy(), sol.t)
     np.testing.assert_array_equal(ds["Pi_2"].to_numpy(), sol["Pi_2"])
     assert ds["h"].attrs["kind"] == "invariant" and ds["h"].attrs["target"] == float(ds["h"][0])  # h: from y0
-    assert ds["energy"].attrs["target"] == fi.targets["energy"] and ds["Pi_1"].attrs["kind"] == "state"
+    assert ds.attrs["energy"] == "h~" and "energy" not in ds  # the penalized energy is h~: one variable
+    assert ds["h~"].attrs["target"] == fi.targets["energy"] and ds["Pi_1"].attrs["kind"] == "state"
     assert ds["penalty"].attrs["target"] == 0.0 and ds.attrs["scheme"] == "rk4"
     assert set(sol.to_xarray(invariants=False).data_vars) == set(fi.names)
 
