@@ -105,3 +105,66 @@ def test_checked_names_refuses_other_names_that_are_not_identifiers():
     A = sympy.MatrixSymbol("A; import os", 2, 2)
     with pytest.raises(ValueError, match=r"metric: contains a MatrixSymbol named 'A; import os'"):
         checked_names(sympy, A[0, 0] + 1, "metric")
+
+
+# --------------------------------------------------------------------------------------
+# liefi run --scheme scipy:METHOD
+# --------------------------------------------------------------------------------------
+def test_liefi_run_scipy_method_reports_its_method(capsys):
+    import json
+
+    from liefi import cli
+
+    code = cli.main(["run", "suslov", "--scheme", "scipy:RK45", "--t-final", "0.2", "--json"])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    got = json.loads(out)
+    assert got["backend"] == "scipy" and got["method"]["scheme"] == "scipy:RK45"
+    assert got["method"]["rtol"] == 1e-9 and got["method"]["dt"] is None and "adaptive" in got["method"]["why"]
+    assert max(got["max_error"].values()) < 1e-6
+
+
+@pytest.mark.parametrize("flag, value", [("--atol", "-1"), ("--rtol", "1e-20"), ("--rtol", "2")])
+def test_liefi_run_scipy_bad_tolerance_is_refused_before_integrating(capsys, monkeypatch, flag, value):
+    from liefi import cli
+    from liefi.schemes import ivp
+
+    def never(*a, **k):
+        raise AssertionError("solve_ivp was called with a bad tolerance")
+
+    monkeypatch.setattr(ivp.ScipyMethod, "solve", never)
+    code = cli.main(["run", "suslov", "--scheme", "scipy:RK45", "--t-final", "1", flag, value])
+    err = capsys.readouterr().err
+    assert code == 2 and err.startswith(f"liefi: error: {flag[2:]}:"), err
+    assert len(err.strip().splitlines()) == 1
+
+
+def test_scipy_run_past_its_evaluation_budget_stops_early_and_says_so():
+    """The projection from the pace stops a run that would take 1e6 evaluations after a few thousand."""
+    from liefi.schemes import registry
+    from liefi.schemes.ivp import EvaluationBudgetError
+
+    calls = []
+
+    def osc(t, y):
+        calls.append(t)
+        return np.array([y[1], -y[0]])
+
+    rk23 = registry.get("scipy:RK23")
+    with pytest.raises(EvaluationBudgetError, match=r"scipy:RK23 at rtol 1e-13 would need about .* evaluations"):
+        rk23.solve(osc, 1000.0, [1.0, 0.0], rtol=1e-13, atol=1e-13, max_evaluations=1e5)
+    assert len(calls) < 1e4  # stopped from the projection, long before the budget itself
+    sol, _ = rk23.solve(osc, 1.0, [1.0, 0.0], rtol=1e-6, atol=1e-9, max_evaluations=1e5)  # within it: unchanged
+    ref, _ = rk23.solve(osc, 1.0, [1.0, 0.0], rtol=1e-6, atol=1e-9)
+    assert sol.success and np.array_equal(sol.y, ref.y)
+
+
+def test_liefi_run_scipy_evaluation_guard_is_one_line(capsys, monkeypatch):
+    import liefi.run
+    from liefi import cli
+
+    monkeypatch.setattr(liefi.run, "IVP_MAX_EVALUATIONS", 1000)
+    code = cli.main(["run", "suslov", "--scheme", "scipy:RK23", "--rtol", "1e-13", "--t-final", "50"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.startswith("liefi: error: scheme: scipy:RK23 at rtol 1e-13 would need about"), err
+    assert len(err.strip().splitlines()) == 1
