@@ -43,6 +43,7 @@ import sys
 
 from . import __version__
 from . import _json
+from ._files import probe_writable
 from . import scenes as _scenes
 from .run import MAX_RUN_STEPS, check_step_count
 from .schemes import IntegrationError
@@ -247,12 +248,16 @@ def plot_path(path, scene, variant=None, *, suffix=""):
         path += ".png"
     folder = os.path.dirname(os.path.abspath(path))
     _make_folder(folder)
-    if os.path.isdir(path) or (os.path.exists(path) and not os.access(path, os.W_OK)) or not os.access(folder, os.W_OK):
-        raise UsageError(f"out: cannot write {path!r} (not writable); choose another --out")
+    if os.path.isdir(path):
+        raise UsageError(f"out: cannot write {path!r} (a folder of that name is in the way); choose another --out")
     try:
-        return plotting.check_format(path, "out")
+        path = plotting.check_format(path, "out")
     except ValueError as exc:
         raise UsageError(str(exc)) from None
+    why = probe_writable(path)  # written to and removed: os.access says yes to root even in /proc
+    if why is not None:
+        raise UsageError(f"out: cannot write {path!r} ({why}); choose another --out")
+    return path
 
 
 def _make_folder(folder):

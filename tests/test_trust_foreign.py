@@ -7,6 +7,8 @@
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 
@@ -168,3 +170,32 @@ def test_liefi_run_scipy_evaluation_guard_is_one_line(capsys, monkeypatch):
     err = capsys.readouterr().err
     assert code == 2 and err.startswith("liefi: error: scheme: scipy:RK23 at rtol 1e-13 would need about"), err
     assert len(err.strip().splitlines()) == 1
+
+
+# --------------------------------------------------------------------------------------
+# --out proven writable before the run
+# --------------------------------------------------------------------------------------
+@pytest.mark.skipif(not os.path.isdir("/proc/self"), reason="needs /proc")
+def test_out_in_proc_is_refused_before_the_run(capsys, monkeypatch):
+    """``os.access`` says yes to root for ``/proc``; the check now opens the file itself."""
+    from liefi import cli, scenes
+
+    def never(self, **kw):
+        raise AssertionError("the run started although --out cannot be written")
+
+    monkeypatch.setattr(scenes.Scene, "run", never)
+    code = cli.main(["run", "suslov", "--t-final", "1", "--out", "/proc/x.png"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.startswith("liefi: error: out: cannot write '/proc/x.png'"), err
+    assert len(err.strip().splitlines()) == 1
+
+
+def test_probe_writable_leaves_no_trace(tmp_path):
+    from liefi._files import probe_writable
+
+    old = tmp_path / "old.png"
+    old.write_bytes(b"kept")
+    assert probe_writable(str(old)) is None and old.read_bytes() == b"kept"
+    new = tmp_path / "new.png"
+    assert probe_writable(str(new)) is None and not new.exists()
+    assert probe_writable(str(tmp_path / "missing" / "x.png"))  # a reason, not None
