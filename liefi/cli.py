@@ -585,12 +585,25 @@ def main(argv=None):
             seen.append(line)
             print(f"liefi: warning: {line}", file=sys.stderr, flush=True)
 
-    from ._signals import terminate_as_interrupt
+    from ._signals import command_returned, terminate_as_interrupt
 
-    with warnings.catch_warnings(), terminate_as_interrupt():
-        warnings.simplefilter("always")
-        warnings.showwarning = show
-        return _main(parser, argv, seen)
+    try:
+        with warnings.catch_warnings(), terminate_as_interrupt():
+            warnings.simplefilter("always")
+            warnings.showwarning = show
+            return command_returned(_main(parser, argv, seen))
+    except KeyboardInterrupt as exc:  # landed just outside _main's own handler: the same one line
+        return command_returned(_interrupted(exc))
+
+
+def _interrupted(exc):
+    """Report the interrupt ``exc`` in one line on stderr; its exit code (130 SIGINT, 143 SIGTERM)."""
+    from ._signals import cancel_deadline, describe, exit_code
+
+    cancel_deadline()  # raised and reported: no deadline to end the process
+    detail = getattr(exc, "detail", None) or "what finished is kept; see the command's output folder"
+    print(f"liefi: {describe(exc)} ({detail})", file=sys.stderr)
+    return exit_code(exc)
 
 
 def _main(parser, argv, seen=()):
@@ -615,11 +628,7 @@ def _main(parser, argv, seen=()):
         print(f"liefi: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as exc:  # Ctrl-C / SIGINT or SIGTERM: one line, the shell's code (130, 143)
-        from ._signals import describe, exit_code
-
-        detail = getattr(exc, "detail", None) or "what finished is kept; see the command's output folder"
-        print(f"liefi: {describe(exc)} ({detail})", file=sys.stderr)
-        return exit_code(exc)
+        return _interrupted(exc)
     except BrokenPipeError:  # e.g. `liefi list | head`: stop quietly
         import os
 

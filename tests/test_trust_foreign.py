@@ -199,3 +199,192 @@ def test_probe_writable_leaves_no_trace(tmp_path):
     new = tmp_path / "new.png"
     assert probe_writable(str(new)) is None and not new.exists()
     assert probe_writable(str(tmp_path / "missing" / "x.png"))  # a reason, not None
+
+
+# --------------------------------------------------------------------------------------
+# Signals: Ctrl-C and SIGTERM end the `liefi` process wherever they land
+# --------------------------------------------------------------------------------------
+import signal  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import textwrap  # noqa: E402
+import time  # noqa: E402
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+needs_signals = pytest.mark.skipif(os.name != "posix", reason="POSIX signals")
+
+#: the start of the console script ``liefi`` (its ``sys.argv[0]`` names it), then ``BODY``
+_AS_COMMAND = '''
+import os, signal, sys, time
+sys.argv[0] = os.path.join(os.path.dirname(sys.executable), "liefi")
+'''
+
+
+def _env(tmp_path):
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("NUMBA_", "LIEFI_"))}
+    env.update(LIEFI_CACHE_DIR=str(tmp_path / "kernels"), PYTHONPATH=ROOT)
+    return env
+
+
+def _grace():
+    from liefi import _signals
+
+    return getattr(_signals, "GRACE", 2.0)
+
+
+def _command(tmp_path, body, timeout=300):
+    """Run ``body`` as the ``liefi`` process; returns ``(code, stdout, stderr lines)``."""
+    r = subprocess.run([sys.executable, "-c", _AS_COMMAND + textwrap.dedent(body)], cwd=ROOT, env=_env(tmp_path),
+                       capture_output=True, text=True, timeout=timeout)
+    return r.returncode, r.stdout, r.stderr.strip().splitlines()
+
+
+@needs_signals
+def test_ctrl_c_while_liefi_imports_numpy_is_one_line_and_130(tmp_path):
+    """SIGINT while ``import liefi`` is still importing numpy (the first ~0.3 s of every command):
+    before, a traceback of 20-30 lines and rc -2."""
+    code, out, err = _command(tmp_path, '''
+        import importlib.abc
+        class Interrupt(importlib.abc.MetaPathFinder):
+            def find_spec(self, name, path=None, target=None):
+                if name == "numpy":
+                    os.kill(os.getpid(), signal.SIGINT)
+                    time.sleep(5)  # the handler runs here
+                return None
+        sys.meta_path.insert(0, Interrupt())
+        from liefi.cli import main
+        sys.exit(main(["--version"]))
+    ''')
+    assert code == 130 and err == ["liefi: interrupted"], (code, err[-5:])
+
+
+@needs_signals
+@pytest.mark.parametrize("when", ["after main", "in an exit handler"])
+def test_ctrl_c_after_the_output_is_complete_is_one_line_and_130(tmp_path, when):
+    """SIGINT once the command has printed its result: the output is kept, one line, 130 (before:
+    a traceback and rc 1 or -2, or "Exception ignored in atexit callback" and rc 0)."""
+    late = ("code = main(['list']); os.kill(os.getpid(), signal.SIGINT); time.sleep(5); sys.exit(code)"
+            if when == "after main" else
+            "import atexit\natexit.register(lambda: (os.kill(os.getpid(), signal.SIGINT), time.sleep(5)))\n"
+            "sys.exit(main(['list']))")
+    code, out, err = _command(tmp_path, "from liefi.cli import main\n" + late)
+    assert code == 130 and err == ["liefi: interrupted"], (code, err[-5:])
+    assert out.splitlines()[0].startswith("suslov")  # the output printed before is kept
+
+
+#: a SIGTERM that lands in a callback from C (libc's qsort calling a Python comparison, as LLVM calls
+#: numba back): before, "Exception ignored on calling ctypes callback function", every further SIGTERM
+#: ignored, and the run went on to its end
+_TERM_IN_CALLBACK = '''
+    import ctypes, ctypes.util
+    from liefi import cli, scenes
+    libc = ctypes.CDLL(ctypes.util.find_library("c"))
+    CMP = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.POINTER(ctypes.c_int), ctypes.POINTER(ctypes.c_int))
+    sent = []
+    def compare(a, b):
+        if not sent:
+            sent.append(time.time())
+            print(sent[0], flush=True)
+            os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(0.002)  # 4000 numbers: about 100 s of comparisons
+        return a[0] - b[0]
+    def run(self, **kw):
+        arr = (ctypes.c_int * 4000)(*range(4000, 0, -1))
+        libc.qsort(arr, 4000, ctypes.sizeof(ctypes.c_int), CMP(compare))
+        raise SystemExit(0)
+    scenes.Scene.run = run
+    sys.exit(cli.main(["run", "suslov", "--t-final", "1"]))
+'''
+
+
+@needs_signals
+def test_sigterm_dropped_in_a_callback_from_c_still_ends_the_command(tmp_path):
+    start = time.time()
+    code, out, err = _command(tmp_path, _TERM_IN_CALLBACK, timeout=200)
+    ended = time.time()
+    assert code == 143, (code, err[-6:])
+    assert not any("Exception ignored" in line for line in err) and len(err) == 1, err[-6:]
+    assert err[0].startswith("liefi: terminated by SIGTERM")
+    took = ended - float(out.split()[0])
+    assert took < _grace() + 8, f"{took:.1f} s from the SIGTERM to the exit (started {ended - start:.1f} s before)"
+
+
+_TERM_IN_COMPILER = '''
+    from numba.core import codegen
+    if not hasattr(getattr(codegen, "JITCodeLibrary", None), "_object_compiled_hook"):
+        sys.exit(99)  # another numba: no such hook to send the signal from
+    hook = codegen.JITCodeLibrary._object_compiled_hook.__func__
+    sent = []
+    def notify(cls, ll_module, buf):
+        if not sent:
+            sent.append(time.time())
+            print(sent[0], flush=True)
+            os.kill(os.getpid(), signal.SIGTERM)
+        return hook(cls, ll_module, buf)
+    codegen.JITCodeLibrary._object_compiled_hook = classmethod(notify)
+    from liefi.cli import main
+    sys.exit(main(["run", "suslov", "--backend", "numba", "--t-final", "0.5", "--json"]))
+'''
+
+
+@needs_signals
+def test_sigterm_inside_the_compiler_callback_is_143_promptly(tmp_path):
+    """SIGTERM landing while LLVM calls back into Python during a cold compile: before, dropped
+    ("Exception ignored ..."), the compile and run went on for 7-9 s and exited 0."""
+    from liefi import engine
+
+    if not engine.available():
+        pytest.skip("numba is not installed")
+    code, out, err = _command(tmp_path, _TERM_IN_COMPILER)
+    ended = time.time()
+    if code == 99:
+        pytest.skip("this numba has no object-code hook to send the signal from")
+    assert code == 143, (code, err[-6:])
+    assert not any("Exception ignored" in line for line in err) and len(err) == 1, err[-6:]
+    assert err[0].startswith("liefi: terminated by SIGTERM")
+    took = ended - float(out.split()[0])
+    assert took < _grace() + 8, f"{took:.1f} s from the SIGTERM to the exit"
+
+
+@pytest.mark.slow
+@needs_signals
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_signal_at_any_moment_of_a_command_is_one_line(tmp_path, signum):
+    """Signals at evenly spread moments of a whole ``liefi run`` (from the moment Python runs the
+    command: a ready marker), at most 60 s in all: each ends with one line and 128 + signum, or
+    the run had finished (complete output, 0)."""
+    marker = tmp_path / "ready"
+    body = (f"open({str(marker)!r}, 'w').close()\nfrom liefi.cli import main\n"
+            "sys.exit(main(['run', 'suslov', '--t-final', '0.2', '--backend', 'numpy', '--json']))")
+    argv = [sys.executable, "-c", _AS_COMMAND + body]
+
+    def start():
+        if marker.exists():
+            marker.unlink()
+        p = subprocess.Popen(argv, cwd=ROOT, env=_env(tmp_path), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                             text=True)
+        while not marker.exists() and p.poll() is None:
+            time.sleep(0.002)
+        return p, time.time()
+
+    p, t0 = start()
+    p.communicate(timeout=120)
+    whole = time.time() - t0
+    deadline = time.time() + 60
+    results = []
+    for k in range(12):
+        if time.time() > deadline:
+            break
+        p, t0 = start()
+        time.sleep(max(0.0, k / 11 * whole * 1.1 - (time.time() - t0)))
+        sent = p.poll() is None
+        if sent:
+            p.send_signal(signum)
+        out, err = p.communicate(timeout=120)
+        lines = err.strip().splitlines()
+        results.append((k, sent, p.returncode, lines[-3:]))
+        if p.returncode == 0:
+            assert out.strip().endswith("}") and not lines, results[-1]
+        else:
+            assert p.returncode == 128 + signum and len(lines) == 1 and "Traceback" not in err, results[-1]
+    assert len(results) >= 4 and sum(r[2] == 128 + signum for r in results) >= 2, results
