@@ -137,6 +137,7 @@ def install_for_command():
     import atexit
 
     atexit.register(_end_with_status)  # registered first: runs after every other exit handler
+    _Deadline.allowed = True
 
 
 #: the exit status the ``liefi`` command returned (:func:`command_returned`), ``None`` while it runs
@@ -165,10 +166,13 @@ def _end_with_status():
 
 
 class _Deadline:
-    """The one pending deadline of an interrupt that could not be raised (:func:`end_within_grace`)."""
+    """The one pending deadline of an interrupt that could not be raised (:func:`end_within_grace`);
+    ``allowed`` in the ``liefi`` process only (:func:`install_for_command`): a notebook or a test
+    session calling liefi is never ended by it."""
 
     timer = None
     signum = None
+    allowed = False
 
 
 def end_within_grace(signum, grace=None):
@@ -176,8 +180,9 @@ def end_within_grace(signum, grace=None):
     ``128 + signum`` unless it has ended by then or :func:`cancel_deadline` is called.
 
     For an interrupt that could not be raised where it landed (held during a compile, dropped
-    in a callback from C): the clean path gets the grace, the deadline holds either way."""
-    if _Deadline.timer is not None:
+    in a callback from C): the clean path gets the grace, the deadline holds either way.  Only in
+    the ``liefi`` process (elsewhere nothing happens: the interrupt is raised when it can be)."""
+    if _Deadline.timer is not None or not _Deadline.allowed:
         return
     _Deadline.signum = int(signum)
 

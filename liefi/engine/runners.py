@@ -40,9 +40,10 @@ def interrupts_held():
     compiled code, where Python drops it); a second one raises at once.  Either
     way an interrupt leaves the block (:class:`liefi._signals.Terminated` for
     ``SIGTERM``) -- also when the block raised something else meanwhile.  A held
-    signal also sets a deadline (:func:`liefi._signals.end_within_grace`): a
-    compile that goes on for longer than :data:`liefi._signals.GRACE` seconds is
-    not waited for, the process ends with the one line and ``128 + signum``.  Only
+    signal also sets a deadline (:func:`liefi._signals.end_within_grace`, in the
+    ``liefi`` process only): a compile that goes on for longer than
+    :data:`liefi._signals.GRACE` seconds is not waited for, the process ends with
+    the one line and ``128 + signum``.  Only
     in the main thread and with Python's own ``SIGINT`` handler installed;
     elsewhere the block runs unchanged.
     """
@@ -63,6 +64,8 @@ def interrupts_held():
         got.append(signum)
         if len(got) > 1:
             raise interrupt()
+        if signum != signal.SIGINT:
+            _signals._received.append(signum)  # as if raised: a second SIGTERM in the clean-up is ignored
         _signals.end_within_grace(signum)
 
     def restore():
