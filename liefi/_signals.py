@@ -239,14 +239,22 @@ def _dropped_interrupts(previous):
     instead of printing "Exception ignored ..."; anything else goes to ``previous``."""
 
     def hook(unraisable):
-        exc = unraisable.exc_value
-        if isinstance(exc, KeyboardInterrupt):
-            signum = signum_of(exc)
-            _received.clear()
-            end_within_grace(signum)
-            _reraise_later(signum)
-            return
-        previous(unraisable)
+        signum = None
+        for _ in range(3):  # the interrupt raised again can land in this very hook: caught here too
+            try:
+                if signum is None:
+                    exc = unraisable.exc_value
+                    if not isinstance(exc, KeyboardInterrupt):
+                        break
+                    signum = signum_of(exc)
+                _received.clear()
+                end_within_grace(signum)
+                _reraise_later(signum)
+                return
+            except KeyboardInterrupt as again:
+                signum = signum_of(again)
+        if signum is None:
+            previous(unraisable)
 
     return hook
 
