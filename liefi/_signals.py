@@ -127,6 +127,9 @@ def install_for_command():
     nothing is changed."""
     if not is_command_process() or threading.current_thread() is not threading.main_thread():
         return
+    mp = sys.modules.get("multiprocessing")
+    if mp is not None and mp.parent_process() is not None:  # a worker (spawned with the command's argv)
+        return
     try:
         if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
             signal.signal(signal.SIGINT, exit_now)

@@ -239,6 +239,16 @@ def _command(tmp_path, body, timeout=300):
     return r.returncode, r.stdout, r.stderr.strip().splitlines()
 
 
+def test_is_command_process_only_in_the_liefi_process():
+    from liefi._signals import is_command_process
+
+    assert is_command_process(["/venv/bin/liefi"], []) and is_command_process(["-m"], ["python", "-m", "liefi"])
+    assert is_command_process(["-m"], ["python", "-X", "dev", "-mliefi", "run"])
+    for argv, orig in [(["-m"], ["python", "-m", "pytest"]), (["-c"], ["python", "-c", "import liefi"]),
+                       (["nb.py"], ["python", "nb.py"]), (["-m"], ["python", "-m", "liefi.bench"])]:
+        assert not is_command_process(argv, orig), orig
+
+
 @needs_signals
 def test_ctrl_c_while_liefi_imports_numpy_is_one_line_and_130(tmp_path):
     """SIGINT while ``import liefi`` is still importing numpy (the first ~0.3 s of every command):
