@@ -3,6 +3,15 @@
 * Names from a sympy model never become code: an undefined ``Function`` whose name is Python
   code is refused by name (before, ``lambdify`` wrote it into the generated source and it ran),
   a bound variable with such a name is renamed; marker files prove that nothing ran.
+* ``liefi run --scheme scipy:METHOD`` reports its run (before: an error after the integration);
+  a bad ``rtol``/``atol`` is refused before any work; a run past its evaluation budget stops
+  early from the projection of its pace and says so.
+* ``--out`` is proven writable (opened) before the run, also as root in ``/proc``.
+* Ctrl-C and SIGTERM end the ``liefi`` process with one line and 130 / 143 wherever they land:
+  while liefi imports numpy, after the output is complete, in a callback from C (libc's qsort,
+  LLVM's object-code hook in a cold numba compile), within ``GRACE`` seconds.  The signal points
+  are made deterministic (an import hook, the callbacks themselves); the slow test spreads
+  signals over a whole run from a ready marker (the process catching SIGTERM).
 """
 
 from __future__ import annotations
