@@ -1,4 +1,8 @@
 """liefi: feedback integrators for nonholonomic mechanical systems."""
+from ._signals import install_for_command as _install_for_command
+
+_install_for_command()  # the `liefi` process only: Ctrl-C while numpy and scipy import is one line and 130
+del _install_for_command
 from .phase_space import CotangentBundle, LieGroupPhaseSpace, PhaseSpace, TrivialPrincipalBundle
 from .system import NonholonomicSystem
 from .sympy_input import from_sympy

@@ -38,3 +38,26 @@ def writing(path):
         yield
     except OSError as exc:
         raise write_error(exc, path) from None
+
+
+def probe_writable(path):
+    """Prove that ``path`` can be written by opening it for writing, before any work; ``None`` if it can,
+    else the reason (``"Permission denied"``, ...).
+
+    ``os.access`` says yes to root for any path, also in ``/proc`` or on a read-only mount, where
+    the write fails later.  An existing file is opened for appending (its content is untouched);
+    a missing one is created exclusively and removed again.
+    """
+    import os
+
+    try:
+        try:
+            with open(path, "xb"):
+                pass
+        except FileExistsError:
+            with open(path, "ab"):
+                return None
+        os.remove(path)
+    except OSError as exc:
+        return exc.strerror or " ".join(str(exc).split()) or type(exc).__name__
+    return None

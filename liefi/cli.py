@@ -26,7 +26,10 @@ output that cannot be written -- checked before any work) print one line
 ``liefi: error: ...`` on stderr and exit with code 2; an interrupt (Ctrl-C,
 SIGINT) prints one line and exits with code 130, SIGTERM (``timeout``, ``kill``,
 Slurm, ``docker stop``) the same with code 143, after ``reproduce`` and
-``bench`` have stopped their workers and written the summary of what finished.
+``bench`` have stopped their workers and written the summary of what finished;
+at any moment, also while liefi still imports numpy or once the output is
+written, and within :data:`liefi._signals.GRACE` seconds when it lands in a
+compile (:mod:`liefi._signals`).
 Nothing here names a scene: what is
 particular to one (its figures, whether they need the configuration, its
 reproduction runs) is asked of the scene (:class:`liefi.scenes.Scene`).
@@ -43,6 +46,7 @@ import sys
 
 from . import __version__
 from . import _json
+from ._files import probe_writable
 from . import scenes as _scenes
 from .run import MAX_RUN_STEPS, check_step_count
 from .schemes import IntegrationError
@@ -247,12 +251,16 @@ def plot_path(path, scene, variant=None, *, suffix=""):
         path += ".png"
     folder = os.path.dirname(os.path.abspath(path))
     _make_folder(folder)
-    if os.path.isdir(path) or (os.path.exists(path) and not os.access(path, os.W_OK)) or not os.access(folder, os.W_OK):
-        raise UsageError(f"out: cannot write {path!r} (not writable); choose another --out")
+    if os.path.isdir(path):
+        raise UsageError(f"out: cannot write {path!r} (a folder of that name is in the way); choose another --out")
     try:
-        return plotting.check_format(path, "out")
+        path = plotting.check_format(path, "out")
     except ValueError as exc:
         raise UsageError(str(exc)) from None
+    why = probe_writable(path)  # written to and removed: os.access says yes to root even in /proc
+    if why is not None:
+        raise UsageError(f"out: cannot write {path!r} ({why}); choose another --out")
+    return path
 
 
 def _make_folder(folder):
@@ -580,12 +588,25 @@ def main(argv=None):
             seen.append(line)
             print(f"liefi: warning: {line}", file=sys.stderr, flush=True)
 
-    from ._signals import terminate_as_interrupt
+    from ._signals import command_returned, terminate_as_interrupt
 
-    with warnings.catch_warnings(), terminate_as_interrupt():
-        warnings.simplefilter("always")
-        warnings.showwarning = show
-        return _main(parser, argv, seen)
+    try:
+        with warnings.catch_warnings(), terminate_as_interrupt():
+            warnings.simplefilter("always")
+            warnings.showwarning = show
+            return command_returned(_main(parser, argv, seen))
+    except KeyboardInterrupt as exc:  # landed just outside _main's own handler: the same one line
+        return command_returned(_interrupted(exc))
+
+
+def _interrupted(exc):
+    """Report the interrupt ``exc`` in one line on stderr; its exit code (130 SIGINT, 143 SIGTERM)."""
+    from ._signals import cancel_deadline, describe, exit_code
+
+    cancel_deadline()  # raised and reported: no deadline to end the process
+    detail = getattr(exc, "detail", None) or "what finished is kept; see the command's output folder"
+    print(f"liefi: {describe(exc)} ({detail})", file=sys.stderr)
+    return exit_code(exc)
 
 
 def _main(parser, argv, seen=()):
@@ -610,11 +631,7 @@ def _main(parser, argv, seen=()):
         print(f"liefi: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as exc:  # Ctrl-C / SIGINT or SIGTERM: one line, the shell's code (130, 143)
-        from ._signals import describe, exit_code
-
-        detail = getattr(exc, "detail", None) or "what finished is kept; see the command's output folder"
-        print(f"liefi: {describe(exc)} ({detail})", file=sys.stderr)
-        return exit_code(exc)
+        return _interrupted(exc)
     except BrokenPipeError:  # e.g. `liefi list | head`: stop quietly
         import os
 

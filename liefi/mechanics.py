@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .sympy_input import _sympy, coordinate_names, lagrangian_data
+from .sympy_input import _sympy, coordinate_names, lagrangian_data, lambdify_checked
 from .system import NonholonomicSystem
 
 __all__ = ["from_mechanics", "MechanicsSystem", "NonConservativeLoadError", "MinimalSpeedsError"]
@@ -110,9 +110,9 @@ class _Constants:
         return c.reshape(-1, c.shape[-1])[0]
 
 
-def _bound(sympy, args, params, exprs, shape, holder):
+def _bound(sympy, args, params, exprs, shape, holder, what):
     """``(..., n) -> (..., *shape)``: the lambdified ``exprs`` with the constants bound (complex safe)."""
-    f = sympy.lambdify(list(args) + list(params), list(exprs), modules="numpy", cse=True, dummify=True)
+    f = lambdify_checked(sympy, list(args) + list(params), list(exprs), what, cse=True, dummify=True)
     n, P = len(args), len(params)
     shape = tuple(shape)
 
@@ -360,24 +360,27 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
         checks.power_is_minus_dU_dt(power, U_loads, parts["loads"], potential is not None)
 
     X, M, b, U, rows, q = lagrangian_data(sympy, L - U_loads, q, qd, constraints, params)
-    metric = _bound(sympy, X, params, [e for row in M for e in row], (n, n), holder)
-    pot = None if U == 0 else _bound(sympy, X, params, [U], (), holder)
+    metric = _bound(sympy, X, params, [e for row in M for e in row], (n, n), holder, "metric")
+    pot = None if U == 0 else _bound(sympy, X, params, [U], (), holder, "potential")
     b = [sympy.expand(e) for e in b]
-    vp = None if all(e == 0 for e in b) else _bound(sympy, X, params, b, (n,), holder)
+    vp = None if all(e == 0 for e in b) else _bound(sympy, X, params, b, (n,), holder, "vector potential")
     mech = dict(constants=holder, q=q, u=u, qdot_of_u=None, u_of_qdot=None, speed_constraints=None)
     if u:
         Xm, Vm = [sympy.Dummy(f"x{i}") for i in range(n)], [sympy.Dummy(f"v{i}") for i in range(n)]
         plain = {**dict(zip(qd, Vm)), **dict(zip(u, Vm))}
         to_plain = lambda e: e.xreplace(plain).xreplace(dict(zip(q, Xm)))  # noqa: E731
-        mech["u_of_qdot"] = _bound(sympy, Xm + Vm, params, [to_plain(e) for e in u_of_qd], (n,), holder)
-        mech["qdot_of_u"] = _bound(sympy, Xm + Vm, params, [to_plain(e) for e in qd_of_u], (n,), holder)
+        mech["u_of_qdot"] = _bound(sympy, Xm + Vm, params, [to_plain(e) for e in u_of_qd], (n,), holder,
+                                  "kinematic differential equations")
+        mech["qdot_of_u"] = _bound(sympy, Xm + Vm, params, [to_plain(e) for e in qd_of_u], (n,), holder,
+                                  "kinematic differential equations")
         if parts["constraints"]:  # the rows in u: k_nh(q) u = 0
             cu = sympy.Matrix(parts["constraints"]).xreplace(dict(zip(qd, qd_of_u))).jacobian(u)
-            mech["speed_constraints"] = _bound(sympy, Xm, params, [to_plain(e) for e in cu], (cu.rows, n), holder)
+            mech["speed_constraints"] = _bound(sympy, Xm, params, [to_plain(e) for e in cu], (cu.rows, n), holder,
+                                             "constraints")
     space = CotangentBundle(n, names=coordinate_names(sympy, q) if names is None else names)
     if not rows:
         return MechanicsSystem(space, metric, None, pot, vector_potential=vp, mechanics=mech, **kw)
-    A = _bound(sympy, X, params, [e for row in rows for e in row], (len(rows), n), holder)
+    A = _bound(sympy, X, params, [e for row in rows for e in row], (len(rows), n), holder, "constraints")
     return MechanicsSystem.from_velocity_constraints(
         space, metric, A, pot, scaling=scaling, vector_potential=vp, mechanics=mech, **kw
     )
@@ -525,14 +528,14 @@ class _Checks:
         self.params, self.values = (), np.zeros(0)
         self.rng = np.random.default_rng(20261124)
 
-    def residual(self, exprs, scale_exprs):
+    def residual(self, exprs, scale_exprs, what):
         """Largest ``|exprs|`` relative to ``1 + |scale_exprs|`` at four random ``(q, qdot)``."""
         sp = self.sympy
         X = [sp.Dummy() for _ in self.q]
         V = [sp.Dummy() for _ in self.qd]
         plain = lambda e: sp.sympify(e).xreplace(dict(zip(self.qd, V))).xreplace(dict(zip(self.q, X)))  # noqa: E731
-        f = sp.lambdify(X + V + list(self.params), [plain(e) for e in list(exprs) + list(scale_exprs)],
-                        modules="numpy", dummify=True)
+        f = lambdify_checked(sp, X + V + list(self.params), [plain(e) for e in list(exprs) + list(scale_exprs)],
+                             what, dummify=True)
         worst = 0.0
         for _ in range(4):
             x, v = self.rng.uniform(-1, 1, len(X)), self.rng.normal(size=len(V))
@@ -552,7 +555,7 @@ class _Checks:
                 raise ValueError(f"model: the velocity of {P} in {self.frame} is not defined ({exc})") from None
             v_pos = P.pos_from(O).dt(self.frame)
             a, b = v_model.to_matrix(self.frame).xreplace(self.subs_u), v_pos.to_matrix(self.frame)
-            err = self.residual(list(a - b), list(a) + list(b))
+            err = self.residual(list(a - b), list(a) + list(b), f"model: the velocity of {P}")
             if err > 1e-9:
                 raise MinimalSpeedsError(
                     f"model: the velocity of {P} (body {body}) is not the time derivative of its position from "
@@ -564,7 +567,7 @@ class _Checks:
 
     def power_is_minus_dU_dt(self, W, U, loads, given):
         dU = sum((self.sympy.diff(U, qi) * vi for qi, vi in zip(self.q, self.qd)), self.sympy.S.Zero)
-        err = self.residual([W + dU], [W, dU])
+        err = self.residual([W + dU], [W, dU], "potential" if given else "model: the loads")
         if err > 1e-9:
             what = "potential: its -dU/dt is not" if given else "model: liefi's potential gives a -dU/dt that is not"
             raise NonConservativeLoadError(

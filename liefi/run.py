@@ -53,6 +53,9 @@ DEFAULT_SAVE_BYTES = 256 * 2**20
 PROGRESS_SECONDS = 3.0
 #: Refuse an explicit ``scipy:`` method expected to need more steps than this.
 IVP_MAX_STEPS = 1e6
+#: An adaptive ``scipy:`` run of more evaluations of the field than this is stopped early, from the
+#: projection of its pace (:meth:`liefi.schemes.ivp.ScipyMethod.solve`): minutes of Python calls.
+IVP_MAX_EVALUATIONS = 1e6
 #: A run of more steps than this is refused before it starts (``liefi run`` and ``liefi bench``: ``--max-steps``).
 
 

@@ -20,6 +20,8 @@ sympy is an optional dependency (``pip install "liefi[sympy]"``), imported only 
 
 from __future__ import annotations
 
+import keyword
+
 import numpy as np
 
 __all__ = ["from_sympy", "NotQuadraticError", "NonlinearConstraintError"]
@@ -57,13 +59,84 @@ def _symbols(sympy, seq, name):
     return seq
 
 
-def _batch_function(sympy, x_syms, exprs, shape):
+def plain_identifier(name):
+    """True if ``name`` may appear in generated code as itself: an ASCII Python identifier, not a
+    keyword, not starting with ``__`` (``__import__``, ``__builtins__``)."""
+    return isinstance(name, str) and name.isascii() and name.isidentifier() and not keyword.iskeyword(name) \
+        and not name.startswith("__")
+
+
+def checked_names(sympy, expr, what, known=()):
+    """``expr`` with names liefi may print into generated code, or a ``ValueError`` naming the first that it may not.
+
+    ``sympy.lambdify`` writes the name of every symbol and function into the Python source it
+    executes, so a name from outside data (``sympy.Function("__import__('os').system('...')")``,
+    a symbol named ``"x; ..."``) would run as code.  The ``known`` symbols (the arguments, which
+    liefi replaces by names of its own) pass; an undefined function (``sympy.Function("f")(x)``)
+    is refused, since it has no value and its name would be code; a bound variable (of a ``Sum``)
+    whose name is not a :func:`plain_identifier` is renamed to a liefi ``Dummy``; every other
+    name (of a function class, a ``MatrixSymbol`` ...) must be a :func:`plain_identifier`.
+    """
+    from sympy.core.function import AppliedUndef
+
+    known, rename = set(known), {}
+    for node in sympy.preorder_traversal(expr):
+        if isinstance(node, sympy.Symbol):
+            if node not in known and not plain_identifier(node.name):
+                rename.setdefault(node, sympy.Dummy(f"s{len(rename)}"))
+            continue
+        if isinstance(node, AppliedUndef):
+            raise ValueError(
+                f"{what}: contains the undefined function {_shown(node.func.__name__)} (a sympy.Function without "
+                "an expression): liefi cannot evaluate it and never turns a name into code; replace it by an "
+                "expression of the coordinates and parameters (expr.subs(f(x), ...)) before building the system"
+            )
+        names = [node.func.__name__] if isinstance(node, sympy.Function) else []
+        name = getattr(node, "name", None)
+        names += [str(name)] if isinstance(name, (str, sympy.core.symbol.Str)) else []
+        for nm in names:
+            if not plain_identifier(nm):
+                raise ValueError(
+                    f"{what}: contains a {type(node).__name__} named {_shown(nm)}, not a plain Python identifier; "
+                    "liefi generates code only from names it has checked: rename it (letters, digits, '_')"
+                )
+    return expr.xreplace(rename) if rename else expr
+
+
+def _shown(name, limit=80):
+    """``repr(name)``, cut to ``limit`` characters (a name from outside data can be long)."""
+    r = repr(str(name))
+    return r if len(r) <= limit else r[: limit - 4] + "...'"
+
+
+def lambdify_checked(sympy, args, exprs, what, **kw):
+    """``sympy.lambdify(args, exprs, modules="numpy", **kw)`` after :func:`checked_names` on every expression.
+
+    The expressions may depend on ``args`` only (a ``ValueError`` names any other free symbol);
+    an argument whose name is not a :func:`plain_identifier` needs ``dummify=True`` (lambdify
+    then prints a name of its own).  The one path from sympy expressions to generated code.
+    """
+    args = list(args)
+    exprs = [sympy.sympify(e, strict=True) for e in exprs]
+    if not kw.get("dummify") and not all(plain_identifier(a.name) for a in args):
+        raise ValueError(f"{what}: arguments {[_shown(a.name) for a in args]} need dummify=True")  # pragma: no cover - liefi's own call
+    out = []
+    for e in exprs:
+        extra = e.free_symbols - set(args)
+        if extra:
+            raise ValueError(f"{what}: depends on {sorted(_shown(s.name) for s in extra)}, which liefi has no value "
+                             "for (give them as constants or substitute numbers)")
+        out.append(checked_names(sympy, e, what, args))
+    return sympy.lambdify(args, out, modules="numpy", **kw)
+
+
+def _batch_function(sympy, x_syms, exprs, shape, what):
     """``(..., n) -> (..., *shape)`` numpy function of the sympy expressions (complex safe); a
     constant array if none depends on ``x``."""
     flat = [sympy.sympify(e) for e in exprs]
     if not any(e.free_symbols & set(x_syms) for e in flat):
         return np.array([complex(e).real for e in flat], float).reshape(shape)
-    f = sympy.lambdify(x_syms, flat, modules="numpy", cse=True)
+    f = lambdify_checked(sympy, x_syms, flat, what, cse=True)
     n = len(x_syms)
 
     def fun(x):
@@ -124,17 +197,17 @@ def from_sympy(L, q, qd, constraints=(), names=None, *, scaling="unit", **kw):
 
     X, M, b, U, rows, q = lagrangian_data(sympy, _scalar_lagrangian(sympy, L), q, qd, constraints)
     n = len(q)
-    metric = _batch_function(sympy, X, [e for row in M for e in row], (n, n))
-    potential = None if sympy.simplify(U) == 0 else _batch_function(sympy, X, [U], ())
+    metric = _batch_function(sympy, X, [e for row in M for e in row], (n, n), "metric")
+    potential = None if sympy.simplify(U) == 0 else _batch_function(sympy, X, [U], (), "potential")
     vector_potential = None
     if any(sympy.simplify(e) != 0 for e in b):
-        vector_potential = _batch_function(sympy, X, b, (n,))
+        vector_potential = _batch_function(sympy, X, b, (n,), "vector potential")
     if names is None:
         names = coordinate_names(sympy, q)
     space = CotangentBundle(n, names=names)
     if not rows:
         return NonholonomicSystem(space, metric, None, potential, vector_potential=vector_potential, **kw)
-    A = _batch_function(sympy, X, [e for row in rows for e in row], (len(rows), n))
+    A = _batch_function(sympy, X, [e for row in rows for e in row], (len(rows), n), "constraints")
     return NonholonomicSystem.from_velocity_constraints(
         space, metric, A, potential, scaling=scaling, vector_potential=vector_potential, **kw
     )
@@ -198,7 +271,7 @@ def lagrangian_data(sympy, L, q, qd, constraints, parameters=()):
                 "runtime constants: liefi.from_mechanics(LagrangesMethod(L, q, nonhol_coneqs=...), "
                 "constants={...})"
             )
-        return e
+        return checked_names(sympy, e, what, set(X) | set(V) | set(parameters))
 
     Lp = plain(L, "L")
     try:

@@ -33,37 +33,60 @@ class KernelLoadError(RuntimeError):
 
 @contextmanager
 def interrupts_held():
-    """Hold ``SIGINT`` (Ctrl-C) inside the block and raise ``KeyboardInterrupt`` when it ends.
+    """Hold ``SIGINT`` (Ctrl-C), and ``SIGTERM`` where liefi raises it, inside the block; raise when it ends.
 
-    Yields a list that holds the signals received.  The first Ctrl-C is
+    Yields a list that holds the signals received.  The first signal is
     recorded, not raised where it lands (it could land in a callback from
     compiled code, where Python drops it); a second one raises at once.  Either
-    way a ``KeyboardInterrupt`` leaves the block -- also when the block raised
-    something else meanwhile.  Only in the main thread and with Python's own
-    handler installed; elsewhere the block runs unchanged.
+    way an interrupt leaves the block (:class:`liefi._signals.Terminated` for
+    ``SIGTERM``) -- also when the block raised something else meanwhile.  A held
+    signal also sets a deadline (:func:`liefi._signals.end_within_grace`, in the
+    ``liefi`` process only): a compile that goes on for longer than
+    :data:`liefi._signals.GRACE` seconds is not waited for, the process ends with
+    the one line and ``128 + signum``.  Only
+    in the main thread and with Python's own ``SIGINT`` handler installed;
+    elsewhere the block runs unchanged.
     """
+    from .. import _signals
+
     if threading.current_thread() is not threading.main_thread() \
             or signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
         yield []
         return
+    term = getattr(signal.getsignal(signal.SIGTERM), "liefi", False)
     got = []
+
+    def interrupt():
+        s = got[0] if got else signal.SIGINT
+        return _signals.Terminated(s) if s != signal.SIGINT else KeyboardInterrupt()
 
     def hold(signum, frame):
         got.append(signum)
         if len(got) > 1:
-            raise KeyboardInterrupt
+            raise interrupt()
+        if signum != signal.SIGINT:
+            _signals._received.append(signum)  # as if raised: a second SIGTERM in the clean-up is ignored
+        _signals.end_within_grace(signum)
+
+    def restore():
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        if term:
+            signal.signal(signal.SIGTERM, previous_term)
 
     signal.signal(signal.SIGINT, hold)
+    previous_term = signal.signal(signal.SIGTERM, hold) if term else None
     try:
         yield got
     except BaseException as exc:
-        signal.signal(signal.SIGINT, signal.default_int_handler)
+        restore()
         if got and not isinstance(exc, KeyboardInterrupt):
-            raise KeyboardInterrupt from exc
+            _signals.cancel_deadline()
+            raise interrupt() from exc
         raise
-    signal.signal(signal.SIGINT, signal.default_int_handler)
+    restore()
     if got:
-        raise KeyboardInterrupt
+        _signals.cancel_deadline()
+        raise interrupt()
 
 
 class _Overhead:

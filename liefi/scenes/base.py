@@ -496,11 +496,15 @@ class Scene:
 
                 check_result_drift(fi, t, Y, names, scheme, dt)  # e.g. DLA at a step that loses the motion
         elif str(scheme).lower().startswith("scipy:"):
+            from ..run import IVP_MAX_EVALUATIONS
             from ..schemes import registry as _schemes
+            from ..tolerance import check_tolerance
 
             ivp = _schemes.get(scheme, kind="scipy")
-            method = ivp.method
-            if getattr(fi, "gains_mode", "fixed") == "auto":
+            rtol, atol = 1e-9 if rtol is None else rtol, 1e-12 if atol is None else atol
+            check_tolerance(rtol, atol)  # before any work: scipy would refuse them after the set-up
+            gains_mode = getattr(fi, "gains_mode", "fixed")
+            if gains_mode == "auto":
                 from ..gains import auto_gains
 
                 fi = fi.with_gains(auto_gains(fi, dt, "euler"))
@@ -509,13 +513,17 @@ class Scene:
 
                 check_ivp(fi, ivp, T)  # an explicit method on a stiff field would run for minutes
             t_eval = np.linspace(0.0, T, min(n_steps, max_saved) + 1)
-            sol, cpu = ivp.solve(fi.fun, T, fi.y0, t_eval=t_eval, rtol=1e-9 if rtol is None else rtol,
-                                 atol=1e-12 if atol is None else atol)
+            sol, cpu = ivp.solve(fi.fun, T, fi.y0, t_eval=t_eval, rtol=rtol, atol=atol,
+                                 max_evaluations=IVP_MAX_EVALUATIONS)
             if not sol.success:
-                raise RuntimeError(f"solve_ivp({method}) failed on {self.name!r}: {sol.message}")
+                raise RuntimeError(f"solve_ivp({ivp.method}) failed on {self.name!r}: {sol.message}")
             if not np.all(np.isfinite(sol.y)):
-                raise FloatingPointError(f"solve_ivp({method}) returned non-finite values on {self.name!r}")
+                raise FloatingPointError(f"solve_ivp({ivp.method}) returned non-finite values on {self.name!r}")
             t, Y, names, steps, nfev = sol.t, sol.y, fi.names, int(sol.t.size), int(sol.nfev)
+            method = {"scheme": ivp.name, "dt": None, "gains": "auto" if gains_mode == "auto" else "fixed",
+                      "backend": "scipy", "rtol": float(rtol), "atol": np.asarray(atol, float).tolist(),
+                      "why": f"scheme {ivp.name} as asked (scipy solve_ivp, its own adaptive steps for rtol "
+                             f"{float(rtol):g}); backend scipy"}
         else:
             from ..run import run_feedback
 
