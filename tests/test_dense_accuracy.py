@@ -83,9 +83,9 @@ def test_knife_edge_output_between_steps_meets_rtol_and_keeps_the_invariants(kni
 
 @pytest.mark.slow
 def test_knife_edge_table_long_horizon(knife):
-    """The issue's table on the horizon 20, on the default backend."""
+    """The issue's table on the scene's horizon 200, on the default backend."""
     sc, fi = knife
-    check_table(knife_table(sc, fi, 20.0, (1e-6, 1e-8, 1e-10), None))
+    check_table(knife_table(sc, fi, 200.0, (1e-6, 1e-8, 1e-10), None))
 
 
 def test_event_state_is_a_partial_step_state(knife):
