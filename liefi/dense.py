@@ -265,7 +265,7 @@ class EventTracker:
         self.t_last, self.y_last, self.k_last = t0, y0, k0
 
     def advance(self, ts, Y, steps):
-        """New saved times ``ts`` (``(m,)``), states ``Y`` (``(n, m)``) and grid indices ``steps`` after the last ones."""
+        """New saved times ``ts`` (``(m,)``), states ``Y`` (``(n, m)``), grid indices ``steps``, after the last."""
         for j in range(ts.size):
             t1, y1 = float(ts[j]), Y[..., j]
             g1 = [_value(ev, i, t1, y1) for i, ev in enumerate(self.events)]

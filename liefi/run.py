@@ -291,8 +291,8 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
             last_note = f"dt longer than the span: one step of the span, {dt:.6g}"
         elif h_last:
             t_end = t_start + n_full * float(dt)  # the grid's end; a partial step goes on to t_final
-            last_note = (f"dt does not divide the span: {n_full} step{'s' if n_full > 1 else ''} of dt, then a last step shortened to "
-                         f"{h_last:.6g} to end at t_final")
+            last_note = (f"dt does not divide the span: {n_full} step{'s' if n_full > 1 else ''} of dt, then a "
+                         f"last step shortened to {h_last:.6g} to end at t_final")
     sch = _fixed_step_scheme(scheme if scheme_given else _tol.DEFAULT_SCHEME)
     backend = _tol.default_backend() if backend is None else backend
     # the one policy of the run: its step, its gains and their checks
