@@ -78,7 +78,7 @@ def test_knife_edge_output_between_steps_meets_rtol_and_keeps_the_invariants(kni
     sc, fi = knife
     rows = knife_table(sc, fi, 2.0, (1e-6, 1e-8, 1e-10), "numpy")
     check_table(rows)
-    assert all(r["dt"] > 0.2 and r["n_events"] >= 1 for r in rows.values())  # long steps: a cubic between them would miss by far
+    assert all(r["dt"] > 0.2 and r["n_events"] >= 1 for r in rows.values())  # long steps: a cubic would miss
 
 
 @pytest.mark.slow
