@@ -172,6 +172,9 @@ def report(result, file=None):
         f"  scheme {result.scheme}, dt {result.dt:g}, t in [0, {result.t_final:g}], {result.steps} steps, "
         f"{result.rhs_evaluations} field evaluations\n"
     )
+    last = (getattr(result, "method", None) or {}).get("last_step")
+    if last is not None:  # a dt that does not divide t_final
+        w(f"  the last step shortened to {last:g} to end at t_final\n")
     w(f"  CPU time {result.cpu_seconds:.3f} s\n")
     if result.gains and result.scheme != "dla":
         dropped = {d["name"] for d in getattr(result, "dropped", ())}
@@ -476,7 +479,8 @@ def build_parser():
     )
     pr.add_argument("scene", metavar="SCENE", help="scene name (see 'liefi list')")
     pr.add_argument("--dt", type=_positive_float("dt"), default=None,
-                    help="step (default: chosen for --rtol; with --paper the paper's)")
+                    help="step (default: chosen for --rtol; with --paper the paper's); one that does not divide "
+                         "--t-final ends with a last step shortened to reach it (the JSON's method says so)")
     pr.add_argument("--rtol", type=_positive_float("rtol"), default=None,
                     help="relative tolerance of the state: the step is chosen for it (default 1e-6; "
                          "with scipy:METHOD its rtol)")

@@ -1,31 +1,53 @@
-"""Dense output and events of a fixed-step run, in the shape of ``scipy.integrate.solve_ivp``.
+r"""Dense output and events of a fixed-step run, in the shape of ``scipy.integrate.solve_ivp``.
 
 A fixed-step run of a feedback integrator (:func:`liefi.run.run_feedback`)
-keeps its states ``y_k`` at the saved times ``t_k`` (every step by default).
-Between two of them the state is the cubic Hermite interpolant of the two
-states and of the field at them, ``f_k = f(y_k)``:
+steps on the grid ``t_k = t_0 + k dt`` with the one-step map ``Phi_dt`` of
+its scheme (an explicit tableau on ``X - A grad V``; a split scheme's tableau
+on ``X`` followed by its feedback step, :mod:`liefi.schemes.split`).  The
+state at a time ``t`` between two steps is **a partial step of the same
+map** from the last step point before it:
 
-.. math:: y(t_k + s h) = (2s^3 - 3s^2 + 1)\\, y_k + (s^3 - 2s^2 + s)\\, h f_k
-          + (3s^2 - 2s^3)\\, y_{k+1} + (s^3 - s^2)\\, h f_{k+1}, \\quad 0 \\le s \\le 1,
+.. math:: y(t) = \Phi_{h}(y_k), \qquad t_k \le t < t_{k+1}, \quad h = t - t_k \in [0, dt).
 
-``h = t_{k+1} - t_k`` (Hairer, Norsett & Wanner, *Solving Ordinary Differential
-Equations I*, Sec. II.6).  It is continuous with a continuous derivative, it
-passes through every saved state exactly, and it is of order 3: where the
-nodes and slopes are exact its error is ``O(h^4)``
-(``h^4 max|y''''| / 384``).  The run's own error, ``O(dt^p)`` for a scheme of
-order ``p``, adds to it; with states saved every ``save_every`` steps the
-interpolation error grows as ``(save_every dt)^4``.  ``f`` is the field the
-scheme's tableau integrates: ``X - A grad V`` for an explicit tableau, the
-extended field ``X`` for a split scheme (whose feedback step only removes the
-rounding-level drift from the invariant set, where the two fields agree).
+Why this and not an interpolant.  ``Phi_h`` is a step of the scheme with a
+shorter step, so its local error is ``O(h^{p+1}) <= O(dt^{p+1})`` and the
+state at ``t`` has the global error of the run at ``t_k`` plus at most one
+local error: the run's order ``p`` and its tolerance, whatever ``p``.  And it
+is the scheme's own map, feedback step included, so it keeps the invariants
+as the steps do: a state on the invariant set moves off it by the scheme's
+local error in ``I_j`` (``O(h^{p+1})``), which the feedback term removes in
+the same step -- a split scheme's feedback step divides it by
+``1 + (h/dt) z``, ``z = dt k |grad I_j|^2`` the step's rate, so the residual
+is at most ``(h/dt)^p`` times a full step's.  A polynomial interpolant
+(the cubic Hermite one, or a continuous extension of the tableau) keeps
+neither: a cubic between the steps of an eighth-order run has an error
+``O(dt^4)``, orders of magnitude above the steps', and no polynomial in
+``t`` keeps a nonlinear constraint such as the knife edge's
+``J_1 = (p_x sin phi - p_y cos phi)/sqrt(m)``.  The cost is one step per
+output point, vectorised over all the points (a batch of states stepped with
+one step each: ``h`` is an array over the batch); the run itself is not
+touched, and a run without ``t_eval``, ``dense_output`` or ``events`` pays
+nothing.  With states saved every ``save_every`` steps, the step points
+between two saved states are first re-made by full steps of the same map
+(at most ``save_every - 1`` of them).  The partial steps use the numpy map
+also after a compiled run: the two backends' steps are the same formulas and
+agree to rounding (:mod:`liefi.engine`), and the numpy map is the one that
+steps a batch of different ``h`` at once.  The gains are those in effect at
+the end of the run (with ``adaptive`` gains they may differ from a
+segment's; they act only on the drift, which is at rounding either way).
+
+The same primitive gives a run whose ``dt`` does not divide the span its last,
+shortened step (:func:`liefi.run.run_feedback`), and the state at an event:
+a sign change of ``event(t, y)`` between two saved states is located by
+Brent's method (:func:`scipy.optimize.brentq`, to ``4 eps |t|``) on
+``event(t, Phi_{t - t_k}(y_k))``, so the event's state is a partial-step
+state of the run, not an interpolated one.
 
 :class:`DenseOutput` is ``solution.sol`` (``dense_output=True``), called as
-scipy's ``OdeSolution``; ``t_eval=`` is the same interpolant at given times.
+scipy's ``OdeSolution``; ``t_eval=`` is the same map at given times.
 Events are scipy's: functions ``event(t, y)`` with optional attributes
 ``terminal`` (bool, or the number of occurrences after which to stop) and
-``direction`` (``> 0``: only rising zero crossings; ``< 0``: only falling ones);
-a sign change between two saved states is located by Brent's method on the
-interpolant (:func:`scipy.optimize.brentq`, to ``4 eps |t|``).
+``direction`` (``> 0``: only rising zero crossings; ``< 0``: only falling ones).
 """
 
 from __future__ import annotations
@@ -39,45 +61,119 @@ import numpy as np
 #: run stops (a compiled segment costs a call into the kernel, a numpy one nothing).
 EVENT_SEGMENT_STEPS = {"numpy": 64, "compiled": 1024}
 
+#: Marks a saved state that is not on the step grid (a shortened last step, an event's state).
+OFF_GRID = -1
 
-def slopes(fi, scheme_kind, Y):
-    """The field at the saved states ``Y`` (``(..., n, n_t)``), the slopes of the interpolant (module docstring)."""
-    f = fi.unforced_vector_field if scheme_kind == "split" else fi.vector_field
+
+def partial_step(fi, sch, y, h):
+    """One step of the scheme ``sch`` of the integrator ``fi``, of size ``h`` per state.
+
+    ``y`` is ``(m, ..., n)`` (``m`` states, each a state or a batch of them)
+    and ``h`` is ``(m,)``, ``h >= 0``: row ``i`` is stepped by ``h[i]`` with
+    the run's one-step map (an explicit tableau on ``fi.vector_field``; a
+    split scheme's tableau on ``X``, then its feedback step,
+    :func:`liefi.schemes.split.feedback_step`).  A row with ``h = 0`` is
+    returned unchanged (bit for bit).  Module docstring: why this is the
+    dense output.
+    """
+    from .schemes.split import feedback_step
+
+    y = np.asarray(y, dtype=float)
+    h = np.asarray(h, dtype=float)
+    hb = h.reshape(h.shape + (1,) * (y.ndim - h.ndim))  # against (m, ..., n)
     with np.errstate(all="ignore"):
-        return np.moveaxis(f(np.moveaxis(Y, -1, 0)), 0, -1)
+        if sch.kind == "split":
+            out = feedback_step(fi, sch.explicit.step(fi.unforced_vector_field, y, hb), hb[..., 0])
+        else:
+            out = sch.step(fi.vector_field, y, hb)
+    return np.where(hb == 0, y, out)
+
+
+class StepMap:
+    """A run's one-step map on its grid ``t_k = t_start + k dt``, ``k = 0..n_full``.
+
+    ``fi`` the integrator the run stepped (its gains in effect), ``sch`` its
+    scheme.  :meth:`states` gives the states at any times from states on the
+    grid: full steps to the last grid point ``t_k <= t``, then the partial
+    step ``Phi_{t - t_k}`` (module docstring).
+    """
+
+    def __init__(self, fi, sch, t_start, dt, n_full):
+        self.fi, self.sch = fi, sch
+        self.t_start, self.dt, self.n_full = float(t_start), float(dt), int(n_full)
+        self.steps = 0  # steps (full or partial) taken, per state: for rhs_evaluations
+
+    def time(self, k):
+        """The grid's times ``t_start + k dt``, computed as the run computes them."""
+        return self.t_start + self.dt * np.asarray(k, dtype=float)
+
+    def index(self, t):
+        """The largest ``k <= n_full`` with ``t_k <= t`` (``0`` before the start)."""
+        t = np.asarray(t, dtype=float)
+        with np.errstate(invalid="ignore"):
+            k = np.clip(np.floor((t - self.t_start) / self.dt), 0, self.n_full).astype(np.int64)
+        k = k - ((self.time(k) > t) & (k > 0))
+        return k + ((k < self.n_full) & (self.time(k + 1) <= t))
+
+    def step(self, y, h):
+        """:func:`partial_step` of this run; counts the steps."""
+        self.steps += int(np.size(h))
+        return partial_step(self.fi, self.sch, y, h)
+
+    def states(self, y, k0, t):
+        """The states at times ``t`` (``(m,)``) from grid states ``y`` (``(m, ..., n)``) at steps ``k0`` (``(m,)``).
+
+        ``t >= t_{k0}``; ``k0`` full steps to the last grid point before ``t``,
+        then one partial step.
+        """
+        t = np.asarray(t, dtype=float)
+        k0 = np.asarray(k0, dtype=np.int64)
+        k = np.maximum(self.index(t), k0)
+        y = np.array(y, dtype=float)
+        full = k - k0
+        for r in range(int(full.max(initial=0))):  # re-make the steps between saved states
+            sel = full > r
+            y[sel] = self.step(y[sel], np.full(int(sel.sum()), self.dt))
+        return self.step(y, np.maximum(t - self.time(k), 0.0))
 
 
 class DenseOutput:
-    """The cubic Hermite interpolant of a run's saved states: ``sol(t)`` as scipy's ``OdeSolution``.
+    """A run's state at any time of its interval, ``sol(t)`` as scipy's ``OdeSolution``.
 
-    Calling it with a scalar ``t`` gives the state ``(..., n)``; with an array
-    of times ``(m,)`` it gives ``(..., n, m)``.  Times outside
-    ``[t_min, t_max]`` are refused (a cubic extrapolated past the run is not
-    the run).  Order 3: see the module docstring.
+    A partial step of the run's scheme from the last step point before ``t``
+    (module docstring): of the run's order, and it keeps the invariants as the
+    steps do.  Calling it with a scalar ``t`` gives the state ``(..., n)``; with an
+    array of times ``(m,)`` it gives ``(..., n, m)``, all stepped at once.  A
+    saved time gives its saved state exactly.  Times outside
+    ``[t_min, t_max]`` are refused (a step past the run is not the run).
 
     Parameters
     ----------
+    stepper : StepMap
+        The run's one-step map and grid.
     ts : ndarray (n_t,)
         Saved times, increasing.
     Y : ndarray (..., n, n_t)
         Saved states.
-    F : ndarray (..., n, n_t)
-        The field at them (:func:`slopes`).
+    steps : ndarray (n_t,)
+        The grid index of each saved state; :data:`OFF_GRID` for a state off
+        the grid (a shortened last step, a terminal event's).
     """
 
-    order = 3
-
-    def __init__(self, ts, Y, F):
-        from scipy.interpolate import CubicHermiteSpline
-
+    def __init__(self, stepper, ts, Y, steps):
+        self.stepper = stepper
         self.ts = np.asarray(ts, dtype=float)
+        self.Y = np.asarray(Y, dtype=float)
         self.t_min, self.t_max = float(self.ts[0]), float(self.ts[-1])
         self.n_segments = self.ts.size - 1
-        if self.ts.size == 1:  # a run of length 0 (a terminal event at the start)
-            self._y0 = np.asarray(Y)[..., 0]
-            self._spline = None
-        else:
-            self._spline = CubicHermiteSpline(self.ts, Y, F, axis=-1, extrapolate=True)
+        steps = np.asarray(steps, dtype=np.int64)
+        on = steps != OFF_GRID
+        self._on_t, self._on_i, self._on_k = self.ts[on], np.nonzero(on)[0], steps[on]
+
+    @property
+    def order(self):
+        """The order of the run's scheme: the dense output has the steps' order."""
+        return self.stepper.sch.order
 
     def __call__(self, t):
         t = np.asarray(t, dtype=float)
@@ -91,13 +187,22 @@ class DenseOutput:
                 f"t: the dense output covers [{self.t_min:g}, {self.t_max:g}] (the run's interval), "
                 f"got times in [{np.min(t):g}, {np.max(t):g}]"
             )
-        if self._spline is None:
-            y = self._y0
-            return y if t.ndim == 0 else np.repeat(y[..., None], t.size, -1)
-        return self._spline(np.clip(t, self.t_min, self.t_max))
+        tt = np.clip(np.atleast_1d(t), self.t_min, self.t_max)
+        out = np.empty(self.Y.shape[:-1] + (tt.size,))
+        j = np.minimum(np.searchsorted(self.ts, tt), self.ts.size - 1)
+        saved = self.ts[j] == tt
+        out[..., saved] = self.Y[..., j[saved]]
+        rest = np.nonzero(~saved)[0]
+        if rest.size:
+            i = np.searchsorted(self._on_t, tt[rest], side="right") - 1  # the last grid state before t
+            y0 = np.moveaxis(self.Y[..., self._on_i[i]], -1, 0)
+            y = self.stepper.states(y0, self._on_k[i], tt[rest])
+            out[..., rest] = np.moveaxis(y, 0, -1)
+        return out[..., 0] if t.ndim == 0 else out
 
     def __repr__(self):
-        return f"DenseOutput(t in [{self.t_min:g}, {self.t_max:g}], {self.n_segments} cubic Hermite segments)"
+        return (f"DenseOutput(t in [{self.t_min:g}, {self.t_max:g}], {self.n_segments} segments, "
+                f"partial steps of {self.stepper.sch.name})")
 
 
 def check_events(events):
@@ -135,16 +240,17 @@ def _value(ev, i, t, y):
 class EventTracker:
     """Watches the events along a run, one saved interval after another.
 
-    ``fi`` and ``kind`` give the slopes of the interpolant (:func:`slopes`).
-    :meth:`advance` takes the newly saved states; it records every zero
-    crossing (``t_events``, ``y_events``) and returns ``(t, y, j)``: the first
-    terminal event reached, with ``j`` the index of the saved interval it lies
-    in, or ``None``.
+    ``stepper`` (:class:`StepMap`) is the run's one-step map: a zero is
+    located on the partial steps from the interval's start (module
+    docstring).  :meth:`advance` takes the newly saved states; it records
+    every zero crossing (``t_events``, ``y_events``) and returns ``(t, y, j)``:
+    the first terminal event reached, with ``j`` the index of the saved
+    interval it lies in, or ``None``.
     """
 
-    def __init__(self, events, fi, kind):
+    def __init__(self, events, stepper):
         self.events = events
-        self.fi, self.kind = fi, kind
+        self.stepper = stepper
         self.direction = [float(getattr(ev, "direction", 0)) for ev in events]
         term = [getattr(ev, "terminal", False) for ev in events]
         self.stop_after = [int(v) if not isinstance(v, (bool, np.bool_)) else (1 if v else 0) for v in term]
@@ -152,15 +258,14 @@ class EventTracker:
         self.t_events = [[] for _ in events]
         self.y_events = [[] for _ in events]
         self.g = None
-        self.t_last = self.y_last = None
-        self.nodes = 0
+        self.t_last = self.y_last = self.k_last = None
 
-    def start(self, t0, y0):
+    def start(self, t0, y0, k0=0):
         self.g = [_value(ev, i, t0, y0) for i, ev in enumerate(self.events)]
-        self.t_last, self.y_last = t0, y0
+        self.t_last, self.y_last, self.k_last = t0, y0, k0
 
-    def advance(self, ts, Y):
-        """New saved times ``ts`` (``(m,)``) and states ``Y`` (``(n, m)``) after the last ones."""
+    def advance(self, ts, Y, steps):
+        """New saved times ``ts`` (``(m,)``), states ``Y`` (``(n, m)``), grid indices ``steps``, after the last."""
         for j in range(ts.size):
             t1, y1 = float(ts[j]), Y[..., j]
             g1 = [_value(ev, i, t1, y1) for i, ev in enumerate(self.events)]
@@ -175,10 +280,11 @@ class EventTracker:
             if found:
                 from scipy.optimize import brentq
 
-                t0, y0 = self.t_last, self.y_last
-                pair = np.stack([y0, y1], -1)
-                dense = DenseOutput(np.array([t0, t1]), pair, slopes(self.fi, self.kind, pair))
-                self.nodes += 2
+                t0, y0, k0 = self.t_last, self.y_last, self.k_last
+
+                def state(s):  # the run's partial step from the interval's start
+                    return self.stepper.states(y0[None], [k0], [s])[0]
+
                 hits = []
                 for i in found:
                     ev = self.events[i]
@@ -188,18 +294,18 @@ class EventTracker:
                     elif b == 0:
                         root = t1
                     else:
-                        root = brentq(lambda s, ev=ev, i=i: _value(ev, i, s, dense(s)), t0, t1,
+                        root = brentq(lambda s, ev=ev, i=i: _value(ev, i, s, state(s)), t0, t1,
                                       xtol=4 * np.finfo(float).eps * max(abs(t1), 1.0), rtol=4 * np.finfo(float).eps)
                     hits.append((root, i))
                 hits.sort()
                 for root, i in hits:
-                    ys = y1 if root == t1 else y0 if root == t0 else dense(root)  # a saved state exactly
+                    ys = y1 if root == t1 else y0 if root == t0 else state(root)  # a saved state exactly
                     self.t_events[i].append(root)
                     self.y_events[i].append(ys)
                     self.count[i] += 1
                     if self.stop_after[i] and self.count[i] >= self.stop_after[i]:
                         return root, ys, j
-            self.g, self.t_last, self.y_last = g1, t1, y1
+            self.g, self.t_last, self.y_last, self.k_last = g1, t1, y1, int(steps[j])
         return None
 
     def results(self):

@@ -684,15 +684,18 @@ class FeedbackIntegrator:
         by default), at the step :func:`liefi.tolerance.choose_step` picks for
         ``rtol`` (default ``1e-6``) and ``atol`` (default 0: relative to each
         component's size) when ``dt`` is not given; ``solution.method`` says
-        which method ran and why.  A given ``dt`` must divide ``t_final - t0``
-        (the message gives the nearest one that does).  The old form
+        which method ran and why.  A given ``dt`` that does not divide
+        ``t_final - t0`` runs whole steps and a last step shortened to end at
+        ``t_final``, as ``solve_ivp`` does; ``solution.method["last_step"]`` and
+        ``solution.method["why"]`` say so.  The old form
         ``run(dt, t_final, scheme)`` still works and warns
         (:class:`DeprecationWarning`).
 
-        ``t_eval``, ``dense_output`` and ``events`` as in ``solve_ivp``, on the
-        cubic Hermite interpolant of the saved states (:mod:`liefi.dense`:
-        order 3, root finding for events, ``terminal`` ends the run with
-        ``status=1``); events need a single trajectory.
+        ``t_eval``, ``dense_output`` and ``events`` as in ``solve_ivp``: the
+        state between two steps is a partial step of the scheme from the last
+        step before it (:mod:`liefi.dense`: of the scheme's order, the
+        invariants kept as at the steps; events located on these partial steps,
+        ``terminal`` ends the run with ``status=1``); events need a single trajectory.
 
         ``save_every``: keep every this many steps; default ``None``:
         every step while the output stays under 256 MiB, else capped there.

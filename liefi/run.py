@@ -3,8 +3,10 @@
 One job: given a :class:`~liefi.FeedbackIntegrator`, a step, a horizon and a
 scheme of the registry (:mod:`liefi.schemes.registry`), it
 
-1. validates the arguments once (the policy's step, :func:`liefi.schemes.steps_for`: a ``dt``
-   that does not divide ``t_final`` is refused with the nearest one that does);
+1. validates the arguments once (the policy's step, :func:`liefi.schemes.steps_for`); a given
+   ``dt`` that does not divide the span runs whole steps and then one last step shortened to
+   end at ``t_final`` (:func:`liefi.schemes.core.step_grid`, a partial step of
+   :mod:`liefi.dense`), reported in ``solution.method`` (``"last_step"``, and in ``"why"``);
 2. plans the run (:class:`RunPlan`): the number of steps, the memory of the
    saved output -- refused when it would not fit in memory, and capped by
    default (``save_every=None`` keeps at most :data:`DEFAULT_SAVE_BYTES`) --
@@ -22,8 +24,9 @@ scheme of the registry (:mod:`liefi.schemes.registry`), it
    separately on the :class:`~liefi.schemes.Solution`;
 6. in the shape of ``solve_ivp``: over ``t_span`` (``t_final`` or
    ``(t0, t_final)``), watching ``events`` after every segment (a terminal one
-   ends the run), with ``t_eval`` and ``dense_output`` read from the cubic
-   Hermite interpolant of :mod:`liefi.dense`.  :func:`legacy_call` understands
+   ends the run), with ``t_eval``, ``dense_output`` and the events' states
+   given by partial steps of the run's scheme from the last step before them
+   (:mod:`liefi.dense`: the steps' order, and the invariants kept as at the steps).  :func:`legacy_call` understands
    the old ``run(dt, t_final, scheme)``.
 
 :func:`check_ivp` is the guard of the adaptive ``scipy:METHOD`` path and
@@ -43,6 +46,7 @@ import numpy as np
 from ._data import as_state
 from ._progress import Progress, stderr_is_terminal
 from .schemes import IntegrationError, Solution, integrate, positive_int
+from .schemes.core import step_grid
 from .schemes import registry as _registry
 from .schemes import split as _split
 from .tolerance import MAX_RUN_STEPS  # a run of more steps is refused before it starts (``--max-steps``)
@@ -251,13 +255,15 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
     ``drop_exact`` (default True): leave out of ``V`` the invariants the scheme
     keeps exactly (:func:`liefi.gains.exact_drops`); ``solution.dropped`` lists them
     (``{"name", "reason"}``).  ``t_eval``, ``events`` and ``dense_output`` as
-    ``solve_ivp``'s, on the cubic Hermite interpolant of :mod:`liefi.dense`.
+    ``solve_ivp``'s, by partial steps of the scheme (:mod:`liefi.dense`).
     ``errors``: ``"raise"`` (default) or ``"return"``: a failed run returns the
     states up to the failure with ``success=False``, ``status=-1``.
     ``scheme=None``: :data:`liefi.tolerance.DEFAULT_SCHEME`; ``backend=None``:
     compiled when numba is installed, else numpy; ``dt=None``: the step of
     :func:`liefi.tolerance.choose_step` for ``rtol`` (default
-    :data:`liefi.tolerance.DEFAULT_RTOL`) and ``atol``.  ``resolution_limit``: the largest ``dt``
+    :data:`liefi.tolerance.DEFAULT_RTOL`) and ``atol``; a given ``dt`` that does not divide the span
+    ends with one shortened step (``solution.method["last_step"]``; a ``dt`` longer than the span
+    becomes one step of the span).  ``resolution_limit``: the largest ``dt``
     times the fastest rate the guard accepts without a warning, for a step chosen for a tolerance before
     the call (:meth:`liefi.scenes.Scene.run`; default :data:`liefi.stability.RESOLUTION_LIMIT`).
 
@@ -283,6 +289,16 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
     if y0 is not None:  # before the step is chosen from it (a complex or string y0 named, not cast)
         y0 = as_state(y0, "y0", fi.names)
     scheme_given, dt_given = scheme is not None, dt is not None
+    t_final, h_last, last_note = t_end, 0.0, None
+    if dt_given and _finite_positive(dt):  # a dt that does not divide the span: the last step shortened
+        n_full, h_last = step_grid(float(dt), t_end - t_start)
+        if n_full == 0:  # one step, of the span
+            dt, h_last = t_end - t_start, 0.0
+            last_note = f"dt longer than the span: one step of the span, {dt:.6g}"
+        elif h_last:
+            t_end = t_start + n_full * float(dt)  # the grid's end; a partial step goes on to t_final
+            last_note = (f"dt does not divide the span: {n_full} step{'s' if n_full > 1 else ''} of dt, then a "
+                         f"last step shortened to {h_last:.6g} to end at t_final")
     sch = _fixed_step_scheme(scheme if scheme_given else _tol.DEFAULT_SCHEME)
     backend = _tol.default_backend() if backend is None else backend
     # the one policy of the run: its step, its gains and their checks
@@ -292,7 +308,9 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
                                                   max_steps=MAX_RUN_STEPS)
     chosen = policy.chosen
     sch = policy.sch  # a step for a tolerance may have chosen the order
-    t_eval = _dense.check_t_eval(t_eval, t_start, t_end)
+    if not h_last:
+        t_final = t_end
+    t_eval = _dense.check_t_eval(t_eval, t_start, t_final)
     evs = _dense.check_events(events)
     if monitor_every is not None:
         monitor_every = positive_int(monitor_every, "monitor_every")
@@ -316,14 +334,17 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
         pl.expected_seconds = pl.seconds_per_step * n_steps
 
     # --- segments -------------------------------------------------------------------------
-    out = np.empty(y0.shape + (pl.n_saved,))
-    ts = np.empty(pl.n_saved)
-    out[..., 0], ts[0], k = y0, t_start, 1
+    extra = 1 if h_last else 0  # the shortened last step's state
+    out = np.empty(y0.shape + (pl.n_saved + extra,))
+    ts = np.empty(pl.n_saved + extra)
+    grid = np.empty(pl.n_saved + extra, dtype=np.int64)  # each saved state's step (dense.OFF_GRID: off the grid)
+    out[..., 0], ts[0], grid[0], k = y0, t_start, 0, 1
     if policy.active:
         N = policy.segment_length(n_steps, save_every)
     else:
         N = n_steps if not pl.expected_seconds > PROGRESS_SECONDS else max(1, n_steps // 100)
-    tracker = _dense.EventTracker(evs, run_fi, sch.kind) if evs else None
+    stepper = _dense.StepMap(run_fi, sch, t_start, dt, n_steps)  # partial steps: t_eval, sol, events, h_last
+    tracker = _dense.EventTracker(evs, stepper) if evs else None
     terminal = bool(tracker) and any(tracker.stop_after)
     next_guard = N
     if tracker:
@@ -352,6 +373,7 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
             keep = keep[keep >= 1]
             m = keep.size
             ts[k : k + m] = t_start + dt * gidx[keep].astype(float)
+            grid[k : k + m] = gidx[keep]
             if m and gidx[keep[-1]] == n_steps:
                 ts[k + m - 1] = t_end
             if not direct:
@@ -361,14 +383,9 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
             s0 += L
             bar.update(L)
             if tracker:
-                hit = tracker.advance(ts[k_prev:k], out[..., k_prev:k])
+                hit = tracker.advance(ts[k_prev:k], out[..., k_prev:k], grid[k_prev:k])
                 if hit is not None:  # a terminal event: the run ends there
-                    t_ev, y_ev, j = hit
-                    k = k_prev + j
-                    if t_ev > ts[k - 1]:
-                        ts[k], out[..., k] = t_ev, y_ev
-                        k += 1
-                    status, message = 1, MESSAGE_EVENT
+                    k, status, message = _stop_at_event(hit, k_prev, ts, out, grid), 1, MESSAGE_EVENT
                     break
             if not math.isfinite(pl.expected_seconds) and s0 < n_steps:  # compiled: measured now
                 pl.seconds_per_step = seg.cpu_seconds / L
@@ -382,8 +399,17 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
                 run_fi, N = policy.between(run_fi, y, s0, N)
                 next_guard = s0 + N
                 checked = (y, t_start + s0 * dt)
-                if tracker:
-                    tracker.fi = run_fi  # the interpolant follows the gains in effect
+                stepper.fi = run_fi  # the partial steps follow the gains in effect
+        if h_last and not status:  # the last step, shortened to end at t_final
+            y_last = stepper.step(y[None], [h_last])[0]
+            if not np.all(np.isfinite(y_last)):
+                raise _last_step_failure(policy, run_fi, sch, y, y_last, names, t_end, t_final, n_steps) from None
+            ts[k], out[..., k], grid[k] = t_final, y_last, _dense.OFF_GRID
+            k += 1
+            if tracker:
+                hit = tracker.advance(ts[k - 1 : k], out[..., k - 1 : k], grid[k - 1 : k])
+                if hit is not None:
+                    k, status, message = _stop_at_event(hit, k - 1, ts, out, grid), 1, MESSAGE_EVENT
         policy.after(ts[:k], np.moveaxis(out[..., :k], -1, 0))
     except (IntegrationError, StabilityError) as exc:
         if errors == "raise":
@@ -391,26 +417,24 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
         status, message = -1, str(exc)
         y_bad = np.asarray(getattr(exc, "y", None), dtype=float)
         if y_bad.shape == y0.shape and math.isfinite(exc.t) and exc.t > ts[k - 1] and k < ts.size:
-            ts[k], out[..., k] = exc.t, y_bad
+            ts[k], out[..., k], grid[k] = exc.t, y_bad, int(round((exc.t - t_start) / dt))
             k += 1
     finally:
         bar.close()
-    sol = Solution(ts[:k], out[..., :k], sch.name, dt, n_steps, rhs, cpu, tuple(names))
+    sol = Solution(ts[:k], out[..., :k], sch.name, dt, n_steps + (1 if h_last else 0), rhs, cpu, tuple(names))
     if status:
         sol.status, sol.success, sol.message = status, status >= 0, message
     sol.integrator = user_fi
     if tracker:
         sol.t_events, sol.y_events = tracker.results()
-        sol.rhs_evaluations += tracker.nodes
     if dense_output or t_eval is not None:
-        F = _dense.slopes(run_fi, sch.kind, sol.y)
-        sol.rhs_evaluations += sol.t.size
-        interp = _dense.DenseOutput(sol.t, sol.y, F)
+        interp = _dense.DenseOutput(stepper, sol.t, sol.y, grid[:k])
         if dense_output:
             sol.sol = interp
         if t_eval is not None:
-            te = t_eval[t_eval <= sol.t[-1]] if status else t_eval
+            te = t_eval[t_eval <= sol.t[-1]] if status else t_eval  # a t_eval time at a terminal event is kept
             sol.t, sol.y = te, interp(te)
+    sol.rhs_evaluations += stepper.steps * sch.stages  # the partial steps (each a step of the scheme)
     for attr in ("backend", "wall_seconds"):
         if last is not None and hasattr(last, attr):
             setattr(sol, attr, getattr(last, attr))
@@ -420,8 +444,48 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
     sol.plan = pl
     sol.method = _tol.describe(sch.name, dt, getattr(user_fi, "gains_mode", "fixed"), sol.backend, chosen=chosen,
                                scheme_given=scheme_given, dt_given=dt_given)
+    if last_note:
+        sol.method["last_step"] = h_last if h_last else float(dt)
+        sol.method["why"] += "; " + last_note
     sol.overhead_seconds = max(0.0, time.process_time() - start_all - cpu)
     return sol
+
+
+def _finite_positive(x):
+    try:
+        return not isinstance(x, (bool, np.bool_, str, bytes)) and math.isfinite(float(x)) and float(x) > 0
+    except (TypeError, ValueError):
+        return False
+
+
+def _last_step_failure(policy, run_fi, sch, y, y_bad, names, t_end, t_final, n_steps):
+    """The :class:`~liefi.schemes.IntegrationError` of a shortened last step that gave non-finite numbers."""
+    bad = np.nonzero((~np.isfinite(y_bad)).reshape(-1, y_bad.shape[-1]).any(axis=0))[0]
+    comps = [names[c] for c in bad]
+    msg = (f"integration with {sch.name} produced non-finite values in the last step, shortened to "
+           f"{t_final - t_end:g} (t={t_final:g}), in components {comps}; the last finite state is at t={t_end:g}.")
+    exc = IntegrationError(msg, t_end, n_steps + 1, y, comps)
+    advice = str(policy.failure(run_fi, exc, (y, t_end))).split(f"the last finite state is at t={t_end:g}. ", 1)
+    return IntegrationError(msg + (" " + advice[1] if len(advice) == 2 else ""), t_end, n_steps + 1, y, comps)
+
+
+def _stop_at_event(hit, k_prev, ts, out, grid):
+    """End the saved output at a terminal event ``hit = (t, y, j)`` (:meth:`liefi.dense.EventTracker.advance`).
+
+    The states up to the ``j``-th new one (at ``k_prev + j``) are kept; the
+    event's state is saved after them unless it is that saved state.  Returns
+    the new number of saved states.
+    """
+    from . import dense as _dense
+
+    t_ev, y_ev, j = hit
+    k = k_prev + j
+    if t_ev > ts[k - 1]:
+        if t_ev != ts[k]:  # inside the step: a partial-step state, off the grid
+            grid[k] = _dense.OFF_GRID
+        ts[k], out[..., k] = t_ev, y_ev
+        k += 1
+    return k
 
 
 # ------------------------------------------------------------------------------------------

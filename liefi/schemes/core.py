@@ -168,6 +168,23 @@ def positive_int(x, name):
 
 #: More steps than this are refused (a typo in dt or t_final, not a run).
 MAX_STEPS = 1e10
+#: ``dt`` divides a span when a whole number of steps covers it to this relative tolerance.
+DIVIDES_RTOL = 1e-9
+
+
+def step_grid(dt, length):
+    """``(n_full, h_last)``: the span ``length`` as ``n_full`` steps ``dt`` and a last, shorter step ``h_last``.
+
+    ``h_last = 0`` when ``dt`` divides ``length`` (to :data:`DIVIDES_RTOL`
+    relative, as :func:`steps_for`); else ``n_full = floor(length / dt)`` and
+    ``0 < h_last = length - n_full dt < dt`` (``n_full = 0``: ``dt`` is longer
+    than the span).  ``dt`` and ``length`` positive finite numbers.
+    """
+    n = int(round(length / dt))
+    if n >= 1 and abs(n * dt - length) <= DIVIDES_RTOL * length:
+        return n, 0.0
+    n = int(math.floor(length / dt))
+    return n, length - n * dt
 
 
 def steps_for(dt, t_final, *, save_every=1, check_every=1, t0=0.0):
@@ -199,7 +216,7 @@ def steps_for(dt, t_final, *, save_every=1, check_every=1, t0=0.0):
             "take a larger dt or a shorter t_final"
         )
     n_steps = int(round(ratio))
-    if n_steps < 1 or abs(n_steps * dt - length) > 1e-9 * length:
+    if n_steps < 1 or abs(n_steps * dt - length) > DIVIDES_RTOL * length:
         n = max(1, n_steps)
         up, down = length / n, length / (n + 1)
         near = up if abs(up - dt) <= abs(down - dt) else down

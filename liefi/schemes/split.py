@@ -192,7 +192,9 @@ def feedback_step(fi, y, dt, params=None, *, data=_core.NUMPY_DATA):
     """One linearly implicit Euler step of ``y' = -A grad V(y)``: ``y - dt (I + dt A H)^{-1} A grad V``.
 
     Solved through the ``m x m`` Gram matrix of the invariants' gradients
-    (module docstring).  ``params`` (default ``fi.parameters()``) and ``data`` as
+    (module docstring).  ``dt`` is one step, or an array of steps of the
+    batch's shape ``y.shape[:-1]`` (one per state: the partial steps of
+    :func:`liefi.dense.partial_step`).  ``params`` (default ``fi.parameters()``) and ``data`` as
     in :meth:`liefi.FeedbackIntegrator.field_parts`: the compiled engine traces
     this function with a symbolic state, parameter vector and step.
     """
@@ -215,7 +217,7 @@ def feedback_step(fi, y, dt, params=None, *, data=_core.NUMPY_DATA):
         Az = None if fi.A is None else fi.A[:, fi.nc :]  # the columns that act on the reduced block
         AWt = np.swapaxes(W, -1, -2) if Az is None else np.einsum("ij,...mj->...im", Az, W)  # (..., n or nz, m)
         WAWt = W @ (AWt if Az is None else AWt[..., fi.nc :, :])
-        M = np.eye(len(terms)) + dt * kk[..., :, None] * WAWt
+        M = np.eye(len(terms)) + _per_state(dt, 2) * kk[..., :, None] * WAWt
         with np.errstate(all="ignore"):
             try:
                 mu = np.linalg.solve(M, kr[..., None])[..., 0]
@@ -224,7 +226,7 @@ def feedback_step(fi, y, dt, params=None, *, data=_core.NUMPY_DATA):
                 # matrix here means overflowed entries: non-finite values make the run's check raise
                 # IntegrationError with the time.
                 return np.full(y.shape, np.nan)
-        dz = dt * np.einsum("...im,...m->...i", AWt, mu)
+        dz = _per_state(dt, 1) * np.einsum("...im,...m->...i", AWt, mu)
         if Az is None:
             delta = np.concatenate([np.zeros(batch + (fi.nc,), dtype=dz.dtype), dz], -1)
         else:
@@ -236,6 +238,11 @@ def feedback_step(fi, y, dt, params=None, *, data=_core.NUMPY_DATA):
         dg = np.asarray(c)[..., None] * G.penalty_grad(g)
         delta = delta + np.concatenate([np.broadcast_to(dg, batch + (fi.nc,)), np.zeros(batch + (nz,))], -1)
     return y - delta
+
+
+def _per_state(dt, k):
+    """``dt`` against an array of ``k`` more trailing axes: one step as it is, a step per state with ``k`` new axes."""
+    return dt if not isinstance(dt, np.ndarray) or dt.ndim == 0 else dt[(...,) + (None,) * k]
 
 
 SPLIT_SCHEMES = {
