@@ -29,6 +29,7 @@ from functools import cached_property
 import numpy as np
 
 from .. import plotting
+from .._keywords import SCENE_FOREIGN, keywords
 from ..feedback import FeedbackIntegrator
 from ..reduction import core as _core
 
@@ -424,6 +425,7 @@ class Scene:
         return (PaperRun(configuration=True if self.figures_need_configuration else None),)
 
     # --- running ---------------------------------------------------------------------
+    @keywords(foreign=SCENE_FOREIGN)
     def run(
         self,
         *,

@@ -1,0 +1,86 @@
+"""Unknown keyword arguments of the public entry points, answered as the CLI answers an unknown flag.
+
+``run(sheme="rk4")`` gets ``TypeError: run() got an unexpected keyword argument
+'sheme'; did you mean 'scheme'?`` instead of Python's bare message, and a
+keyword of ``scipy.integrate.solve_ivp`` that has no meaning here (``first_step=``,
+``args=``, ...) gets a sentence saying what to write instead.  One decorator,
+:func:`keywords`, for :meth:`liefi.FeedbackIntegrator.run`,
+:class:`liefi.FeedbackIntegrator` and :meth:`liefi.scenes.Scene.run`.
+"""
+
+from __future__ import annotations
+
+import difflib
+import functools
+import inspect
+
+#: Keywords of ``solve_ivp`` with no counterpart in liefi's fixed-step runs: the sentence that answers them.
+IVP_ONLY = {
+    "first_step": ("liefi steps with one fixed step over the whole run, so there is no first step to "
+                   "guess; give dt= (every step), or rtol=/atol= (the step is chosen for the tolerance), and "
+                   "max_step= to cap a chosen step"),
+    "args": ("liefi's vector field takes no extra arguments; a model's constants belong to its system "
+             "(constants= of liefi.from_mechanics / liefi.from_sympy, or system.constants = {...}): set them, "
+             "then build the FeedbackIntegrator (its targets are taken at its start)"),
+    "vectorized": ("liefi's field is always batch-first; pass an ensemble as y0 of shape "
+                   "(..., n) instead"),
+    "jac": "liefi has the Jacobian of its own field (fi.jac); the schemes of run() do not take one",
+    "jac_sparsity": "liefi's schemes do not take a Jacobian's sparsity",
+    "lband": "liefi's schemes do not take a banded Jacobian",
+    "uband": "liefi's schemes do not take a banded Jacobian",
+    "min_step": ("liefi steps with one fixed step; give dt=, or rtol=/atol= for a step chosen for "
+                 "the tolerance"),
+}
+
+#: ... and those of :meth:`liefi.FeedbackIntegrator.run`: with the retired ``t_final=`` of the old form.
+RUN_FOREIGN = dict(IVP_ONLY, t_final=(
+    "the old form run(dt=..., t_final=...) is retired; write run(t_final, dt=...) (the run starts at 0) "
+    "or run((t0, t_final), dt=...), as solve_ivp's t_span"))
+
+#: ... and those of :meth:`liefi.scenes.Scene.run`, which names its method ``scheme=`` and has no ``max_step``.
+SCENE_FOREIGN = dict(IVP_ONLY, method=(
+    "Scene.run names its method scheme=: e.g. scheme='scipy:RK45' for solve_ivp's RK45, or a liefi "
+    "scheme such as scheme='rk4'"), max_step=(
+    "Scene.run takes dt= (a fixed step) or rtol=/atol= (the step chosen for the tolerance); "
+    "FeedbackIntegrator.run(t_span, rtol=..., max_step=...) caps a chosen step"))
+
+
+def unknown_keyword(where, name, accepted, foreign=None):
+    """The :class:`TypeError` for the unknown keyword ``name`` of ``where`` (``"run"``, ...).
+
+    ``foreign``: ``{name: sentence}`` of known keywords of other libraries that
+    liefi answers with a sentence; otherwise the closest accepted names
+    (:func:`difflib.get_close_matches`), or the list of them.
+    """
+    if foreign and name in foreign:
+        return TypeError(f"{name}: {where}() does not take {name}=; {foreign[name]}")
+    close = difflib.get_close_matches(name, list(accepted), n=1, cutoff=0.6)
+    hint = f"did you mean {close[0]!r}?" if close else f"the keywords are {', '.join(sorted(accepted))}"
+    return TypeError(f"{where}() got an unexpected keyword argument {name!r}; {hint}")
+
+
+def keywords(foreign=None):
+    """Decorate a function so that an unknown keyword raises :func:`unknown_keyword`'s error.
+
+    The function's signature is kept (``inspect.signature`` and the docs see
+    it); a function with ``**kwargs`` is returned unchanged.
+    """
+
+    def wrap(fn):
+        params = inspect.signature(fn).parameters.values()
+        if any(p.kind is p.VAR_KEYWORD for p in params):
+            return fn
+        accepted = frozenset(p.name for p in params if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)
+                             and p.name != "self")
+        where = fn.__name__ if fn.__name__ != "__init__" else fn.__qualname__.split(".")[0]
+
+        @functools.wraps(fn)
+        def checked(*args, **kw):
+            for k in kw:
+                if k not in accepted:
+                    raise unknown_keyword(where, k, accepted, foreign)
+            return fn(*args, **kw)
+
+        return checked
+
+    return wrap

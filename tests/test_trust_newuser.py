@@ -1,0 +1,64 @@
+"""What a new user trips on (issue 23): solve_ivp's keywords, misspelt keywords, the first compile's silence,
+the documented default, and the time-left estimate of a sweep of unequal tasks."""
+
+import numpy as np
+import pytest
+
+import liefi
+from liefi import scenes
+
+
+@pytest.fixture(scope="module")
+def knife():
+    sc = scenes.get("knife-edge")
+    return sc, sc.integrator(gains=1.0)
+
+
+# --- solve_ivp's keywords and misspellings ----------------------------------------------------------------------
+
+
+def test_max_step_caps_the_step_chosen_for_the_tolerance(knife):
+    _, fi = knife
+    free = fi.run(1.0, scheme="rk4", backend="numpy")
+    capped = fi.run(1.0, scheme="rk4", backend="numpy", max_step=free.dt / 3)
+    assert capped.dt <= free.dt / 3 * (1 + 1e-12) and capped.steps * capped.dt == pytest.approx(1.0)
+    assert fi.run(1.0, dt=1e-2, scheme="rk4", backend="numpy", max_step=np.inf).dt == 1e-2
+    with pytest.raises(ValueError, match=r"^max_step: the given dt = 0.1 is larger than max_step = 0.05"):
+        fi.run(1.0, dt=0.1, max_step=0.05)
+    with pytest.raises(ValueError, match=r"^max_step: "):
+        fi.run(1.0, max_step=-1.0)
+
+
+def test_method_is_solve_ivps_name_for_scheme(knife):
+    _, fi = knife
+    a = fi.run(0.5, dt=1e-2, method="RK4", backend="numpy")
+    b = fi.run(0.5, dt=1e-2, scheme="rk4", backend="numpy")
+    assert a.method["scheme"] == "rk4"
+    np.testing.assert_array_equal(a.y, b.y)
+    with pytest.raises(ValueError, match=r"^method: 'RK45' is solve_ivp's adaptive method.*scheme='scipy:RK45'"):
+        fi.run(0.5, method="RK45")
+    with pytest.raises(TypeError, match="not both"):
+        fi.run(0.5, method="rk4", scheme="rk4")
+
+
+@pytest.mark.parametrize("kw, words", [({"first_step": 0.1}, "one fixed step"), ({"args": (1.0,)}, "constants"),
+                                       ({"t_final": 1.0}, "retired")])
+def test_solve_ivp_keywords_without_a_meaning_here_are_named(knife, kw, words):
+    _, fi = knife
+    name = next(iter(kw))
+    with pytest.raises(TypeError, match=f"^{name}: run\\(\\) does not take {name}=; .*{words}"):
+        fi.run(1.0, **kw)
+
+
+def test_misspelt_keywords_get_did_you_mean(knife):
+    sc, fi = knife
+    with pytest.raises(TypeError, match=r"unexpected keyword argument 'sheme'; did you mean 'scheme'\?"):
+        fi.run(1.0, sheme="rk4")
+    with pytest.raises(TypeError, match=r"^FeedbackIntegrator\(\) got .* 'gain'; did you mean 'gains'\?"):
+        liefi.FeedbackIntegrator(sc.system, fi.y0, gain=1.0)
+    with pytest.raises(TypeError, match=r"'t_finl'; did you mean 't_final'\?"):
+        sc.run(t_finl=1.0)
+    with pytest.raises(TypeError, match=r"^method: run\(\) does not take method=; .*scheme='scipy:RK45'"):
+        sc.run(method="RK45")
+    with pytest.raises(TypeError, match=r"'zzz'; the keywords are .*scheme"):
+        fi.run(1.0, zzz=1)
