@@ -1,6 +1,9 @@
 """What a new user trips on (issue 23): solve_ivp's keywords, misspelt keywords, the first compile's silence,
 the documented default, and the time-left estimate of a sweep of unequal tasks."""
 
+import json
+import re
+
 import numpy as np
 import pytest
 
@@ -62,3 +65,36 @@ def test_misspelt_keywords_get_did_you_mean(knife):
         sc.run(method="RK45")
     with pytest.raises(TypeError, match=r"'zzz'; the keywords are .*scheme"):
         fi.run(1.0, zzz=1)
+
+
+# --- the documented default --------------------------------------------------------------------------------------
+
+
+def _schemes_named(text):
+    return set(re.findall(r"imex-rk\d", text))
+
+
+def test_the_documented_default_is_what_a_default_run_reports(knife, capsys):
+    """--help, the run docstring and the CLI's description name the schemes a default run uses (sol.method)."""
+    from liefi import cli
+    from liefi.tolerance import ORDER_CANDIDATES
+
+    _, fi = knife
+    ran = {fi.run(10.0, backend="numpy").method["scheme"]}  # imex-rk8 on the knife edge
+    assert cli.main(["run", "knife-edge", "--json", "--t-final", "10", "--backend", "numpy"]) in (0, None)
+    ran.add(json.loads(capsys.readouterr().out)["method"]["scheme"])
+    assert fi.run(1.0, dt=1e-2, backend="numpy").method["scheme"] == "imex-rk4"  # with a given dt
+
+    run_parser = cli.build_parser()._subparsers._group_actions[0].choices["run"]
+    scheme_help = next(a.help for a in run_parser._actions if "--scheme" in a.option_strings)
+    doc = liefi.FeedbackIntegrator.run.__doc__
+    texts = {
+        "--scheme help": scheme_help.split("default:", 1)[1],
+        "run --help": run_parser.description,
+        "the run docstring": doc[doc.index("The default method"):].split("\n\n")[0],
+        "the cli module": cli.__doc__[cli.__doc__.index("``liefi run`` runs"):].split("\n\n")[0],
+    }
+    for where, text in texts.items():
+        named = _schemes_named(text)
+        assert ran <= named, f"{where} names {named} as the default; a default run used {ran}"
+        assert named == set(ORDER_CANDIDATES["split"]), where
