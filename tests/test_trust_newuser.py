@@ -98,3 +98,78 @@ def test_the_documented_default_is_what_a_default_run_reports(knife, capsys):
         named = _schemes_named(text)
         assert ran <= named, f"{where} names {named} as the default; a default run used {ran}"
         assert named == set(ORDER_CANDIDATES["split"]), where
+
+
+# --- the time left of a sweep of unequal tasks -------------------------------------------------------------------
+
+
+class _Clock:
+    """A fake clock for both time.monotonic (the progress line) and time.perf_counter (the sweep's task times)."""
+
+    def __init__(self):
+        self.now = 0.0
+
+    def monotonic(self):
+        return self.now
+
+    perf_counter = monotonic
+
+
+def _cheap_then_costly(prior_b):
+    """20 cheap tasks (1 s) first, then 10 costly ones (30 s): ``(tasks, expected)`` with the prior of a costly
+    one ``prior_b`` (30: exact; 10: three times too low)."""
+    tasks = [{"kind": "a", "seconds": 1.0}] * 20 + [{"kind": "b", "seconds": 30.0}] * 10
+    return tasks, lambda t: (t["kind"], 1.0 if t["kind"] == "a" else prior_b)
+
+
+@pytest.mark.parametrize("prior_b", [30.0, 10.0])
+def test_sweep_time_left_is_weighted_by_the_cost_of_the_tasks_left(monkeypatch, prior_b):
+    """At 31 % of a sweep whose costly tasks come last the time left is not the count's (21 s for 311 s)."""
+    from liefi import _progress, sweep
+
+    clock = _Clock()
+    monkeypatch.setattr(_progress, "time", clock)
+    monkeypatch.setattr(sweep, "time", clock)
+    tasks, expected = _cheap_then_costly(prior_b)
+    seen = []
+    update = _progress.Progress.update
+
+    def spy(self, *a, **kw):
+        update(self, *a, **kw)
+        seen.append((self.done, self.status(), self.time_left()))
+
+    monkeypatch.setattr(_progress.Progress, "update", spy)
+
+    def fn(task):
+        clock.now += task["seconds"]
+        return task["seconds"]
+
+    assert sweep.run_sweep(fn, tasks, expected=expected, progress=False) == [t["seconds"] for t in tasks]
+    truth = {i + 1: sum(t["seconds"] for t in tasks[i + 1:]) for i in range(len(tasks))}
+    done, line, (left, unseen) = seen[8]  # 9 of 30 done: 30 %, the costly tasks all to come
+    assert truth[done] == 311.0 and "(30 %)" in line
+    if prior_b == 30.0:  # an exact prior: the estimate is the truth
+        assert left == pytest.approx(truth[done]) and unseen == 10
+        assert all(x[2][0] == pytest.approx(truth[x[0]]) for x in seen[:-1])
+    else:  # a prior three times too low: said to be a guess until a costly task has finished ...
+        assert left == pytest.approx(111.0) and "a guess: 10 tasks of kinds not timed yet" in line
+        # ... then learned from it
+        assert all(x[2][0] == pytest.approx(truth[x[0]]) and "guess" not in x[1] for x in seen[20:-1])
+    # the count alone would have said 21 s left at 30 %, as it said "about 3 min left" of 17
+    count = _progress.Progress(30, "sweep", False, unit="task")
+    count._start, count.done = 0.0, 9
+    clock.now = 9.0
+    assert "about 21 s left" in count.status()
+
+
+def test_bench_tasks_have_a_prior_and_tight_tolerances_cost_more():
+    from liefi.bench import core
+
+    tasks = core.build_tasks("suslov", 100.0, quick=True)
+    got = [core.expected_seconds(t) for t in tasks]
+    assert all(s > 0 and np.isfinite(s) for _, s in got)
+    by = {(t["method"], t["scheme"], t["dt"], t["rtol"]): s for t, (_, s) in zip(tasks, got)}
+    fi = sorted((dt, s) for (m, sch, dt, _), s in by.items() if m == "FI" and sch == "rk4")
+    assert fi[0][1] > fi[-1][1]  # the finest step costs the most
+    ivp = sorted((r, s) for (m, sch, _, r), s in by.items() if m == "constrained" and sch == "RK45")
+    assert ivp[0][1] > ivp[-1][1]
