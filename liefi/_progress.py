@@ -24,21 +24,101 @@ in parallel and for the time between units); a kind with no finished unit yet
 takes the rate of all finished units, and the line says that the estimate is a
 guess until a unit of each kind has finished.  Nothing is estimated before the
 first unit has finished.
+
+**The first compile.**  The compiled engine traces and compiles a system's
+kernels the first time they are needed (tens of seconds; later runs load them
+from the cache).  The engine marks that work (:func:`compiling`); while a run
+is prepared (:func:`compile_notice`, around :func:`liefi.run.run_feedback`) a
+compile that has lasted :data:`NOTICE_SECONDS` is announced by one line on
+stderr, on a terminal or in a notebook; a run's progress starts after it.
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
 import sys
+import threading
 import time
 
 #: ``lines`` mode: a line when this fraction more is done, or after this many seconds
 LINE_FRACTION, LINE_SECONDS, LINE_MIN_SECONDS = 0.05, 30.0, 1.0
 
 
+#: A compile that lasts this long is announced (:func:`compile_notice`).
+NOTICE_SECONDS = 1.0
+#: The line that announces it.
+COMPILE_MESSAGE = ("liefi: compiling the kernels for this system (first run only: later runs load them from the "
+                   "cache; about 20 s)...")
+
+
 def stderr_is_terminal():
     """Whether stderr is an interactive terminal (progress is shown only there by default)."""
     return sys.stderr is not None and hasattr(sys.stderr, "isatty") and sys.stderr.isatty()
+
+
+def in_notebook():
+    """Whether stderr is a Jupyter kernel's stream (a notebook shows what is written to it)."""
+    return "ipykernel" in sys.modules and type(sys.stderr).__module__.startswith("ipykernel")
+
+
+_COMPILE = {"depth": 0, "since": None, "watching": False}
+_COMPILE_LOCK = threading.Lock()
+
+
+@contextlib.contextmanager
+def compiling():
+    """Mark a block of the engine that traces or compiles a kernel (nested blocks count as one)."""
+    with _COMPILE_LOCK:
+        _COMPILE["depth"] += 1
+        if _COMPILE["depth"] == 1:
+            _COMPILE["since"] = time.monotonic()
+    try:
+        yield
+    finally:
+        with _COMPILE_LOCK:
+            _COMPILE["depth"] -= 1
+            if not _COMPILE["depth"]:
+                _COMPILE["since"] = None
+
+
+@contextlib.contextmanager
+def compile_notice(message=COMPILE_MESSAGE, *, after=None, enabled=None):
+    """While the block runs, say ``message`` once on stderr when a compile (:func:`compiling`) has lasted ``after`` s.
+
+    ``after=None``: :data:`NOTICE_SECONDS`.  ``enabled=None``: when stderr is a terminal or a notebook's.  Nested blocks
+    (the runs a run makes to choose its step) leave it to the outermost.  A
+    watcher thread looks every 0.1 s; nothing is written when no compile
+    happens, or when it is short (kernels loaded from the cache).
+    """
+    on = (stderr_is_terminal() or in_notebook()) if enabled is None else bool(enabled)
+    after = NOTICE_SECONDS if after is None else float(after)
+    with _COMPILE_LOCK:
+        mine = on and not _COMPILE["watching"]
+        if mine:
+            _COMPILE["watching"] = True
+    if not mine:
+        yield
+        return
+    stop = threading.Event()
+
+    def watch():
+        while not stop.wait(0.1):
+            since = _COMPILE["since"]
+            if since is not None and time.monotonic() - since >= after:
+                if sys.stderr is not None:
+                    sys.stderr.write(message + "\n")
+                    sys.stderr.flush()
+                return
+
+    watcher = threading.Thread(target=watch, name="liefi-compile-notice", daemon=True)
+    watcher.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        with _COMPILE_LOCK:
+            _COMPILE["watching"] = False
 
 
 class Progress:

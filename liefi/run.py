@@ -40,7 +40,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._progress import Progress, stderr_is_terminal
+from ._progress import Progress, compile_notice, stderr_is_terminal
 from .schemes import IntegrationError, Solution, integrate, positive_int
 from .schemes import registry as _registry
 from .schemes import split as _split
@@ -178,7 +178,16 @@ def _segment_runner(sch, dt, backend, names, t_start=0.0):
         except IntegrationError as exc:  # t absolute, step relative
             raise IntegrationError(str(exc), exc.t, s0 + exc.step, exc.y, exc.components) from None
 
+    def prepare(fi_cur, y):
+        """Compile (or load) the kernel now, before the progress starts; the numpy path if it cannot run."""
+        if state["backend"] != "numpy":
+            from .engine.kernels import prepare_feedback
+
+            if prepare_feedback(fi_cur, sch, y, state["backend"]) is None:
+                state["backend"] = "numpy"
+
     run.state = state
+    run.prepare = prepare
     return run
 
 
@@ -248,6 +257,19 @@ def method_scheme(method, scheme):
     raise ValueError(f"method: unknown method {method!r}; liefi's schemes are {', '.join(fixed)} (scheme=)")
 
 
+def _announcing_compiles(fn):
+    """``fn`` with :func:`liefi._progress.compile_notice` around it: a long first compile is announced."""
+    import functools
+
+    @functools.wraps(fn)
+    def announced(*args, **kw):
+        with compile_notice():
+            return fn(*args, **kw)
+
+    return announced
+
+
+@_announcing_compiles
 def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, dense_output=False, errors="raise",
                  y0=None, save_every=None, check_every=1, backend=None, check_stability=True, adaptive=None,
                  monitor_every=None, progress=None, max_saved_bytes=None, drop_exact=True, rtol=None, atol=None,
@@ -327,6 +349,7 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
     names = fi.names
     runner = _segment_runner(sch, dt, backend, names, t_start)
     run_fi = policy.start(fi, dt, n_steps, y0, t0=t_start, monitor_every=monitor_every)
+    runner.prepare(run_fi, y0)  # the compile before the progress starts: the bar counts steps only
     if runner.state["backend"] == "numpy":
         pl.seconds_per_step = _step_seconds(run_fi, y0, sch)
         pl.expected_seconds = pl.seconds_per_step * n_steps

@@ -173,3 +173,62 @@ def test_bench_tasks_have_a_prior_and_tight_tolerances_cost_more():
     assert fi[0][1] > fi[-1][1]  # the finest step costs the most
     ivp = sorted((r, s) for (m, sch, _, r), s in by.items() if m == "constrained" and sch == "RK45")
     assert ivp[0][1] > ivp[-1][1]
+
+
+# --- the first compile ------------------------------------------------------------------------------------------
+
+
+def test_a_long_compile_is_announced_and_a_short_one_or_none_is_not(capsys):
+    import time
+
+    from liefi._progress import COMPILE_MESSAGE, compile_notice, compiling
+
+    with compile_notice(after=0.05, enabled=True):
+        with compiling():
+            time.sleep(0.5)
+    assert capsys.readouterr().err.count(COMPILE_MESSAGE) == 1
+    with compile_notice(after=0.3, enabled=True):
+        with compiling():
+            time.sleep(0.01)  # kernels loaded from the cache
+        time.sleep(0.5)  # other work: not a compile
+    with compile_notice(after=0.05, enabled=False):  # stderr neither a terminal nor a notebook
+        with compiling():
+            time.sleep(0.3)
+    assert capsys.readouterr().err == ""
+
+
+def test_a_run_announces_its_compile_and_its_progress_starts_after_it(knife, monkeypatch, capsys):
+    """A (slow, faked) compile in fi.run: one line on stderr while it lasts, and the bar starts after it."""
+    import time
+    import warnings
+
+    from liefi import _progress
+    from liefi.engine import kernels
+    from liefi.engine.trace import NotCompilable
+
+    _, fi = knife
+    ended, starts = [], []
+
+    def slow_compile(fi, **kw):
+        with _progress.compiling():
+            time.sleep(1.5)
+        ended.append(time.monotonic())
+        raise NotCompilable("a test's stand-in for a long compile")
+
+    init = _progress.Progress.__init__
+
+    def spy(self, total, *a, **kw):
+        init(self, total, *a, **kw)
+        if self.enabled:
+            starts.append(self._start)
+
+    monkeypatch.setattr(kernels, "compile_split", slow_compile)
+    monkeypatch.setattr(_progress, "stderr_is_terminal", lambda: True)
+    monkeypatch.setattr(_progress, "NOTICE_SECONDS", 0.3)
+    monkeypatch.setattr(_progress.Progress, "__init__", spy)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        sol = fi.run(0.5, dt=1e-2, scheme="imex-rk4", backend="numba", progress=True)
+    assert sol.backend == "numpy" and ended
+    assert capsys.readouterr().err.count(_progress.COMPILE_MESSAGE) == 1
+    assert starts and min(starts) >= ended[0]  # the progress counts steps, not the compile
