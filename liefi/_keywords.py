@@ -11,7 +11,6 @@ keyword of ``scipy.integrate.solve_ivp`` that has no meaning here (``first_step=
 from __future__ import annotations
 
 import difflib
-import functools
 import inspect
 
 #: Keywords of ``solve_ivp`` with no counterpart in liefi's fixed-step runs: the sentence that answers them.
@@ -45,42 +44,29 @@ SCENE_FOREIGN = dict(IVP_ONLY, method=(
     "FeedbackIntegrator.run(t_span, rtol=..., max_step=...) caps a chosen step"))
 
 
-def unknown_keyword(where, name, accepted, foreign=None):
-    """The :class:`TypeError` for the unknown keyword ``name`` of ``where`` (``"run"``, ...).
+def unknown_keyword(where, unknown, fn, foreign=None):
+    """The :class:`TypeError` for the first of the ``unknown`` keywords of ``fn`` (called ``where``).
 
     ``foreign``: ``{name: sentence}`` of known keywords of other libraries that
     liefi answers with a sentence; otherwise the closest accepted names
     (:func:`difflib.get_close_matches`), or the list of them.
     """
+    name = next(iter(unknown))
     if foreign and name in foreign:
         return TypeError(f"{name}: {where}() does not take {name}=; {foreign[name]}")
-    close = difflib.get_close_matches(name, list(accepted), n=1, cutoff=0.6)
+    accepted = [p.name for p in inspect.signature(fn).parameters.values()
+                if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY) and p.name != "self"]
+    close = difflib.get_close_matches(name, accepted, n=1, cutoff=0.6)
     hint = f"did you mean {close[0]!r}?" if close else f"the keywords are {', '.join(sorted(accepted))}"
     return TypeError(f"{where}() got an unexpected keyword argument {name!r}; {hint}")
 
 
-def keywords(foreign=None):
-    """Decorate a function so that an unknown keyword raises :func:`unknown_keyword`'s error.
+def keywords(fn):
+    """Hide ``fn``'s ``**unknown`` from its signature (``inspect.signature``, the docs, ``help``).
 
-    The function's signature is kept (``inspect.signature`` and the docs see
-    it); a function with ``**kwargs`` is returned unchanged.
+    The function itself starts with ``if unknown: raise unknown_keyword(...)``:
+    no wrapper, so that the warnings it gives keep pointing at the caller's line.
     """
-
-    def wrap(fn):
-        params = inspect.signature(fn).parameters.values()
-        if any(p.kind is p.VAR_KEYWORD for p in params):
-            return fn
-        accepted = frozenset(p.name for p in params if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)
-                             and p.name != "self")
-        where = fn.__name__ if fn.__name__ != "__init__" else fn.__qualname__.split(".")[0]
-
-        @functools.wraps(fn)
-        def checked(*args, **kw):
-            for k in kw:
-                if k not in accepted:
-                    raise unknown_keyword(where, k, accepted, foreign)
-            return fn(*args, **kw)
-
-        return checked
-
-    return wrap
+    sig = inspect.signature(fn)
+    fn.__signature__ = sig.replace(parameters=[p for p in sig.parameters.values() if p.kind is not p.VAR_KEYWORD])
+    return fn

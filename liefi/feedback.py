@@ -30,7 +30,7 @@ import numpy as np
 
 from . import _diff
 from .reduction import core as _core
-from ._keywords import RUN_FOREIGN, keywords
+from ._keywords import RUN_FOREIGN, keywords, unknown_keyword
 from ._parameters import gain_number, parse_gains, per_member, target_number, target_value  # noqa: F401
 from .system import NonholonomicSystem
 
@@ -172,7 +172,7 @@ class FeedbackIntegrator:
         number, or for an ensemble one number per member (shape ``y0.shape[:-1]``).
     """
 
-    @keywords()
+    @keywords
     def __init__(
         self,
         system: NonholonomicSystem,
@@ -185,7 +185,10 @@ class FeedbackIntegrator:
         field="extended",
         A=None,
         targets=None,
+        **unknown,
     ):
+        if unknown:
+            raise unknown_keyword("FeedbackIntegrator", unknown, FeedbackIntegrator.__init__)
         if not isinstance(system, NonholonomicSystem):
             raise TypeError(f"system: expected a liefi.NonholonomicSystem, got {system!r}")
         if energy not in ("extended", "original"):
@@ -656,10 +659,11 @@ class FeedbackIntegrator:
         return field_jacobian(self, y)
 
     # --- running ------------------------------------------------------------------
-    @keywords(foreign=RUN_FOREIGN)
+    @keywords
     def run(self, t_span=None, *more, dt=None, scheme=None, t_eval=None, events=None, dense_output=False, y0=None,
             save_every=None, check_every=1, backend=None, check_stability=True, adaptive=None, monitor_every=None,
-            progress=None, drop_exact=True, errors="raise", rtol=None, atol=None, max_step=None, method=None):
+            progress=None, drop_exact=True, errors="raise", rtol=None, atol=None, max_step=None, method=None,
+            **unknown):
         """Integrate from ``y0`` (default: the one given at construction) over ``t_span``, as ``solve_ivp``.
 
         ``fi.run(t_span, dt=..., scheme=...)``: ``t_span`` is the final time
@@ -739,15 +743,19 @@ class FeedbackIntegrator:
         scene's ``RunResult`` and ``liefi run --json``); the invariant is still
         monitored.  ``drop_exact=False`` keeps every term.
         """
+        from ._progress import compile_notice
         from .run import method_scheme, positional_span, run_feedback
 
+        if unknown:
+            raise unknown_keyword("run", unknown, FeedbackIntegrator.run, RUN_FOREIGN)
         t_span = positional_span(t_span, more, dt=dt, scheme=scheme)
         scheme = method_scheme(method, scheme)
         if t_span is None:
             raise TypeError("run: missing t_span, the final time or (t0, t_final); e.g. fi.run(10.0, dt=1e-3)")
-        return run_feedback(
-            self, t_span, dt=dt, scheme=scheme, t_eval=t_eval, events=events, dense_output=dense_output,
-            errors=errors, y0=y0, save_every=save_every, check_every=check_every, backend=backend,
-            check_stability=check_stability, adaptive=adaptive, monitor_every=monitor_every, progress=progress,
-            drop_exact=drop_exact, rtol=rtol, atol=atol, max_step=max_step,
-        )
+        with compile_notice():  # a long first compile is announced on stderr
+            return run_feedback(
+                self, t_span, dt=dt, scheme=scheme, t_eval=t_eval, events=events, dense_output=dense_output,
+                errors=errors, y0=y0, save_every=save_every, check_every=check_every, backend=backend,
+                check_stability=check_stability, adaptive=adaptive, monitor_every=monitor_every, progress=progress,
+                drop_exact=drop_exact, rtol=rtol, atol=atol, max_step=max_step,
+            )

@@ -40,7 +40,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._progress import Progress, compile_notice, stderr_is_terminal
+from ._progress import Progress, stderr_is_terminal
 from .schemes import IntegrationError, Solution, integrate, positive_int
 from .schemes import registry as _registry
 from .schemes import split as _split
@@ -257,19 +257,6 @@ def method_scheme(method, scheme):
     raise ValueError(f"method: unknown method {method!r}; liefi's schemes are {', '.join(fixed)} (scheme=)")
 
 
-def _announcing_compiles(fn):
-    """``fn`` with :func:`liefi._progress.compile_notice` around it: a long first compile is announced."""
-    import functools
-
-    @functools.wraps(fn)
-    def announced(*args, **kw):
-        with compile_notice():
-            return fn(*args, **kw)
-
-    return announced
-
-
-@_announcing_compiles
 def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, dense_output=False, errors="raise",
                  y0=None, save_every=None, check_every=1, backend=None, check_stability=True, adaptive=None,
                  monitor_every=None, progress=None, max_saved_bytes=None, drop_exact=True, rtol=None, atol=None,
