@@ -28,7 +28,8 @@ first unit has finished.
 **The first compile.**  The compiled engine traces and compiles a system's
 kernels the first time they are needed (tens of seconds; later runs load them
 from the cache).  The engine marks that work (:func:`compiling`); while a run
-is prepared (:func:`compile_notice`, around :func:`liefi.run.run_feedback`) a
+is prepared (:func:`compile_notice`, in :meth:`liefi.FeedbackIntegrator.run` and
+:meth:`liefi.scenes.Scene.run`) a
 compile that has lasted :data:`NOTICE_SECONDS` is announced by one line on
 stderr, on a terminal or in a notebook; a run's progress starts after it.
 """

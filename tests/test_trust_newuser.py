@@ -252,3 +252,20 @@ def test_a_run_announces_its_compile_and_its_progress_starts_after_it(knife, mon
     assert sol.backend == "numpy" and ended
     assert capsys.readouterr().err.count(_progress.COMPILE_MESSAGE) == 1
     assert starts and min(starts) >= ended[0]  # the progress counts steps, not the compile
+
+
+def test_the_notice_is_on_in_a_notebook(monkeypatch):
+    """A Jupyter kernel's stderr is not a terminal but shows what is written to it: the notice is on there."""
+    import sys
+    import types
+
+    from liefi import _progress
+
+    OutStream = type("OutStream", (), {"__module__": "ipykernel.iostream", "write": lambda self, s: None,
+                                       "flush": lambda self: None, "isatty": lambda self: False})
+    monkeypatch.setitem(sys.modules, "ipykernel", types.ModuleType("ipykernel"))
+    monkeypatch.setattr(sys, "stderr", OutStream())
+    assert _progress.in_notebook() and not _progress.stderr_is_terminal()
+    with _progress.compile_notice(after=10.0):
+        assert _progress._COMPILE["watching"]  # the watcher runs
+    assert not _progress._COMPILE["watching"]
