@@ -748,7 +748,7 @@ class FeedbackIntegrator:
 
         if unknown:
             raise unknown_keyword("run", unknown, FeedbackIntegrator.run, RUN_FOREIGN)
-        t_span = positional_span(t_span, more, dt=dt, scheme=scheme)
+        t_span = positional_span(t_span, more, scheme=scheme)
         scheme = method_scheme(method, scheme)
         if t_span is None:
             raise TypeError("run: missing t_span, the final time or (t0, t_final); e.g. fi.run(10.0, dt=1e-3)")

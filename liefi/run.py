@@ -203,7 +203,7 @@ def _number(v):
     return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
 
 
-def positional_span(t_span, more, *, dt=None, scheme=None):
+def positional_span(t_span, more, *, scheme=None):
     """The ``t_span`` of the positional arguments of :meth:`liefi.FeedbackIntegrator.run`.
 
     As ``solve_ivp``'s: ``run(t_final)`` (from 0), ``run((t0, t_final))`` or

@@ -259,12 +259,16 @@ def _steps(t_final, dt, n_save):
 
 #: The prior of :func:`expected_seconds`: seconds of one field evaluation compiled, one Newton projection
 #: step, one DLA update, one evaluation of ``solve_ivp``'s Python right-hand side, and the fixed cost of a
-#: task (its integrator, the warm-up, the error against the reference).  Only their ratios matter: the
-#: sweep's time left learns each kind's own rate from its finished tasks (:class:`liefi._progress.Progress`).
-EVAL_SECONDS, PROJECTION_SECONDS, DLA_SECONDS, IVP_EVAL_SECONDS, TASK_SECONDS = 3e-8, 5e-7, 1e-7, 5e-6, 0.3
-#: ... the tolerance runs: the evaluations per unit time at ``rtol = 1`` (``n ~ K T rtol^{-1/p}``), and
-#: the setup of an ``FI-rtol`` run (the pilot, the check's runs, the compile of its order's kernel).
-IVP_EVALS_SCALE, RTOL_SETUP_SECONDS = 20.0, 2.0
+#: task (its integrator, the warm-up, the error against the reference); measured on ``liefi bench suslov
+#: --quick`` with warm kernels (a cold cache adds the compile to the first task of a kind).  Only their
+#: ratios matter: the sweep's time left learns each kind's own rate from its finished tasks
+#: (:class:`liefi._progress.Progress`).
+EVAL_SECONDS, PROJECTION_SECONDS, DLA_SECONDS, IVP_EVAL_SECONDS, TASK_SECONDS = 3e-8, 7e-8, 1e-7, 3e-6, 0.05
+#: ... the tolerance runs: the evaluations per unit time at ``rtol = 1`` (``n ~ K T rtol^{-1/p}``); the
+#: factor of an explicit ``solve_ivp`` method on the stiff feedback field (``FI/solve_ivp``); the setup
+#: of an ``FI-rtol`` run (the pilot and the check's runs) and the tuning of ``FI-tuned`` gains for an
+#: explicit tableau (the split schemes need none).
+IVP_EVALS_SCALE, STIFF_FACTOR, RTOL_SETUP_SECONDS, TUNE_SECONDS = 5.0, 30.0, 1.0, 4.0
 
 
 def expected_seconds(task):
@@ -272,9 +276,11 @@ def expected_seconds(task):
 
     The time left of a sweep is weighted by it (:func:`liefi.sweep.run_sweep`,
     ``expected``): a fixed-step run costs ``repeats x T/dt x`` its evaluations a
-    step; a tolerance run ``K T rtol^{-1/p}`` evaluations of order ``p``, a
-    ``solve_ivp`` one capped at :data:`IVP_CPU_CAP` per call; each task
-    :data:`TASK_SECONDS` more.
+    step; a tolerance run ``K T rtol^{-1/p}`` evaluations of order ``p``
+    (:data:`STIFF_FACTOR` more for an explicit ``solve_ivp`` method on the
+    feedback field), a ``solve_ivp`` one capped at :data:`IVP_CPU_CAP` per call;
+    each task :data:`TASK_SECONDS` more, and ``FI-tuned`` on an explicit tableau
+    :data:`TUNE_SECONDS`.
     """
     from ..schemes import registry
 
@@ -283,11 +289,14 @@ def expected_seconds(task):
     kind = f"{method} {scheme}"
     if method == RTOL_METHOD:
         p = 8  # the order it usually chooses
-        return kind, TASK_SECONDS + RTOL_SETUP_SECONDS + repeats * EVAL_SECONDS * 13 * IVP_EVALS_SCALE * T * \
+        return kind, TASK_SECONDS + RTOL_SETUP_SECONDS + repeats * EVAL_SECONDS * 14 * IVP_EVALS_SCALE * T * \
             float(task["rtol"]) ** (-1.0 / p)
     if task.get("dt") is None:  # solve_ivp at a tolerance
-        p = getattr(registry.get(f"scipy:{scheme}", kind="scipy"), "order", 5) or 5
+        ivp = registry.get(f"scipy:{scheme}", kind="scipy")
+        p = getattr(ivp, "order", 5) or 5
         evals = IVP_EVALS_SCALE * T * float(task["rtol"]) ** (-1.0 / p)
+        if method == "FI/solve_ivp" and not ivp.stiff_safe:
+            evals *= STIFF_FACTOR
         return kind, TASK_SECONDS + repeats * min(IVP_EVAL_SECONDS * evals, IVP_CPU_CAP)
     n = T / float(task["dt"])
     if method == "DLA":
@@ -295,7 +304,8 @@ def expected_seconds(task):
     sch = registry.get(scheme)
     per_step = (getattr(sch, "stages", 1) or 1) + (1 if sch.kind == "split" else 0)
     step = per_step * EVAL_SECONDS + (PROJECTION_SECONDS if method.startswith("projection") else 0.0)
-    return kind, TASK_SECONDS + repeats * n * step
+    tune = TUNE_SECONDS if method == "FI-tuned" and sch.kind != "split" else 0.0
+    return kind, TASK_SECONDS + tune + repeats * n * step
 
 
 def run_task(task):
