@@ -3,9 +3,11 @@
 ``run(sheme="rk4")`` gets ``TypeError: run() got an unexpected keyword argument
 'sheme'; did you mean 'scheme'?`` instead of Python's bare message, and a
 keyword of ``scipy.integrate.solve_ivp`` that has no meaning here (``first_step=``,
-``args=``, ...) gets a sentence saying what to write instead.  One decorator,
-:func:`keywords`, for :meth:`liefi.FeedbackIntegrator.run`,
-:class:`liefi.FeedbackIntegrator` and :meth:`liefi.scenes.Scene.run`.
+``args=``, ...) gets a sentence saying what to write instead.  For
+:meth:`liefi.FeedbackIntegrator.run`, :class:`liefi.FeedbackIntegrator` and
+:meth:`liefi.scenes.Scene.run`: each takes ``**unknown`` (hidden from its
+signature by :func:`keywords`) and refuses it with :func:`unknown_keyword`, with
+no wrapper, so that their warnings keep pointing at the caller's line.
 """
 
 from __future__ import annotations
