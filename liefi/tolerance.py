@@ -5,10 +5,11 @@ runs a split scheme (:mod:`liefi.schemes.split`): a Runge--Kutta tableau on the
 extended field ``X``, then one linearly implicit feedback step.  Without ``dt``
 its order is chosen with the step (step 6 below): ``imex-rk4``, ``imex-rk6`` or
 ``imex-rk8``, whichever needs the fewest field evaluations for the tolerance;
-with a given ``dt`` it is :data:`DEFAULT_SCHEME`, ``imex-rk4`` (classical RK4).  With ``gains="auto"`` (the constructor's
-default) that step is a Gauss--Newton step onto the invariant set
-(:data:`liefi.gains.SPLIT_RATE_MAX`), so every invariant stays at rounding for
-the price of RK4 plus one gradient evaluation, in any units: the harness
+with a given ``dt`` it is :data:`DEFAULT_SCHEME`, ``imex-rk4`` (classical RK4).
+With ``gains="auto"`` (the constructor's default) that step is a Gauss--Newton
+step onto the invariant set (:data:`liefi.gains.SPLIT_RATE_MAX`), so every
+invariant stays at rounding for the price of the tableau plus one gradient
+evaluation, in any units: the harness
 (``liefi bench``) finds it the cheapest run at a given error on every scene
 where the error is meaningful.  Without ``dt`` the step is the one chosen here
 for the tolerance ``rtol`` (default :data:`DEFAULT_RTOL`).
