@@ -14,8 +14,9 @@
     liefi bench SCENE|all [--t-final T] [--out DIR] [--scheduler ADDR] [--quick] [--long-horizon T]
 
 ``liefi run`` runs one scene with liefi's best method unless told otherwise
-(``imex-rk4``, gains ``auto``, the step chosen for ``--rtol``, default 1e-6:
-:mod:`liefi.tolerance`; ``--paper``: the paper's scheme, gains and step) and
+(a split scheme, ``imex-rk4``, ``imex-rk6`` or ``imex-rk8``, gains ``auto``, the
+order and step chosen for ``--rtol``, default 1e-6: :mod:`liefi.tolerance`;
+``imex-rk4`` with ``--dt``; ``--paper``: the paper's scheme, gains and step) and
 reports its error against the exact (or numerical reference) solution, the
 drift of every invariant and its CPU time; ``--json`` prints one JSON object,
 whose ``method`` entry says which method ran and why.
@@ -321,7 +322,8 @@ def run_settings(scene, args):
     why = ("liefi's default method (a split scheme imex-rk4/rk6/rk8, gains auto, the order and step for the "
            "tolerance; --paper: the paper's settings)")
     if args.scheme is not None or args.gains is not None or args.dt is not None:
-        why = "as asked, liefi's defaults for the rest (imex-rk4, gains auto, the step for the tolerance)"
+        order = "imex-rk4" if args.dt is not None else "imex-rk4/rk6/rk8, the order for the tolerance"
+        why = f"as asked, liefi's defaults for the rest ({order}, gains auto, the step for the tolerance)"
     return scheme, gains, args.dt, rtol, atol, why
 
 
@@ -464,8 +466,9 @@ def build_parser():
         "run",
         help="run one scene with liefi's best method (--paper: the paper's settings)",
         description=(
-            "Run one scene with liefi's best method unless told otherwise (imex-rk4, gains auto, the step "
-            "chosen for --rtol, default 1e-6; --paper: the paper's scheme, gains and step); report the error against the "
+            "Run one scene with liefi's best method unless told otherwise (a split scheme, imex-rk4, imex-rk6 or "
+            "imex-rk8, gains auto, the order and step chosen for --rtol, default 1e-6; imex-rk4 with --dt; "
+            "--paper: the paper's scheme, gains and step); report the error against the "
             "exact (or numerical reference) solution, the drift of every invariant and the CPU time."
         ),
         epilog=(
@@ -492,8 +495,9 @@ def build_parser():
                     help="final time (default: the paper's)")
     pr.add_argument("--scheme", default=None,
                     help="|".join(_schemes.names("explicit") + _schemes.names("split")) + "|dla (oscillator)|"
-                         "scipy:METHOD (METHOD: " + "|".join(SCIPY_METHODS) + "; default: imex-rk4, "
-                         "with --paper the paper's)")
+                         "scipy:METHOD (METHOD: " + "|".join(SCIPY_METHODS) + "; default: imex-rk4, imex-rk6 "
+                         "or imex-rk8, the order chosen for the tolerance; imex-rk4 with --dt; with --paper the "
+                         "paper's)")
     pr.add_argument("--gains", default=None, metavar="K|K1,K2,...|name=K,...|auto",
                     help="feedback gains (default: auto; with --paper the paper's); order: the integrator's invariant_names, see below")
     pr.add_argument("--variant", default=None, help="variant name (default: the scene's first)")

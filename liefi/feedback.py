@@ -30,6 +30,7 @@ import numpy as np
 
 from . import _diff
 from .reduction import core as _core
+from ._keywords import RUN_FOREIGN, keywords, unknown_keyword
 from ._parameters import gain_number, parse_gains, per_member, target_number, target_value  # noqa: F401
 from .system import NonholonomicSystem
 
@@ -175,6 +176,7 @@ class FeedbackIntegrator:
         number, or for an ensemble one number per member (shape ``y0.shape[:-1]``).
     """
 
+    @keywords
     def __init__(
         self,
         system: NonholonomicSystem,
@@ -187,7 +189,10 @@ class FeedbackIntegrator:
         field="extended",
         A=None,
         targets=None,
+        **unknown,
     ):
+        if unknown:
+            raise unknown_keyword("FeedbackIntegrator", unknown, FeedbackIntegrator.__init__)
         if not isinstance(system, NonholonomicSystem):
             raise TypeError(f"system: expected a liefi.NonholonomicSystem, got {system!r}")
         if energy not in ("extended", "original"):
@@ -662,13 +667,16 @@ class FeedbackIntegrator:
         return field_jacobian(self, y)
 
     # --- running ------------------------------------------------------------------
-    def run(self, t_span=None, *args, dt=None, scheme=None, t_eval=None, events=None, dense_output=False, y0=None,
+    @keywords
+    def run(self, t_span=None, *more, dt=None, scheme=None, t_eval=None, events=None, dense_output=False, y0=None,
             save_every=None, check_every=1, backend=None, check_stability=True, adaptive=None, monitor_every=None,
-            progress=None, drop_exact=True, errors="raise", t_final=None, rtol=None, atol=None):
+            progress=None, drop_exact=True, errors="raise", rtol=None, atol=None, max_step=None, method=None,
+            **unknown):
         """Integrate from ``y0`` (default: the one given at construction) over ``t_span``, as ``solve_ivp``.
 
         ``fi.run(t_span, dt=..., scheme=...)``: ``t_span`` is the final time
-        (the run starts at 0) or a pair ``(t0, t_final)``.  The loop is
+        (the run starts at 0), a pair ``(t0, t_final)``, or, as ``solve_ivp``'s
+        users write it, two positional numbers ``fi.run(t0, t_final)``.  The loop is
         :func:`liefi.run.run_feedback`.  Returns a
         :class:`~liefi.schemes.Solution` in the layout of scipy's ``OdeResult``
         (``t``, ``y``, ``success``, ``status``, ``message``, ``nfev``,
@@ -679,17 +687,22 @@ class FeedbackIntegrator:
         (``errors="return"``: returns the run up to there with ``success=False``,
         ``status=-1`` and the error as ``message``).
 
-        The default method is the best one (:mod:`liefi.tolerance`): ``scheme``
-        ``"imex-rk4"``, compiled, with the gains of the constructor (``"auto"``
-        by default), at the step :func:`liefi.tolerance.choose_step` picks for
-        ``rtol`` (default ``1e-6``) and ``atol`` (default 0: relative to each
-        component's size) when ``dt`` is not given; ``solution.method`` says
+        The default method is the best one (:mod:`liefi.tolerance`): a split
+        scheme, compiled, with the gains of the constructor (``"auto"`` by
+        default).  Without ``dt``, its order -- ``"imex-rk4"``, ``"imex-rk6"``
+        or ``"imex-rk8"``, the one with the fewest field evaluations -- and its
+        step are those :func:`liefi.tolerance.choose_step` picks for ``rtol``
+        (default ``1e-6``) and ``atol`` (default 0: relative to each
+        component's size), the step at most ``max_step`` (as ``solve_ivp``'s);
+        with a given ``dt`` it is ``"imex-rk4"``.  ``solution.method`` says
         which method ran and why.  A given ``dt`` that does not divide
         ``t_final - t0`` runs whole steps and a last step shortened to end at
         ``t_final``, as ``solve_ivp`` does; ``solution.method["last_step"]`` and
-        ``solution.method["why"]`` say so.  The old form
-        ``run(dt, t_final, scheme)`` still works and warns
-        (:class:`DeprecationWarning`).
+        ``solution.method["why"]`` say so.  ``method=``: the
+        ``solve_ivp`` spelling of ``scheme=`` (a liefi scheme; ``solve_ivp``'s
+        own adaptive methods run through :meth:`liefi.scenes.Scene.run`,
+        ``scheme="scipy:RK45"``).  The old form ``run(dt, t_final, scheme)`` is
+        retired (a ``TypeError`` names the new call).
 
         ``t_eval``, ``dense_output`` and ``events`` as in ``solve_ivp``: the
         state between two steps is a partial step of the scheme from the last
@@ -741,18 +754,19 @@ class FeedbackIntegrator:
         scene's ``RunResult`` and ``liefi run --json``); the invariant is still
         monitored.  ``drop_exact=False`` keeps every term.
         """
-        import warnings
+        from ._progress import compile_notice
+        from .run import method_scheme, positional_span, run_feedback
 
-        from .run import deprecation_message, legacy_call, run_feedback
-
-        t_span, dt, scheme, old = legacy_call(t_span, args, dt=dt, t_final=t_final, scheme=scheme)
-        if old:
-            warnings.warn(deprecation_message(t_span, dt, scheme), DeprecationWarning, stacklevel=2)
+        if unknown:
+            raise unknown_keyword("run", unknown, FeedbackIntegrator.run, RUN_FOREIGN)
+        t_span = positional_span(t_span, more, scheme=scheme)
+        scheme = method_scheme(method, scheme)
         if t_span is None:
             raise TypeError("run: missing t_span, the final time or (t0, t_final); e.g. fi.run(10.0, dt=1e-3)")
-        return run_feedback(
-            self, t_span, dt=dt, scheme=scheme, t_eval=t_eval, events=events, dense_output=dense_output,
-            errors=errors, y0=y0, save_every=save_every, check_every=check_every, backend=backend,
-            check_stability=check_stability, adaptive=adaptive, monitor_every=monitor_every, progress=progress,
-            drop_exact=drop_exact, rtol=rtol, atol=atol,
-        )
+        with compile_notice():  # a long first compile is announced on stderr
+            return run_feedback(
+                self, t_span, dt=dt, scheme=scheme, t_eval=t_eval, events=events, dense_output=dense_output,
+                errors=errors, y0=y0, save_every=save_every, check_every=check_every, backend=backend,
+                check_stability=check_stability, adaptive=adaptive, monitor_every=monitor_every, progress=progress,
+                drop_exact=drop_exact, rtol=rtol, atol=atol, max_step=max_step,
+            )

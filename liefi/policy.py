@@ -108,15 +108,24 @@ class Policy:
         self.chosen = None
 
     # --- the step -----------------------------------------------------------------------
-    def step(self, fi, y0, t_start, t_end, dt, rtol, atol, *, check_every=1, max_steps):
+    def step(self, fi, y0, t_start, t_end, dt, rtol, atol, *, check_every=1, max_steps, max_step=None):
         """``(dt, t_end, n_steps, check_every)``: the run's step, as given or chosen for ``rtol``/``atol``.
 
-        ``dt=None``: :meth:`tolerance_step`.  Then :func:`liefi.schemes.steps_for`:
-        a ``dt`` that does not divide ``[t_start, t_end]`` is refused with the
-        nearest one that does.
+        ``dt=None``: :meth:`tolerance_step`, shortened to at most ``max_step``
+        (``solve_ivp``'s cap; a given ``dt`` above it is refused).  Then
+        :func:`liefi.schemes.steps_for`: a ``dt`` that does not divide
+        ``[t_start, t_end]`` is refused with the nearest one that does.
         """
+        cap = _max_step(max_step)
+        if cap is not None and isinstance(dt, (int, float, np.integer, np.floating)) and dt > cap:
+            raise ValueError(f"max_step: the given dt = {dt!r} is larger than max_step = {max_step!r}; give one "
+                             "or the other (max_step caps a step chosen for rtol)")
         if dt is None:
             dt, _ = self.tolerance_step(fi, y0, t_start, t_end, rtol, atol, max_steps=max_steps)
+            if cap is not None and dt > cap:
+                dt = (t_end - t_start) / math.ceil((t_end - t_start) / cap - 1e-9)
+                if self.chosen is not None:
+                    self.chosen["max_step"] = cap
         dt, t_end, n_steps, _, check_every = steps_for(dt, t_end, check_every=check_every, t0=t_start)
         return dt, t_end, n_steps, check_every
 
@@ -337,3 +346,14 @@ class Policy:
     def failure(self, run_fi, exc, earlier):
         """The :class:`~liefi.schemes.IntegrationError` to raise for ``exc``, with the advice appended."""
         return self.guard.failure(run_fi, exc, earlier)
+
+
+def _max_step(max_step):
+    """``max_step`` checked: ``None`` (no cap: also for ``inf``, ``solve_ivp``'s default) or a positive number."""
+    if max_step is None:
+        return None
+    from .schemes import positive_number
+
+    if isinstance(max_step, (int, float, np.integer, np.floating)) and max_step == math.inf:
+        return None
+    return positive_number(max_step, "max_step", "the largest step must be a positive number (or inf: no cap)")

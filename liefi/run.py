@@ -26,8 +26,8 @@ scheme of the registry (:mod:`liefi.schemes.registry`), it
    ``(t0, t_final)``), watching ``events`` after every segment (a terminal one
    ends the run), with ``t_eval``, ``dense_output`` and the events' states
    given by partial steps of the run's scheme from the last step before them
-   (:mod:`liefi.dense`: the steps' order, and the invariants kept as at the steps).  :func:`legacy_call` understands
-   the old ``run(dt, t_final, scheme)``.
+   (:mod:`liefi.dense`: the steps' order, and the invariants kept as at the steps).  :func:`positional_span` reads
+   ``run(t0, t_final)`` as a span and refuses the retired ``run(dt, t_final, scheme)``.
 
 :func:`check_ivp` is the guard of the adaptive ``scipy:METHOD`` path and
 :func:`check_result_drift` the drift guard of schemes run outside this loop
@@ -186,7 +186,16 @@ def _segment_runner(sch, dt, backend, names, t_start=0.0):
         except IntegrationError as exc:  # t absolute, step relative
             raise IntegrationError(str(exc), exc.t, s0 + exc.step, exc.y, exc.components) from None
 
+    def prepare(fi_cur, y):
+        """Compile (or load) the kernel now, before the progress starts; the numpy path if it cannot run."""
+        if state["backend"] != "numpy":
+            from .engine.kernels import prepare_feedback
+
+            if prepare_feedback(fi_cur, sch, y, state["backend"]) is None:
+                state["backend"] = "numpy"
+
     run.state = state
+    run.prepare = prepare
     return run
 
 
@@ -198,54 +207,68 @@ def _step_seconds(fi, y0, sch):
     return (time.perf_counter() - t) * getattr(sch, "stages", 1) * (3 if sch.kind == "split" else 1)
 
 
-def legacy_call(t_span, args, *, dt, t_final, scheme):
-    """``(t_span, dt, scheme, deprecated)`` of a call of :meth:`liefi.FeedbackIntegrator.run`.
+def _number(v):
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
 
-    The ``solve_ivp`` shape is ``run(t_span, *, dt=..., scheme=...)``.  The old
-    forms ``run(dt, t_final[, scheme])`` (two leading positional numbers) and
-    ``run(dt=..., t_final=...)`` are still understood; ``deprecated`` is then
-    True and the caller warns (:class:`DeprecationWarning`) with the new form.
+
+def positional_span(t_span, more, *, scheme=None):
+    """The ``t_span`` of the positional arguments of :meth:`liefi.FeedbackIntegrator.run`.
+
+    As ``solve_ivp``'s: ``run(t_final)`` (from 0), ``run((t0, t_final))`` or
+    ``run(t0, t_final)``.  The retired form ``run(dt, t_final, scheme)`` (three
+    positional arguments) is refused with the call that replaces it; two
+    positional numbers are a span, never ``(dt, t_final)``.
     """
-    if len(args) > 2:
-        raise TypeError(f"run: takes t_span positionally and the rest by keyword, got {1 + len(args)} "
-                        "positional arguments; write run(t_span, dt=..., scheme=...)")
-
-    def number(v):
-        return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
-
-    if args:
-        if not (number(t_span) and number(args[0])):
-            raise TypeError(f"run: takes one positional argument, t_span (a final time or (t0, t_final)), got "
-                            f"{(t_span,) + tuple(args)!r}; pass dt= and scheme= by keyword")
-        if dt is not None or t_final is not None:
-            raise TypeError("run: the old form run(dt, t_final) cannot be mixed with dt= or t_final=; "
-                            "write run(t_final, dt=..., scheme=...)")
-        if len(args) == 2:
-            if scheme is not None:
-                raise TypeError("run: scheme given twice (positionally and as scheme=)")
-            scheme = args[1]
-        return args[0], t_span, scheme, True
-    if t_final is not None:
-        if dt is not None and t_span is not None:
-            raise TypeError("run: give t_span (or the old t_final=), not both")
-        if dt is None:  # run(dt, t_final=T)
-            dt, t_span = t_span, None
-        return t_final, dt, scheme, True
-    return t_span, dt, scheme, False
+    if not more:
+        return t_span
+    if len(more) == 1 and _number(t_span) and _number(more[0]):
+        return (t_span, more[0])
+    if len(more) == 2 and _number(t_span) and _number(more[0]):
+        sch = more[1] if scheme is None else scheme
+        raise TypeError(
+            f"run: the old form run(dt, t_final, scheme) is retired; two positional numbers are a span (t0, t_final) "
+            f"as in solve_ivp, and the rest goes by keyword: write run({more[0]!r}, dt={t_span!r}, scheme={sch!r}) "
+            f"for a step {t_span!r} over [0, {more[0]!r}]")
+    raise TypeError(f"run: takes t_span positionally (a final time, (t0, t_final), or t0, t_final) and the rest by "
+                    f"keyword, got the positional arguments {(t_span,) + tuple(more)!r}; write "
+                    "run(t_span, dt=..., scheme=...)")
 
 
-def deprecation_message(t_span, dt, scheme):
-    """The :class:`DeprecationWarning` of the old call forms, naming the new one."""
-    sch = "" if scheme is None else f", scheme={scheme!r}"
-    return (f"FeedbackIntegrator.run(dt, t_final, scheme) is deprecated; use the solve_ivp shape "
-            f"run(t_span, dt=..., scheme=...), here run({t_span!r}, dt={dt!r}{sch}) "
-            "(t_span = t_final, or (t0, t_final))")
+def method_scheme(method, scheme):
+    """The ``scheme`` of ``run(method=...)``, ``solve_ivp``'s name for it: a liefi scheme, or a clear refusal.
+
+    ``method`` names a fixed-step scheme of :mod:`liefi.schemes` (``"rk4"``,
+    ``"imex-rk8"``, case-insensitive); one of ``solve_ivp``'s adaptive methods
+    (``"RK45"``, ``"DOP853"``, ...) is refused with the two ways to run it.
+    """
+    if method is None:
+        return scheme
+    if scheme is not None:
+        raise TypeError("run: give scheme= or its solve_ivp spelling method=, not both")
+    fixed = _registry.names("explicit") + _registry.names("split")
+    try:
+        sch = _registry.get(method)
+    except ValueError:
+        sch = None
+    if sch is not None and sch.kind in ("explicit", "split"):
+        return sch.name
+    try:
+        ivp = _registry.get(f"scipy:{method}", kind="scipy")
+    except ValueError:
+        ivp = None
+    if ivp is not None:
+        raise ValueError(
+            f"method: {method!r} is solve_ivp's adaptive method; FeedbackIntegrator.run steps with one of liefi's "
+            f"fixed-step schemes, scheme= (default: the order and step chosen for rtol), one of {', '.join(fixed)}. "
+            f"To run {ivp.name} on the feedback field: scene.run(scheme={ivp.name!r}), or "
+            f"scipy.integrate.solve_ivp(fi.fun, t_span, fi.y0, method={ivp.method!r})")
+    raise ValueError(f"method: unknown method {method!r}; liefi's schemes are {', '.join(fixed)} (scheme=)")
 
 
 def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, dense_output=False, errors="raise",
                  y0=None, save_every=None, check_every=1, backend=None, check_stability=True, adaptive=None,
                  monitor_every=None, progress=None, max_saved_bytes=None, drop_exact=True, rtol=None, atol=None,
-                 stacklevel=3, resolution_limit=None) -> Solution:
+                 stacklevel=3, resolution_limit=None, max_step=None) -> Solution:
     """Integrate the feedback integrator ``fi`` over ``t_span`` with a fixed step (module docstring).
 
     The parameters are those of :meth:`liefi.FeedbackIntegrator.run`;
@@ -266,6 +289,8 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
     becomes one step of the span).  ``resolution_limit``: the largest ``dt``
     times the fastest rate the guard accepts without a warning, for a step chosen for a tolerance before
     the call (:meth:`liefi.scenes.Scene.run`; default :data:`liefi.stability.RESOLUTION_LIMIT`).
+    ``max_step``: as ``solve_ivp``'s, the largest step: a step chosen for the tolerance is shortened to
+    ``(t_final - t0) / ceil((t_final - t0) / max_step)``; a given ``dt`` above it is refused.
 
     Returns the :class:`~liefi.schemes.Solution` with ``method`` (which method
     ran and why: :func:`liefi.tolerance.describe`), ``stability`` (the
@@ -305,7 +330,7 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
     policy = Policy(sch, backend=backend, check_stability=check_stability, adaptive=adaptive,
                     stacklevel=stacklevel + 1, choose_order=not scheme_given, resolution_limit=resolution_limit)
     dt, t_end, n_steps, check_every = policy.step(fi, y0, t_start, t_end, dt, rtol, atol, check_every=check_every,
-                                                  max_steps=MAX_RUN_STEPS)
+                                                  max_steps=MAX_RUN_STEPS, max_step=max_step)
     chosen = policy.chosen
     sch = policy.sch  # a step for a tolerance may have chosen the order
     if not h_last:
@@ -329,6 +354,7 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
     names = fi.names
     runner = _segment_runner(sch, dt, backend, names, t_start)
     run_fi = policy.start(fi, dt, n_steps, y0, t0=t_start, monitor_every=monitor_every)
+    runner.prepare(run_fi, y0)  # the compile before the progress starts: the bar counts steps only
     if runner.state["backend"] == "numpy":
         pl.seconds_per_step = _step_seconds(run_fi, y0, sch)
         pl.expected_seconds = pl.seconds_per_step * n_steps

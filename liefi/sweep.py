@@ -359,7 +359,7 @@ def _stop(executor):
 
 
 def run_sweep(fn, tasks, executor: Executor | None = None, *, store=None, convert=None, progress=None,
-              label="", max_in_flight=None):
+              label="", max_in_flight=None, expected=None):
     """``[fn(task) for task in tasks]``, computed by ``executor``, every outcome a value.
 
     Parameters
@@ -385,6 +385,12 @@ def run_sweep(fn, tasks, executor: Executor | None = None, *, store=None, conver
         Names the sweep in the progress line.
     max_in_flight : int, optional
         Tasks submitted at a time (default: the executor's worker count).
+    expected : callable, optional
+        ``expected(task) -> (kind, seconds)``: the kind of a task and its expected
+        seconds (a prior, any common scale).  The time left is then weighted by
+        them and learned per kind (:class:`liefi._progress.Progress`, ``costs``),
+        not by the count of tasks left: a sweep of cheap tasks first and costly
+        ones last is not promised to end early.
 
     Returns
     -------
@@ -409,7 +415,11 @@ def run_sweep(fn, tasks, executor: Executor | None = None, *, store=None, conver
             todo.append(i)
         else:
             results[i] = v
-    bar = Progress(len(tasks), label or "sweep", progress, unit="task", lines=True, initial=len(tasks) - len(todo))
+    kinds = costs = None
+    if expected is not None:
+        kinds, costs = zip(*(expected(t) for t in tasks)) if tasks else ((), ())
+    bar = Progress(len(tasks), label or "sweep", progress, unit="task", lines=True, initial=len(tasks) - len(todo),
+                   costs=costs, kinds=kinds, todo=todo)
 
     def record(i, value, seconds=None):
         if convert is not None and not isinstance(value, TaskError):
@@ -420,7 +430,7 @@ def run_sweep(fn, tasks, executor: Executor | None = None, *, store=None, conver
         if store is not None:
             value = store.put(tasks[i], value, index=i, seconds=seconds)
         results[i] = value
-        bar.update(failed=isinstance(value, TaskError))
+        bar.update(failed=isinstance(value, TaskError), index=i, seconds=seconds)
 
     owned = []  # pools started here after a break
     try:

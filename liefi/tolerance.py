@@ -1,12 +1,15 @@
 r"""The default method and the step chosen for a tolerance.
 
 **The default method.**  :meth:`liefi.FeedbackIntegrator.run` without ``scheme``
-runs :data:`DEFAULT_SCHEME`, the split scheme ``imex-rk4``
-(:mod:`liefi.schemes.split`): classical RK4 on the extended field ``X``, then
-one linearly implicit feedback step.  With ``gains="auto"`` (the constructor's
-default) that step is a Gauss--Newton step onto the invariant set
-(:data:`liefi.gains.SPLIT_RATE_MAX`), so every invariant stays at rounding for
-the price of RK4 plus one gradient evaluation, in any units: the harness
+runs a split scheme (:mod:`liefi.schemes.split`): a Runge--Kutta tableau on the
+extended field ``X``, then one linearly implicit feedback step.  Without ``dt``
+its order is chosen with the step (step 6 below): ``imex-rk4``, ``imex-rk6`` or
+``imex-rk8``, whichever needs the fewest field evaluations for the tolerance;
+with a given ``dt`` it is :data:`DEFAULT_SCHEME`, ``imex-rk4`` (classical RK4).
+With ``gains="auto"`` (the constructor's default) that step is a Gauss--Newton
+step onto the invariant set (:data:`liefi.gains.SPLIT_RATE_MAX`), so every
+invariant stays at rounding for the price of the tableau plus one gradient
+evaluation, in any units: the harness
 (``liefi bench``) finds it the cheapest run at a given error on every scene
 where the error is meaningful.  Without ``dt`` the step is the one chosen here
 for the tolerance ``rtol`` (default :data:`DEFAULT_RTOL`).
@@ -103,7 +106,8 @@ import numpy as np
 
 from ._data import as_float_array
 
-#: The scheme :meth:`liefi.FeedbackIntegrator.run` and ``liefi run`` run unless told otherwise.
+#: The scheme :meth:`liefi.FeedbackIntegrator.run` and ``liefi run`` run unless told otherwise when ``dt`` is
+#: given; without ``dt`` it names the kind, and the order is chosen for the tolerance (:data:`ORDER_CANDIDATES`).
 DEFAULT_SCHEME = "imex-rk4"
 #: The relative tolerance of a run given neither ``dt`` nor ``rtol``.
 DEFAULT_RTOL = 1e-6

@@ -157,7 +157,7 @@ def test_rtol_runs_are_a_method_family_of_the_grid():
 
 @pytest.mark.skipif(not engine.available(), reason="the harness runs compiled kernels")
 def test_an_rtol_run_is_recorded_like_the_others(tmp_path):
-    """FI-rtol runs liefi's default (imex-rk4, gains auto) at the step it chooses, timed best of 2."""
+    """FI-rtol runs liefi's default (imex-rk4/6/8, gains auto) at the order and step it chooses, timed best of 2."""
     rows = bench.work_precision("rigid-body", t_final=2.0, methods=("FI-rtol", "no-feedback"), schemes=("rk4",),
                                 dts=[1e-2], fi_rtols=[1e-6], repeats=2, n_save=10, out_dir=str(tmp_path),
                                 plots=False)

@@ -1,5 +1,5 @@
 """FeedbackIntegrator.run in the shape of scipy's solve_ivp: t_span, t_eval, events, dense output, the
-OdeResult fields, the deprecated positional form, and fi.jac for scipy's implicit methods."""
+OdeResult fields, the positional span and the retired old form, and fi.jac for scipy's implicit methods."""
 
 import warnings
 
@@ -88,28 +88,27 @@ def test_errors_return_gives_a_failed_solution(knife):
 # --- the old form ---------------------------------------------------------------------------------------------
 
 
-def test_old_positional_form_warns_and_gives_the_same_run(knife):
+def test_two_positional_numbers_are_a_span_as_in_solve_ivp(knife):
+    """fi.run(0.5, 10.0) is t_span = (0.5, 10.0), never the old run(dt=0.5, t_final=10.0)."""
     _, fi = knife
-    new = fi.run(0.5, dt=1e-2, scheme="heun")
-    with pytest.warns(DeprecationWarning, match=r"use the solve_ivp shape .*run\(0.5, dt=0.01, scheme='heun'\)") as w:
-        old = fi.run(1e-2, 0.5, "heun")
-    assert w[0].filename == __file__  # points at the caller
-    np.testing.assert_array_equal(old.y, new.y)
-    with pytest.warns(DeprecationWarning, match=r"run\(0.5, dt=0.01, scheme='heun'\)"):
-        kw = fi.run(dt=1e-2, t_final=0.5, scheme="heun")
-    np.testing.assert_array_equal(kw.y, new.y)
+    pair = fi.run((0.5, 1.0), dt=1e-2, scheme="heun")
+    two = fi.run(0.5, 1.0, dt=1e-2, scheme="heun")
+    assert two.t[0] == 0.5 and two.t[-1] == 1.0 and two.dt == 1e-2
+    np.testing.assert_array_equal(two.y, pair.y)
+    zero = fi.run(0, 1, scheme="rk4", backend="numpy")  # was "dt: ... got 0"
+    assert zero.t[0] == 0.0 and zero.t[-1] == 1.0 and zero.steps > 1
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        fi.run(0.5, dt=1e-2, scheme="heun")  # the new form does not warn
+        fi.run(0.5, 1.0, dt=1e-2, scheme="heun")  # no warning either
 
 
-def test_old_form_cannot_be_mixed(knife):
+def test_old_form_is_retired_with_the_new_call(knife):
     _, fi = knife
-    with pytest.raises(TypeError, match="cannot be mixed"):
-        fi.run(1e-2, 0.5, dt=1e-2)
-    with pytest.raises(TypeError, match="scheme given twice"):
-        fi.run(1e-2, 0.5, "rk4", scheme="rk4")
-    with pytest.raises(TypeError, match="takes one positional argument"):
+    with pytest.raises(TypeError, match=r"retired.*write run\(0.5, dt=0.01, scheme='heun'\)"):
+        fi.run(1e-2, 0.5, "heun")
+    with pytest.raises(TypeError, match=r"^t_final: run\(\) does not take t_final=.*run\(\(t0, t_final\), dt=\.\.\.\)"):
+        fi.run(dt=1e-2, t_final=0.5, scheme="heun")
+    with pytest.raises(TypeError, match="takes t_span positionally"):
         fi.run(0.5, "rk4")
 
 

@@ -257,6 +257,57 @@ def _steps(t_final, dt, n_save):
     return n, max(1, n // n_save)
 
 
+#: The prior of :func:`expected_seconds`: seconds of one field evaluation compiled, one Newton projection
+#: step, one DLA update, one evaluation of ``solve_ivp``'s Python right-hand side, and the fixed cost of a
+#: task (its integrator, the warm-up, the error against the reference); measured on ``liefi bench suslov
+#: --quick`` with warm kernels (a cold cache adds the compile to the first task of a kind).  Only their
+#: ratios matter: the sweep's time left learns each kind's own rate from its finished tasks
+#: (:class:`liefi._progress.Progress`).
+EVAL_SECONDS, PROJECTION_SECONDS, DLA_SECONDS, IVP_EVAL_SECONDS, TASK_SECONDS = 3e-8, 7e-8, 1e-7, 3e-6, 0.05
+#: ... the tolerance runs: the evaluations per unit time at ``rtol = 1`` (``n ~ K T rtol^{-1/p}``); the
+#: factor of an explicit ``solve_ivp`` method on the stiff feedback field (``FI/solve_ivp``); the setup
+#: of an ``FI-rtol`` run (the pilot and the check's runs) and the tuning of ``FI-tuned`` gains for an
+#: explicit tableau (the split schemes need none).
+IVP_EVALS_SCALE, STIFF_FACTOR, RTOL_SETUP_SECONDS, TUNE_SECONDS = 5.0, 30.0, 1.0, 4.0
+
+
+def expected_seconds(task):
+    """``(kind, seconds)``: the kind of a task (``"method scheme"``) and a prior of its seconds.
+
+    The time left of a sweep is weighted by it (:func:`liefi.sweep.run_sweep`,
+    ``expected``): a fixed-step run costs ``repeats x T/dt x`` its evaluations a
+    step; a tolerance run ``K T rtol^{-1/p}`` evaluations of order ``p``
+    (:data:`STIFF_FACTOR` more for an explicit ``solve_ivp`` method on the
+    feedback field), a ``solve_ivp`` one capped at :data:`IVP_CPU_CAP` per call;
+    each task :data:`TASK_SECONDS` more, and ``FI-tuned`` on an explicit tableau
+    :data:`TUNE_SECONDS`.
+    """
+    from ..schemes import registry
+
+    method, scheme, T = task["method"], task["scheme"], float(task["t_final"])
+    repeats = 1 + int(task.get("repeats", 1))  # the warm-up and the timed runs
+    kind = f"{method} {scheme}"
+    if method == RTOL_METHOD:
+        p = 8  # the order it usually chooses
+        return kind, TASK_SECONDS + RTOL_SETUP_SECONDS + repeats * EVAL_SECONDS * 14 * IVP_EVALS_SCALE * T * \
+            float(task["rtol"]) ** (-1.0 / p)
+    if task.get("dt") is None:  # solve_ivp at a tolerance
+        ivp = registry.get(f"scipy:{scheme}", kind="scipy")
+        p = getattr(ivp, "order", 5) or 5
+        evals = IVP_EVALS_SCALE * T * float(task["rtol"]) ** (-1.0 / p)
+        if method == "FI/solve_ivp" and not ivp.stiff_safe:
+            evals *= STIFF_FACTOR
+        return kind, TASK_SECONDS + repeats * min(IVP_EVAL_SECONDS * evals, IVP_CPU_CAP)
+    n = T / float(task["dt"])
+    if method == "DLA":
+        return kind, TASK_SECONDS + repeats * n * DLA_SECONDS
+    sch = registry.get(scheme)
+    per_step = (getattr(sch, "stages", 1) or 1) + (1 if sch.kind == "split" else 0)
+    step = per_step * EVAL_SECONDS + (PROJECTION_SECONDS if method.startswith("projection") else 0.0)
+    tune = TUNE_SECONDS if method == "FI-tuned" and sch.kind != "split" else 0.0
+    return kind, TASK_SECONDS + tune + repeats * n * step
+
+
 def run_task(task):
     """Run one method of a sweep; returns ``{t, y, cpu_seconds, rhs_evaluations, ...}`` or a failure.
 
@@ -584,7 +635,7 @@ def work_precision(scene, t_final=None, out_dir=None, executor=None, *, variant=
 
     try:
         rows = rows_of(run_sweep(run_task, tasks, executor, store=store, convert=convert, progress=progress,
-                                 label=sc.name))
+                                 label=sc.name, expected=expected_seconds))
     except (SweepInterrupted, StoreError) as exc:
         keep(exc)
         raise

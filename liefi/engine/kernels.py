@@ -27,6 +27,7 @@ import weakref
 
 import numpy as np
 
+from .._progress import compiling
 from . import cache as _cache
 from .codegen import (NJIT, dla_loop_source, function_source, loops_source, project_source, scalar_function_source,
                       split_loops_source)
@@ -73,11 +74,12 @@ def _field_kernel(fi, key, engine, make):
 
     def build():
         t = time.perf_counter()
-        with trace() as tr:
+        with compiling(), trace() as tr:
             source, n_params, kind, projection = make(tr)
             nodes = tr.size
         build_s = time.perf_counter() - t
-        kernel = _cache.load(source, engine)
+        with compiling():
+            kernel = _cache.load(source, engine)
         return CompiledField(kernel, fi.n, n_params, kind, engine, build_s, {}, projection, nodes,
                              _owns_load=kernel.claim())
 
@@ -299,6 +301,36 @@ def _say(msg, key):
         warnings.warn(msg, CompilationWarning, stacklevel=4)
 
 
+def prepare_feedback(fi, scheme, y0, backend):
+    """The :class:`CompiledField` of ``fi`` for ``scheme``, its loop compiled (or loaded); ``None`` to use numpy.
+
+    The first half of :func:`run_feedback` (same warnings, once per system and
+    reason): :func:`liefi.run.run_feedback` calls it before its progress starts,
+    so that the bar counts steps, not the compile.
+    """
+    if backend not in ("numba", "auto"):
+        raise ValueError(f"backend: expected 'numpy', 'numba' or 'auto', got {backend!r}")
+    if _cache.numba_module() is None:
+        _say(f"liefi: numba is not available ({_cache.NUMBA_ERROR}); running the numpy path. "
+             "Install it with `pip install liefi[fast]`.", "nonumba")
+        return None
+    from ..schemes import get_scheme
+
+    try:
+        sch = get_scheme(scheme)
+        cf = compile_split(fi) if getattr(sch, "kind", None) == "split" else compile_feedback(fi)
+        cf.warmup(sch, batch=np.ndim(fi.y0 if y0 is None else y0) > 1)
+    except NotCompilable as exc:
+        _say(f"liefi: the compiled engine cannot run this system ({exc}); running the numpy path.",
+             ("nc", id(fi.system)))
+        return None
+    except Exception as exc:  # noqa: BLE001 -- cache, load or compile failure: the numpy path still works
+        _say(f"liefi: the compiled kernel could not be built or loaded ({type(exc).__name__}: {exc}); "
+             "running the numpy path.", ("load", id(fi.system), type(exc).__name__))
+        return None
+    return cf
+
+
 def run_feedback(fi, dt, n_steps, scheme, y0, save_every, check_every, backend):
     """Run ``fi`` with the compiled engine; ``None`` (after a :class:`CompilationWarning`) to use numpy.
 
@@ -315,24 +347,9 @@ def run_feedback(fi, dt, n_steps, scheme, y0, save_every, check_every, backend):
     """
     from ..schemes import get_scheme
 
-    if backend not in ("numba", "auto"):
-        raise ValueError(f"backend: expected 'numpy', 'numba' or 'auto', got {backend!r}")
-    if _cache.numba_module() is None:
-        _say(f"liefi: numba is not available ({_cache.NUMBA_ERROR}); running the numpy path. "
-             "Install it with `pip install liefi[fast]`.", "nonumba")
-        return None
     y0 = fi.y0 if y0 is None else y0
-    try:
-        sch = get_scheme(scheme)
-        cf = compile_split(fi) if getattr(sch, "kind", None) == "split" else compile_feedback(fi)
-        cf.warmup(sch, batch=np.ndim(y0) > 1)
-    except NotCompilable as exc:
-        _say(f"liefi: the compiled engine cannot run this system ({exc}); running the numpy path.",
-             ("nc", id(fi.system)))
+    cf = prepare_feedback(fi, scheme, y0, backend)
+    if cf is None:
         return None
-    except Exception as exc:  # noqa: BLE001 -- cache, load or compile failure: the numpy path still works
-        _say(f"liefi: the compiled kernel could not be built or loaded ({type(exc).__name__}: {exc}); "
-             "running the numpy path.", ("load", id(fi.system), type(exc).__name__))
-        return None
-    return cf.run(y0, fi.parameters(), dt, n_steps, sch, save_every=save_every,
+    return cf.run(y0, fi.parameters(), dt, n_steps, get_scheme(scheme), save_every=save_every,
                   check_every=check_every, names=fi.names)

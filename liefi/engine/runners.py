@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._progress import compiling
 from . import cache as _cache
 from .codegen import split_loop_name
 
@@ -103,6 +104,10 @@ class _Overhead:
             return self._compile_call(key, fname, interrupted, *args)
 
     def _compile_call(self, key, fname, interrupted, *args):
+        with compiling():  # a notice on stderr when it lasts (liefi._progress.compile_notice)
+            return self._compile_call_timed(key, fname, interrupted, *args)
+
+    def _compile_call_timed(self, key, fname, interrupted, *args):
         t = time.perf_counter()
         try:
             r = getattr(self.module, fname)(*args)

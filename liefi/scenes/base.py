@@ -29,6 +29,7 @@ from functools import cached_property
 import numpy as np
 
 from .. import plotting
+from .._keywords import SCENE_FOREIGN, keywords, unknown_keyword
 from ..feedback import FeedbackIntegrator
 from ..reduction import core as _core
 
@@ -424,6 +425,7 @@ class Scene:
         return (PaperRun(configuration=True if self.figures_need_configuration else None),)
 
     # --- running ---------------------------------------------------------------------
+    @keywords
     def run(
         self,
         *,
@@ -441,6 +443,7 @@ class Scene:
         check_stability=True,
         adaptive=None,
         backend=None,
+        **unknown,
     ) -> RunResult:
         """Run the scene at its settings unless told otherwise.
 
@@ -462,6 +465,10 @@ class Scene:
         """
         import importlib.util
 
+        from .._progress import compile_notice
+
+        if unknown:
+            raise unknown_keyword("run", unknown, Scene.run, SCENE_FOREIGN)
         clock = (time.process_time(), getattr(self, "reference_seconds", 0.0))
         if backend is None:
             backend = "auto" if importlib.util.find_spec("numba") is not None else "numpy"
@@ -473,8 +480,9 @@ class Scene:
         fixed_step = scheme not in self.extra_schemes and not str(scheme).lower().startswith("scipy:")
         chosen = None
         if fixed_step and dt is None and (rtol is not None or atol is not None):
-            dt, chosen, fi = self._step_for_tolerance(v, scheme, gains, configuration, T, rtol, atol,
-                                                      choose_order)
+            with compile_notice():  # the step's check runs compile the kernels: a long compile is announced
+                dt, chosen, fi = self._step_for_tolerance(v, scheme, gains, configuration, T, rtol, atol,
+                                                          choose_order)
             scheme = chosen["scheme"]
         dt = positive_number(self.dt if dt is None else dt, "dt", "the step must be a positive number")
         if T / dt > 1e10:
@@ -528,10 +536,12 @@ class Scene:
             from ..run import run_feedback
 
             # a step chosen for a tolerance brings the resolution limit its order and tolerance allow
-            sol = run_feedback(
-                fi, T, dt=dt, scheme=scheme, save_every=save_every, check_stability=check_stability, adaptive=adaptive,
-                backend=backend, resolution_limit=None if chosen is None else chosen.get("resolution_limit"),
-            )
+            with compile_notice():
+                sol = run_feedback(
+                    fi, T, dt=dt, scheme=scheme, save_every=save_every, check_stability=check_stability,
+                    adaptive=adaptive, backend=backend,
+                    resolution_limit=None if chosen is None else chosen.get("resolution_limit"),
+                )
             method = sol.method
             if chosen is not None:
                 from ..tolerance import describe
