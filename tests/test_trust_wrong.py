@@ -1,0 +1,107 @@
+"""Issue 23, silent wrong answers and tolerance faults: each reproduction of the issue, as a test.
+
+* per-member constants are applied to the members' axes, never matched to an axis by
+  its length (a time-major stack with as many times as members; a build with as many
+  members as coordinates);
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import liefi
+
+
+# --- per-member constants: the member axes are explicit --------------------------------------
+def _sleigh(constants):
+    sympy = pytest.importorskip("sympy")
+    me = pytest.importorskip("sympy.physics.mechanics")
+    x, y, theta = me.dynamicsymbols("x y theta")
+    m, I, a = sympy.symbols("m I a")
+    N = me.ReferenceFrame("N")
+    B = N.orientnew("B", "Axis", [theta, N.z])
+    O = me.Point("O")
+    O.set_vel(N, 0)
+    P = O.locatenew("P", x * N.x + y * N.y)
+    P.set_vel(N, P.pos_from(O).dt(N))
+    G = P.locatenew("G", a * B.x)
+    G.set_vel(N, G.pos_from(O).dt(N))
+    sled = me.RigidBody("sled", G, B, m, (me.inertia(B, 0, 0, I), G))
+    LM = me.LagrangesMethod(me.Lagrangian(N, sled), [x, y, theta], nonhol_coneqs=[P.vel(N).dot(B.y)], frame=N)
+    return liefi.from_mechanics(LM, constants)
+
+
+def test_per_member_constants_follow_the_members_not_an_axis_of_equal_length():
+    """3 sleighs of masses 1, 2, 3 and 3 saved times: the energy of the time-major stack (T, 3, n)
+    and the velocities of the Solution are each member's own (as 3 separate systems)."""
+    masses = np.array([1.0, 2.0, 3.0])
+    sleigh = _sleigh({"m": 1.0, "I": 1.0, "a": 0.5})
+    sleigh.constants = {"m": masses}
+    q0 = np.zeros((3, 3))
+    qd0 = np.array([0.5, 0.0, 1.0]) * masses[:, None]
+    z0 = sleigh.state(q0, qd0)
+    fi = liefi.FeedbackIntegrator(sleigh, z0, gains=1.0)
+    sol = fi.run(1.0, dt=0.01, scheme="rk4", backend="numpy", t_eval=[0.0, 0.5, 1.0])
+    assert sol.y.shape == (3, 6, 3)
+    Yt = np.moveaxis(sol.y, -1, 0)  # (T, members, n): liefi's time-major stack
+    h = fi.invariant_values(Yt)["h"]
+    qdot = sleigh.velocities(sol)
+    for k, mk in enumerate(masses):
+        one = _sleigh({"m": mk, "I": 1.0, "a": 0.5})
+        fk = liefi.FeedbackIntegrator(one, z0[k], gains=1.0)
+        np.testing.assert_allclose(h[:, k], fk.invariant_values(sol.y[k].T)["h"], rtol=1e-13)
+        np.testing.assert_allclose(qdot[k], one.velocities(sol.y[k].T).T, rtol=1e-13, atol=1e-15)
+    # the energy is (nearly) kept by each member: no false drift from another member's mass
+    assert np.max(np.abs(h - h[0])) < 1e-5 * np.max(np.abs(h))
+    # a member-major stack (members first) is refused by name, not read with the wrong masses
+    with pytest.raises(ValueError, match="constants: per-member constants .* time-major"):
+        sleigh.metric(np.zeros((3, 2, 3)))
+
+
+def test_per_member_constants_at_build_with_as_many_members_as_coordinates():
+    """constants={m: [1, 2, 3]} with 3 coordinates: the build's complex-step check differentiates along
+    an axis of length 3 that is not the members' (it was read as them: 'not complex-step safe')."""
+    sleigh = _sleigh({"m": [1.0, 2.0, 3.0], "I": 1.0, "a": 0.5})
+    assert sleigh.constants.shape == (3, 3)
+    x = np.zeros((3, 3))
+    M = sleigh.metric(x)  # one state per member: each member's own mass
+    np.testing.assert_allclose(M[:, 0, 0], [1.0, 2.0, 3.0])
+
+
+# --- liefi run --scheme dla --rtol: refused, and method.why says what ran -----------------------
+def _cli(capsys, *argv):
+    from liefi import cli
+
+    code = cli.main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_dla_with_a_tolerance_is_refused_not_run_at_the_scenes_step(capsys, monkeypatch):
+    """--scheme dla --rtol R ran at dt 1e-3 whatever R (error 1.95e-3 at rtol 1e-3 and 1e-12 alike)."""
+    from liefi import scenes
+
+    def boom(self, **kw):
+        raise AssertionError("the scene was run")
+
+    sc = scenes.get("oscillator")
+    with pytest.raises(ValueError, match="rtol: the scheme 'dla' .* no error control"):
+        sc.run(scheme="dla", rtol=1e-12, t_final=0.01)
+    monkeypatch.setattr(scenes.Scene, "run", boom)
+    for tol in ("--rtol", "--atol"):
+        code, out, err = _cli(capsys, "run", "oscillator", "--scheme", "dla", tol, "1e-3")
+        assert code == 2 and out == ""
+        assert err.startswith("liefi: error: rtol: --scheme dla has no error control") and "--dt" in err
+
+
+def test_method_why_says_the_step_that_ran(capsys):
+    """--scheme dla at the scene's step: why names that step, not 'the step for the tolerance'."""
+    import json
+
+    code, out, err = _cli(capsys, "run", "oscillator", "--scheme", "dla", "--t-final", "0.01", "--backend", "numpy",
+                          "--json")
+    assert code == 0, err
+    method = json.loads(out)["method"]
+    assert method["dt"] == 0.001 and "tolerance" not in method["why"] and "step 0.001" in method["why"]
+    assert "gains auto" not in method["why"] and method["gains"] == "none"
