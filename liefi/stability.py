@@ -84,6 +84,8 @@ PILOT_GUARD_EVALS = 240
 #: The pilot (of ``X``, which keeps every invariant) ends where its own relative drift passes this.
 PILOT_DRIFT = 1e-3
 PILOT_MEMBERS = 4
+#: The pilot's step ``h`` keeps ``h rho <= PILOT_MAX_RATE`` (``rho`` the spectral radius of ``dX/dy`` at the start).
+PILOT_MAX_RATE = 0.5
 #: In a run past the limit, a drift (relative to the invariant's scale) above this is an explosion.
 GUARD_DRIFT = 1e-2
 #: Members of a batch on which the (per-state) resolution of the unforced dynamics is estimated.
@@ -263,7 +265,7 @@ def stable_dt(scheme, eigenvalues):
 # --------------------------------------------------------------------------------
 
 
-def pilot(fi, y0, t_final, *, max_evals=2000, max_rate=0.5):
+def pilot(fi, y0, t_final, *, max_evals=2000, max_rate=None):
     """A cheap preview of the run: the extended field ``X`` (no feedback) by fixed-step RK4.
 
     Returns ``(t, Y)`` with ``Y`` of shape ``(N,) + y0.shape``: the start and
@@ -276,6 +278,7 @@ def pilot(fi, y0, t_final, *, max_evals=2000, max_rate=0.5):
     """
     from .schemes.rk import RK4
 
+    max_rate = PILOT_MAX_RATE if max_rate is None else max_rate
     y0 = np.asarray(y0, dtype=float)
     X = fi.unforced_vector_field
     budget = max(1, int(max_evals) // RK4.stages - 1)
@@ -287,6 +290,8 @@ def pilot(fi, y0, t_final, *, max_evals=2000, max_rate=0.5):
         h = float(t_final) / budget
         if math.isfinite(rho) and rho > 0:
             h = min(h, float(max_rate) / rho)
+        if not h > 0:  # a horizon so short (a subnormal) that its pilot step underflows: the start alone
+            return np.array([0.0]), y0[None]
         steps = int(min(budget, math.ceil(float(t_final) / h - 1e-9)))
         ts, Ys, y = [0.0], [y0], y0
         for k in range(1, steps + 1):

@@ -105,3 +105,70 @@ def test_method_why_says_the_step_that_ran(capsys):
     method = json.loads(out)["method"]
     assert method["dt"] == 0.001 and "tolerance" not in method["why"] and "step 0.001" in method["why"]
     assert "gains auto" not in method["why"] and method["gains"] == "none"
+
+
+# --- a step chosen for a tolerance is stable along the run, and chosen alike by every entry point ---
+def test_step_for_a_tolerance_keeps_an_explicit_scheme_stable_along_the_run():
+    """Kepler, rk4 at the scene's fixed gains, rtol 1e-3: the step for the tolerance alone (0.0283 over
+    [0, 1000]) passed beta / lambda_max along the orbit and the run blew up; the chosen step is now within
+    the stability bound at the stiffest point of the guard's pilot over the horizon (over [0, 10]: 0.079, at
+    4.0 x the bound, before)."""
+    from liefi import scenes, stability, tolerance
+    from liefi.schemes import registry
+
+    sc = scenes.get("kepler")
+    fi = sc.integrator(sc.variant(None))
+    assert fi.gains_mode == "fixed"
+    dt, info = tolerance.choose_step(fi, registry.get("rk4"), fi.y0, 0.0, 10.0, 1e-3, backend="numpy")
+    # an independent pilot over the horizon (a finer step than the chooser's): dt lambda_max within beta (was 4.0 x beta)
+    est = stability.estimate(fi, dt, "rk4", t_final=10.0, max_evals=400, resolution=False)
+    assert est.ratio < 1
+    assert info["stable_step"] is not None and dt <= info["stable_step"]
+
+
+@pytest.mark.slow
+def test_kepler_rk4_for_a_tolerance_runs_and_every_entry_point_chooses_the_same_step(capsys):
+    """fi.run(1000, rtol=1e-3, scheme='rk4') ran at 0.0283 and blew up at t = 7.99 ('check the system's
+    data'); liefi run chose 0.0114 (gains auto).  Now the fixed-gains run is stable, and with the same gains
+    (auto: liefi run's and FeedbackIntegrator's default, and Scene.run's for a tolerance) the three agree."""
+    import json
+    import warnings
+
+    from liefi import scenes
+
+    sc = scenes.get("kepler")
+    v = sc.variant(None)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        sol = sc.integrator(v).run(1000.0, rtol=1e-3, scheme="rk4")  # the scene's fixed gains
+        assert sol.success and np.all(np.isfinite(sol.y))
+        auto = liefi.FeedbackIntegrator(sc.system, sc.integrator(v).y0, invariants=sc.invariants(v),
+                                        energy=v.energy).run(1000.0, rtol=1e-3, scheme="rk4")
+        scene = sc.run(t_final=1000.0, scheme="rk4", rtol=1e-3)
+    code, out, err = _cli(capsys, "run", "kepler", "--scheme", "rk4", "--rtol", "1e-3", "--json")
+    assert code == 0, err
+    assert auto.method["dt"] == scene.dt == json.loads(out)["method"]["dt"]
+
+
+# --- a tiny horizon with a tolerance: one step, not ZeroDivisionError ------------------------------
+@pytest.mark.parametrize("T", [1e-300, 1e-200, 5e-324])
+def test_a_tiny_horizon_with_a_tolerance_is_one_step(T):
+    """fi.run(1e-300, rtol=...) divided by h^(p+1) = 0 (ZeroDivisionError); the span is legal."""
+    from liefi import scenes
+
+    sc = scenes.get("oscillator")
+    fi = sc.integrator(sc.variant(None))
+    for scheme in (None, "rk4"):
+        sol = fi.run(T, rtol=1e-6, scheme=scheme, backend="numpy")
+        assert sol.success and sol.t.tolist() == [0.0, T] and sol.method["dt"] == T
+        np.testing.assert_allclose(sol.y[:, -1], fi.y0, rtol=1e-15, atol=10 * T)  # one step of length T
+
+
+def test_a_tiny_horizon_on_the_command_line(capsys):
+    import json
+
+    code, out, err = _cli(capsys, "run", "oscillator", "--t-final", "1e-200", "--rtol", "1e-6", "--backend", "numpy",
+                          "--json")
+    assert code == 0, err
+    d = json.loads(out)
+    assert d["method"]["dt"] == 1e-200 and max(d["max_error"].values()) < 1e-150
