@@ -172,3 +172,33 @@ def test_a_tiny_horizon_on_the_command_line(capsys):
     assert code == 0, err
     d = json.loads(out)
     assert d["method"]["dt"] == 1e-200 and max(d["max_error"].values()) < 1e-150
+
+
+# --- a diverging numpy run: a liefi error naming what happened, and errors="return" keeps the run ----
+def test_a_run_diverging_into_a_singular_matrix_is_a_liefi_error_and_keeps_its_finished_part():
+    """The rattleback at euler dt 0.5 (unchecked) ended in a bare numpy LinAlgError 'Singular matrix', and
+    errors='return' lost the run; now an IntegrationError says it diverged, and the finished part is kept."""
+    from liefi import scenes
+    from liefi.schemes import IntegrationError
+
+    sc = scenes.get("rattleback")
+    fi = sc.integrator(sc.variant(None))
+    kw = dict(dt=0.5, scheme="euler", backend="numpy", check_stability=False)
+    with pytest.raises(IntegrationError, match=r"diverged: .* singular matrix.* at step 5 \(t=2.5\).*last finite state is at t=2") as info:
+        fi.run(20.0, **kw)
+    assert not isinstance(info.value, np.linalg.LinAlgError)
+    sol = fi.run(20.0, errors="return", **kw)
+    assert (sol.success, sol.status) == (False, -1) and "diverged" in sol.message
+    assert sol.t.tolist() == [0.0, 0.5, 1.0, 1.5, 2.0]  # every saved step before the failure
+    ok = fi.run(2.0, **kw)
+    np.testing.assert_array_equal(sol.y, ok.y)
+
+
+def test_errors_return_keeps_the_saved_states_before_non_finite_values():
+    from liefi import scenes
+
+    sc = scenes.get("oscillator")
+    fi = sc.integrator(sc.variant(None))
+    sol = fi.run(20.0, dt=0.5, scheme="euler", backend="numpy", check_stability=False, errors="return")
+    assert not sol.success and sol.t.size > 3 and np.all(np.isfinite(sol.y))
+    np.testing.assert_allclose(np.diff(sol.t), 0.5)
