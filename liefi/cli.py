@@ -86,8 +86,11 @@ class _Parser(argparse.ArgumentParser):
         return out
 
 
-#: a negative number as a command-line token, exponent included (``-1e-3``, ``-.5``, ``-inf``)
-_NEGATIVE = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-(inf|infinity|nan)$", re.IGNORECASE)
+#: a number as a command-line token, exponent included (``1e-3``, ``.5``, ``inf``)
+_NUMBER = r"(?:(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?|inf|infinity|nan)"
+#: a negative number as a command-line token (``-1e-3``, ``-.5``, ``-inf``), or a comma list of numbers that
+#: starts with one (``--gains -1,5``): a value, which the option's own check refuses by name
+_NEGATIVE = re.compile(rf"^-{_NUMBER}(?:,\s*[-+]?{_NUMBER})*$", re.IGNORECASE)
 
 
 # --------------------------------------------------------------------------------------

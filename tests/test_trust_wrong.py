@@ -202,3 +202,37 @@ def test_errors_return_keeps_the_saved_states_before_non_finite_values():
     sol = fi.run(20.0, dt=0.5, scheme="euler", backend="numpy", check_stability=False, errors="return")
     assert not sol.success and sol.t.size > 3 and np.all(np.isfinite(sol.y))
     np.testing.assert_allclose(np.diff(sol.t), 0.5)
+
+
+# --- liefi stability --estimate --gains K: honoured and checked; --gains -1,5 reaches the check -------
+SHORT = ("--t-final", "1")  # the estimate's pilot over a short horizon
+
+
+def test_stability_estimate_honours_and_checks_gains(capsys):
+    """--estimate ignored --gains (-1 and 1e300 accepted, the estimate made at the scene's gains)."""
+    import json
+
+    code, out, err = _cli(capsys, "stability", "oscillator", "--estimate", "--gains", "5", "--json", *SHORT)
+    assert code == 0, err
+    one = json.loads(out)["estimate"]
+    assert set(one["gains"].values()) == {5.0}
+    code, out, err = _cli(capsys, "stability", "oscillator", "--estimate", "--gains", "5,10", "--json", *SHORT)
+    two = json.loads(out)["estimate"]
+    assert [set(e["gains"].values()) for e in two] == [{5.0}, {10.0}]
+    # the estimate scales with the gain: lambda_max(10) = 2 lambda_max(5)
+    assert two[1]["lambda_max"] == pytest.approx(2 * two[0]["lambda_max"], rel=1e-9)
+    code, out, err = _cli(capsys, "stability", "oscillator", "--estimate", "--json", *SHORT)
+    assert set(json.loads(out)["estimate"]["gains"].values()) != {5.0}  # the scene's own gains by default
+    for bad, word in (("-1", "finite positive number, got -1.0"), ("0", "finite positive"),
+                      ("nan", "finite positive"), ("1e300", "past the ~1e300"), ("x", "comma list of numbers")):
+        code, out, err = _cli(capsys, "stability", "oscillator", "--estimate", "--gains", bad, *SHORT)
+        assert code == 2 and out == "" and err.startswith("liefi: error: gains:") and word in err, (bad, err)
+
+
+@pytest.mark.parametrize("argv", [["stability", "oscillator", "--estimate", "--gains", "-1,5"],
+                                  ["run", "oscillator", "--gains", "-1,5,2", "--t-final", "0.01"]])
+def test_a_negative_gain_list_is_a_value_refused_by_name(capsys, argv):
+    """--gains -1,5 gave argparse's 'expected one argument' (the leading minus read as an option)."""
+    code, out, err = _cli(capsys, *argv)
+    assert code == 2 and out == ""
+    assert "expected one argument" not in err and err.startswith("liefi: error: gains:") and "-1" in err, err
