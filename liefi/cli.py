@@ -318,7 +318,7 @@ def run_settings(scene, args):
            "tolerance; --paper: the paper's settings)")
     if args.scheme is not None or args.gains is not None or args.dt is not None:
         rest = [] if args.scheme is not None else ["imex-rk4/rk6/rk8" if args.dt is None else scheme]
-        if args.gains is None and fixed:
+        if args.gains is None and scheme not in scene.extra_schemes:  # the feedback's gains (also under solve_ivp)
             rest.append("gains auto")
         if args.dt is None:  # what sets the step when --dt is not given
             rest.append("the step for the tolerance" if fixed else "solve_ivp's own steps"

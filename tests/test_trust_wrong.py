@@ -236,3 +236,16 @@ def test_a_negative_gain_list_is_a_value_refused_by_name(capsys, argv):
     code, out, err = _cli(capsys, *argv)
     assert code == 2 and out == ""
     assert "expected one argument" not in err and err.startswith("liefi: error: gains:") and "-1" in err, err
+
+
+@pytest.mark.parametrize("argv, says, not_says", [
+    (["--dt", "0.01"], "(imex-rk4, gains auto)", "tolerance"),
+    (["--scheme", "scipy:RK45"], "solve_ivp's own steps", "tolerance"),
+    (["--scheme", "rk4"], "the step for the tolerance", "imex-rk4"),
+])
+def test_method_why_names_only_the_defaults_that_apply(argv, says, not_says):
+    from liefi import cli, scenes
+
+    args = cli.build_parser().parse_args(["run", "oscillator", *argv])
+    why = cli.run_settings(scenes.get("oscillator"), args)[-1]
+    assert says in why and not_says not in why, why
