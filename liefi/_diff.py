@@ -16,6 +16,7 @@ that break this and says so.
 
 from __future__ import annotations
 
+import contextlib
 import contextvars
 import warnings
 
@@ -34,6 +35,19 @@ STEP = 1e-30
 #: :mod:`liefi.mechanics`) reads it to align its members with the states, never the
 #: direction axis, whatever the lengths.
 STATE_AXES = contextvars.ContextVar("liefi_state_axes", default=None)
+
+
+@contextlib.contextmanager
+def directions_after(x):
+    """While a derivative appends direction axes after the batch of the states ``x`` (``(..., n)``): declares
+    that the first ``x.ndim - 1`` axes of a data function's argument index states (:data:`STATE_AXES`; an
+    enclosing declaration is kept).  :func:`jacobian` uses it, and so do liefi's finite differences."""
+    token = STATE_AXES.set(np.ndim(x) - 1) if STATE_AXES.get() is None else None
+    try:
+        yield
+    finally:
+        if token is not None:
+            STATE_AXES.reset(token)
 
 
 def state_batch(shape):
@@ -70,12 +84,8 @@ def jacobian(fun, x, *, step: float = STEP):
     x = np.asarray(x, dtype=float)
     n = x.shape[-1]
     xc = x[..., None, :] + (1j * step) * np.eye(n)
-    token = STATE_AXES.set(x.ndim - 1) if STATE_AXES.get() is None else None
-    try:
+    with directions_after(x):
         fc = np.asarray(fun(xc))
-    finally:
-        if token is not None:
-            STATE_AXES.reset(token)
     if not np.iscomplexobj(fc):
         # The function discarded the imaginary part (or is constant).
         fc = fc.astype(complex)

@@ -60,6 +60,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ._diff import directions_after
 from .drift import drift, drift_scales, first_integral_defect  # noqa: F401 -- part of this module's API
 from .schemes import IntegrationError
 from .schemes import positive_int as _positive_int  # noqa: F401
@@ -203,7 +204,8 @@ def stiffness(fi, y, *, exact=False) -> Stiffness:
         h = 1e-6 * np.maximum(1.0, np.abs(y))
         E = np.eye(n)
         pts = np.concatenate([y[..., None, :] + h[..., None, :] * E, y[..., None, :] - h[..., None, :] * E], -2)
-        gV = fi.grad_lyapunov(pts)
+        with directions_after(y):  # the axis of the 2n differences is not a state axis (per-member data)
+            gV = fi.grad_lyapunov(pts)
         H = (gV[..., :n, :] - gV[..., n:, :]) / (2 * h[..., :, None])
         H = 0.5 * (H + np.swapaxes(H, -1, -2))
         M = H if fi.A is None else np.einsum("ij,...jk->...ik", fi.A, H)
@@ -339,7 +341,7 @@ def _dynamics_eigenvalues(fi, y):
     h = 1e-6 * np.maximum(1.0, np.abs(y))
     E = np.eye(n)
     pts = np.concatenate([y[..., None, :] + h[..., None, :] * E, y[..., None, :] - h[..., None, :] * E], -2)
-    with np.errstate(all="ignore"):
+    with np.errstate(all="ignore"), directions_after(y):  # the differences' axis is not a state axis
         F = fi.unforced_vector_field(pts)
         Jt = (F[..., :n, :] - F[..., n:, :]) / (2 * h[..., :, None])  # rows: d f / d y_k
         ev = np.linalg.eigvals(np.swapaxes(Jt, -1, -2))

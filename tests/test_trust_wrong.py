@@ -59,6 +59,25 @@ def test_per_member_constants_follow_the_members_not_an_axis_of_equal_length():
         sleigh.metric(np.zeros((3, 2, 3)))
 
 
+def test_per_member_constants_through_finite_differences_and_adaptive_gains():
+    """gains='auto', adaptive: the stiffness and rates are finite differences along an axis appended after the
+    members (declared: liefi._diff.directions_after); each member runs as if alone."""
+    import warnings
+
+    masses = np.array([1.0, 2.0, 3.0, 4.0, 5.0, 6.0])
+    sleigh = _sleigh({"m": 1.0, "I": 1.0, "a": 0.5})
+    sleigh.constants = {"m": masses}
+    z0 = sleigh.state(np.zeros((6, 3)), np.array([0.5, 0.0, 1.0]) * masses[:, None])
+    kw = dict(dt=0.05, scheme="rk4", backend="numpy", adaptive=True)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ens = liefi.FeedbackIntegrator(sleigh, z0, gains="auto").run(1.0, **kw)
+        for k in (0, 5):
+            one = _sleigh({"m": masses[k], "I": 1.0, "a": 0.5})
+            sol = liefi.FeedbackIntegrator(one, z0[k], gains="auto").run(1.0, **kw)
+            np.testing.assert_allclose(ens.y[k], sol.y, rtol=1e-12, atol=1e-12)
+
+
 def test_per_member_constants_at_build_with_as_many_members_as_coordinates():
     """constants={m: [1, 2, 3]} with 3 coordinates: the build's complex-step check differentiates along
     an axis of length 3 that is not the members' (it was read as them: 'not complex-step safe')."""
