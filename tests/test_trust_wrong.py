@@ -3,6 +3,16 @@
 * per-member constants are applied to the members' axes, never matched to an axis by
   its length (a time-major stack with as many times as members; a build with as many
   members as coordinates);
+* ``liefi run --scheme dla --rtol`` is refused (the DLA has no error control), and
+  ``method.why`` names only what applied;
+* a step chosen for a tolerance keeps an explicit scheme stable along the run (Kepler,
+  rk4), and ``fi.run``, ``Scene.run`` and ``liefi run`` choose the same step for the same
+  request;
+* a tiny horizon with a tolerance is one step;
+* a run that diverges into a singular matrix is a liefi error, and ``errors="return"``
+  keeps its finished part;
+* ``liefi stability --estimate --gains K`` honours and checks ``K``; ``--gains -1,5`` is a
+  value, refused by name.
 """
 
 from __future__ import annotations
@@ -167,6 +177,11 @@ def test_kepler_rk4_for_a_tolerance_runs_and_every_entry_point_chooses_the_same_
     code, out, err = _cli(capsys, "run", "kepler", "--scheme", "rk4", "--rtol", "1e-3", "--json")
     assert code == 0, err
     assert auto.method["dt"] == scene.dt == json.loads(out)["method"]["dt"]
+    # the scene's fixed gains asked of liefi run: the fixed-gains fi.run's step
+    code, out, err = _cli(capsys, "run", "kepler", "--scheme", "rk4", "--rtol", "1e-3", "--json", "--gains",
+                          ",".join(str(v) for v in sc.integrator(v).gains.values()))
+    assert code == 0, err
+    assert json.loads(out)["method"]["dt"] == sol.method["dt"]
 
 
 # --- a tiny horizon with a tolerance: one step, not ZeroDivisionError ------------------------------
