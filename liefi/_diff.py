@@ -16,6 +16,8 @@ that break this and says so.
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import warnings
 
 import numpy as np
@@ -25,6 +27,35 @@ ComplexWarning = getattr(getattr(np, "exceptions", np), "ComplexWarning")
 
 #: Complex step.  Any value below ~1e-20 gives the same result in double precision.
 STEP = 1e-30
+
+#: While :func:`jacobian` differentiates: how many leading axes of the argument of the
+#: function being differentiated index *states* (the axis it appends before the last, one
+#: direction ``e_k`` per slot, does not).  ``None`` outside a derivative.  A datum whose
+#: values differ between the members of an ensemble (per-member constants,
+#: :mod:`liefi.mechanics`) reads it to align its members with the states, never the
+#: direction axis, whatever the lengths.
+STATE_AXES = contextvars.ContextVar("liefi_state_axes", default=None)
+
+
+@contextlib.contextmanager
+def directions_after(x):
+    """While a derivative appends direction axes after the batch of the states ``x`` (``(..., n)``): declares
+    that the first ``x.ndim - 1`` axes of a data function's argument index states (:data:`STATE_AXES`; an
+    enclosing declaration is kept).  :func:`jacobian` uses it, and so do liefi's finite differences."""
+    token = STATE_AXES.set(np.ndim(x) - 1) if STATE_AXES.get() is None else None
+    try:
+        yield
+    finally:
+        if token is not None:
+            STATE_AXES.reset(token)
+
+
+def state_batch(shape):
+    """The states' batch of a data function's argument of shape ``shape`` (``(..., n)``): without the
+    direction axis :func:`jacobian` appends (:data:`STATE_AXES`)."""
+    k = STATE_AXES.get()
+    batch = tuple(shape[:-1])
+    return batch if k is None else batch[:k]
 
 
 def jacobian(fun, x, *, step: float = STEP):
@@ -53,7 +84,8 @@ def jacobian(fun, x, *, step: float = STEP):
     x = np.asarray(x, dtype=float)
     n = x.shape[-1]
     xc = x[..., None, :] + (1j * step) * np.eye(n)
-    fc = np.asarray(fun(xc))
+    with directions_after(x):
+        fc = np.asarray(fun(xc))
     if not np.iscomplexobj(fc):
         # The function discarded the imaginary part (or is constant).
         fc = fc.astype(complex)

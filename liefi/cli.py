@@ -91,8 +91,11 @@ class _Parser(argparse.ArgumentParser):
         return out
 
 
-#: a negative number as a command-line token, exponent included (``-1e-3``, ``-.5``, ``-inf``)
-_NEGATIVE = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-(inf|infinity|nan)$", re.IGNORECASE)
+#: a number as a command-line token, exponent included (``1e-3``, ``.5``, ``inf``)
+_NUMBER = r"(?:(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?|inf|infinity|nan)"
+#: a negative number as a command-line token (``-1e-3``, ``-.5``, ``-inf``), or a comma list of numbers that
+#: starts with one (``--gains -1,5``): a value, which the option's own check refuses by name
+_NEGATIVE = re.compile(rf"^-{_NUMBER}(?:,\s*[-+]?{_NUMBER})*$", re.IGNORECASE)
 
 
 # --------------------------------------------------------------------------------------
@@ -317,13 +320,22 @@ def run_settings(scene, args):
     gains = "auto" if args.gains is None else args.gains
     fixed = scheme in _schemes.names("explicit") + _schemes.names("split")
     rtol, atol = args.rtol, args.atol
+    if scheme in scene.extra_schemes and (rtol is not None or atol is not None):
+        raise UsageError(f"rtol: --scheme {scheme} has no error control and liefi does not choose its step for a "
+                         f"tolerance; give --dt (default the scene's {scene.dt:g}) instead of --rtol/--atol, or "
+                         "drop --scheme for a step chosen for --rtol")
     if fixed and args.dt is None and rtol is None:
         rtol = _tol.DEFAULT_RTOL
     why = ("liefi's default method (a split scheme imex-rk4/rk6/rk8, gains auto, the order and step for the "
            "tolerance; --paper: the paper's settings)")
     if args.scheme is not None or args.gains is not None or args.dt is not None:
-        order = "imex-rk4" if args.dt is not None else "imex-rk4/rk6/rk8, the order for the tolerance"
-        why = f"as asked, liefi's defaults for the rest ({order}, gains auto, the step for the tolerance)"
+        rest = [] if args.scheme is not None else ["imex-rk4/rk6/rk8" if args.dt is None else scheme]
+        if args.gains is None and scheme not in scene.extra_schemes:  # the feedback's gains (also under solve_ivp)
+            rest.append("gains auto")
+        if args.dt is None:  # what sets the step when --dt is not given
+            rest.append("the step for the tolerance" if fixed else "solve_ivp's own steps"
+                        if scheme.startswith("scipy:") else f"the scene's step {scene.dt:g}")
+        why = "as asked" + (f", liefi's defaults for the rest ({', '.join(rest)})" if rest else "")
     return scheme, gains, args.dt, rtol, atol, why
 
 
@@ -377,7 +389,8 @@ def cmd_run(args):
     out["configuration"] = bool(configuration) if configuration is not None else scene.needs_configuration()
     out["warnings"] = list(getattr(args, "warnings_seen", []))
     method = dict(result.method) if result.method else {
-        "scheme": result.scheme, "dt": result.dt, "gains": "auto" if gains == "auto" else "fixed",
+        "scheme": result.scheme, "dt": result.dt,
+        "gains": "none" if result.scheme in scene.extra_schemes else "auto" if gains == "auto" else "fixed",
         "backend": result.backend, "why": f"scheme {result.scheme} as asked"}
     method["why"] = why + "; " + method["why"]
     out["method"] = method

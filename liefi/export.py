@@ -73,10 +73,11 @@ def invariant_series(sol):
     if sol.y.shape[-2] != fi.n:
         raise ValueError(f"invariants: the solution has {sol.y.shape[-2]} components, its integrator {fi.n}")
     with np.errstate(all="ignore"):
-        vals = fi.invariant_values(np.swapaxes(sol.y, -1, -2))
+        vals = fi.invariant_values(np.moveaxis(sol.y, -1, 0))  # time-major: an ensemble's members last
     if energy_name(fi) in vals:
         vals.pop("energy", None)
-    return {k: np.broadcast_to(np.asarray(v, dtype=float), sol.y.shape[:-2] + sol.t.shape) for k, v in vals.items()}
+    return {k: np.broadcast_to(np.moveaxis(np.asarray(v, dtype=float), 0, -1) if np.ndim(v) else v,
+                               sol.y.shape[:-2] + sol.t.shape) for k, v in vals.items()}
 
 
 def invariant_targets(sol):

@@ -278,12 +278,14 @@ def _advice(fi, y, t, dt, sch, beta, earlier=None):
 
 def _relabel(exc, dt, sch, extra, t0=0.0):
     """Rebuild an IntegrationError (absolute ``t``, ``step`` from the start ``t0``) with our advice appended."""
-    comps = list(exc.components or [])
+    from .schemes.core import failure_words
+
+    comps, what = list(exc.components or []), getattr(exc, "what", "")
     msg = (
-        f"integration with {getattr(sch, 'name', sch)} (dt={dt:g}) produced non-finite values at step "
-        f"{exc.step} (t={t0 + exc.step * dt:g}) in components {comps}; the last finite state is at t={exc.t:g}. {extra}"
+        f"integration with {getattr(sch, 'name', sch)} (dt={dt:g}) "
+        f"{failure_words(what, exc.step, t0 + exc.step * dt, comps)}; the last finite state is at t={exc.t:g}. {extra}"
     )
-    return IntegrationError(msg, exc.t, exc.step, exc.y, comps)
+    return IntegrationError(msg, exc.t, exc.step, exc.y, comps, what)
 
 
 #: Largest number of states (batch members x saved points) the post-run audit evaluates

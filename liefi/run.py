@@ -174,7 +174,8 @@ def _segment_runner(sch, dt, backend, names, t_start=0.0):
             try:
                 sol = run_feedback(fi_cur, dt, n, sch, y, save_every, check_every, state["backend"])
             except IntegrationError as exc:  # times relative to the segment
-                raise IntegrationError(str(exc), t0 + exc.t, s0 + exc.step, exc.y, exc.components) from None
+                raise IntegrationError(str(exc), t0 + exc.t, s0 + exc.step, exc.y, exc.components,
+                                       getattr(exc, "what", "")) from None
             if sol is not None:
                 sol.t = sol.t + t0
                 return sol
@@ -184,7 +185,8 @@ def _segment_runner(sch, dt, backend, names, t_start=0.0):
             return integrate(fi_cur.vector_field, y, dt, n, stepper, t0=t0, save_every=save_every,
                              names=names, check_every=check_every, out=out)
         except IntegrationError as exc:  # t absolute, step relative
-            raise IntegrationError(str(exc), exc.t, s0 + exc.step, exc.y, exc.components) from None
+            raise IntegrationError(str(exc), exc.t, s0 + exc.step, exc.y, exc.components,
+                                   getattr(exc, "what", "")) from None
 
     def prepare(fi_cur, y):
         """Compile (or load) the kernel now, before the progress starts; the numpy path if it cannot run."""
@@ -390,6 +392,10 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
             try:
                 seg = runner(run_fi, y, L, s0, sub, check_every, buf)
             except IntegrationError as exc:
+                if direct and errors == "return":  # the states this segment saved before it failed are kept
+                    done = max(0, min((int(round((exc.t - t_start) / dt)) - s0) // sub, L // sub, ts.size - k))
+                    ts[k : k + done] = t_start + dt * (s0 + sub * np.arange(1, done + 1)).astype(float)
+                    k += done
                 raise policy.failure(run_fi, exc, checked) from None
             last = seg
             rhs += seg.rhs_evaluations

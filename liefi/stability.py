@@ -60,6 +60,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ._diff import directions_after
 from .drift import drift, drift_scales, first_integral_defect  # noqa: F401 -- part of this module's API
 from .schemes import IntegrationError
 from .schemes import positive_int as _positive_int  # noqa: F401
@@ -84,6 +85,8 @@ PILOT_GUARD_EVALS = 240
 #: The pilot (of ``X``, which keeps every invariant) ends where its own relative drift passes this.
 PILOT_DRIFT = 1e-3
 PILOT_MEMBERS = 4
+#: The pilot's step ``h`` keeps ``h rho <= PILOT_MAX_RATE`` (``rho`` the spectral radius of ``dX/dy`` at the start).
+PILOT_MAX_RATE = 0.5
 #: In a run past the limit, a drift (relative to the invariant's scale) above this is an explosion.
 GUARD_DRIFT = 1e-2
 #: Members of a batch on which the (per-state) resolution of the unforced dynamics is estimated.
@@ -201,7 +204,8 @@ def stiffness(fi, y, *, exact=False) -> Stiffness:
         h = 1e-6 * np.maximum(1.0, np.abs(y))
         E = np.eye(n)
         pts = np.concatenate([y[..., None, :] + h[..., None, :] * E, y[..., None, :] - h[..., None, :] * E], -2)
-        gV = fi.grad_lyapunov(pts)
+        with directions_after(y):  # the axis of the 2n differences is not a state axis (per-member data)
+            gV = fi.grad_lyapunov(pts)
         H = (gV[..., :n, :] - gV[..., n:, :]) / (2 * h[..., :, None])
         H = 0.5 * (H + np.swapaxes(H, -1, -2))
         M = H if fi.A is None else np.einsum("ij,...jk->...ik", fi.A, H)
@@ -263,7 +267,7 @@ def stable_dt(scheme, eigenvalues):
 # --------------------------------------------------------------------------------
 
 
-def pilot(fi, y0, t_final, *, max_evals=2000, max_rate=0.5):
+def pilot(fi, y0, t_final, *, max_evals=2000, max_rate=None):
     """A cheap preview of the run: the extended field ``X`` (no feedback) by fixed-step RK4.
 
     Returns ``(t, Y)`` with ``Y`` of shape ``(N,) + y0.shape``: the start and
@@ -276,6 +280,7 @@ def pilot(fi, y0, t_final, *, max_evals=2000, max_rate=0.5):
     """
     from .schemes.rk import RK4
 
+    max_rate = PILOT_MAX_RATE if max_rate is None else max_rate
     y0 = np.asarray(y0, dtype=float)
     X = fi.unforced_vector_field
     budget = max(1, int(max_evals) // RK4.stages - 1)
@@ -287,6 +292,8 @@ def pilot(fi, y0, t_final, *, max_evals=2000, max_rate=0.5):
         h = float(t_final) / budget
         if math.isfinite(rho) and rho > 0:
             h = min(h, float(max_rate) / rho)
+        if not h > 0:  # a horizon so short (a subnormal) that its pilot step underflows: the start alone
+            return np.array([0.0]), y0[None]
         steps = int(min(budget, math.ceil(float(t_final) / h - 1e-9)))
         ts, Ys, y = [0.0], [y0], y0
         for k in range(1, steps + 1):
@@ -334,7 +341,7 @@ def _dynamics_eigenvalues(fi, y):
     h = 1e-6 * np.maximum(1.0, np.abs(y))
     E = np.eye(n)
     pts = np.concatenate([y[..., None, :] + h[..., None, :] * E, y[..., None, :] - h[..., None, :] * E], -2)
-    with np.errstate(all="ignore"):
+    with np.errstate(all="ignore"), directions_after(y):  # the differences' axis is not a state axis
         F = fi.unforced_vector_field(pts)
         Jt = (F[..., :n, :] - F[..., n:, :]) / (2 * h[..., :, None])  # rows: d f / d y_k
         ev = np.linalg.eigvals(np.swapaxes(Jt, -1, -2))

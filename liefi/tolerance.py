@@ -111,6 +111,9 @@ from ._data import as_float_array
 DEFAULT_SCHEME = "imex-rk4"
 #: The relative tolerance of a run given neither ``dt`` nor ``rtol``.
 DEFAULT_RTOL = 1e-6
+#: A step chosen for a tolerance is at most this fraction of the largest step stable along the run (explicit
+#: scheme, fixed gains: :func:`stable_step`), a margin for the stiffness the guard's pilot did not reach.
+STABLE_FRACTION = 0.9
 #: Steps of the pilot (each with a step-doubling error estimate).
 PILOT_STEPS = 24
 #: A component's error scale is at least this fraction of the largest size of its part.
@@ -303,7 +306,9 @@ def _local_estimate(fi, tab, Y, T, rtol, atol, f=None):
                 if not math.isfinite(e):
                     break
                 big = max(big, float(np.max(err / (np.finfo(float).eps * _size(fi, m)))))
-                c = max(c, e / h ** (p + 1))
+                hp = h ** (p + 1)
+                if hp > 0:  # a step so short that h^(p+1) underflows (a horizon of 1e-200) has no error to measure
+                    c = max(c, e / hp)
                 y = yh
             if not math.isfinite(e):
                 break  # past the tableau's stability: keep the last estimate
@@ -577,6 +582,7 @@ def choose_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=
     if verified is not None and verified[2]:
         measured = max(measured or 0.0, verified[0])
     dt_est, limit = resolved_step(fi, tab, Y, min(dt_est, T), T, rtol, measured)
+    dt_est, dt_stable = stable_step(fi, sch, Y, min(dt_est, T), T)
     n = max(1, math.ceil(T / min(dt_est, T) - 1e-9))
     dt = T / n
     if chk is None:
@@ -603,6 +609,7 @@ def choose_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=
         "check_drift": None if chk is None else chk[6],
         "drift_step_limit": None if drift_cap == math.inf else drift_cap,
         "resolution_limit": limit,
+        "stable_step": None if dt_stable == math.inf else dt_stable,
         "estimated_error": est,
         "unmeasured": unmeasured,
     }
@@ -716,6 +723,40 @@ def resolved_step(fi, tab, Y, dt, T=None, rtol=None, measured=None):
         # the rate scales with dt: straight to just inside its limit; past the growth limit 0.8x a time
         dt *= 0.8 if est.unresolvable or not est.rate > 0 else min(0.98, 0.98 * limit / est.rate)
     return dt, limit
+
+
+def stable_step(fi, sch, Y, dt, T):
+    """``(dt, dt_stable)``: ``dt`` shortened to :data:`STABLE_FRACTION` of the largest step at which an explicit
+    scheme keeps the feedback stable along the run, at ``fi``'s fixed gains.
+
+    An explicit tableau steps the feedback's stiff mode ``-lambda`` by ``R(-dt lambda)``, stable while
+    ``dt lambda_max <= beta`` (:mod:`liefi.stability`); ``lambda_max`` (of ``A Hess V``) changes along the motion
+    (Kepler's grows 4.6x from the start to the pericentre), so it is taken along the stability guard's pilot
+    over the horizon ``T`` (:func:`liefi.stability.estimate`) with a budget that covers the horizon at the
+    pilot's step (within :data:`~liefi.stability.PILOT_MAX_EVALS`; the run's own check scales its budget with
+    the run's steps, which on a short horizon buys a pilot too short to reach the stiff part of the motion).  A step chosen for the
+    tolerance alone could pass it: the run then blew up (Kepler, rk4, gains 4/2, rtol 1e-3: ``dt = 0.0283``
+    against ``beta / lambda_max = 0.0193``; it diverged at ``t = 8``).  ``dt_stable`` is ``inf`` where the
+    feedback sets no limit: a split scheme (implicit feedback), or ``gains="auto"`` (chosen from ``dt`` at the
+    run's start, within the bound).
+    """
+    from .stability import PILOT_MAX_EVALS, PILOT_MAX_RATE, PILOT_MEMBERS, PILOT_MIN_EVALS, dynamics_rate, estimate
+
+    beta = float(getattr(sch, "real_stability_bound", math.inf))
+    if not math.isfinite(beta) or getattr(fi, "gains_mode", "fixed") == "auto":
+        return dt, math.inf
+    with np.errstate(all="ignore"):
+        try:  # the pilot's budget: its steps h = PILOT_MAX_RATE / rho over the whole horizon, within the cap
+            steps = T * dynamics_rate(fi, Y[:PILOT_MEMBERS]) / PILOT_MAX_RATE
+            evals = int(min(PILOT_MAX_EVALS, max(PILOT_MIN_EVALS, 4 * (math.ceil(steps) + 1))))
+        except (ValueError, OverflowError, np.linalg.LinAlgError):
+            evals = PILOT_MAX_EVALS
+        est = estimate(fi, dt, sch, t_final=T, y0=Y.reshape(fi.batch + (fi.n,)) if fi.batch else Y[0],
+                       resolution=False, max_evals=evals)
+    safe = float(est.dt_safe)
+    if not (safe > 0):
+        return dt, math.inf
+    return min(dt, STABLE_FRACTION * safe), safe
 
 
 def describe(scheme, dt, gains_mode, backend, *, chosen=None, scheme_given=False, dt_given=False):

@@ -19,13 +19,46 @@ def _jobs(text):
         raise argparse.ArgumentTypeError(f"must be a whole number >= 1, got {text!r}") from None
 
 
+def sweep_gains(text):
+    """``--gains K1,K2,...`` -> the list of gains ``k`` (every gain equal to ``k``), or None; a ``ValueError``
+    naming ``gains`` unless every entry is a finite positive number."""
+    if text is None:
+        return None
+    try:
+        gains = [float(x) for x in str(text).split(",")]
+    except ValueError:
+        raise ValueError(f"gains: expected a comma list of numbers K1,K2,... (every gain equal to k), "
+                         f"got {text!r}") from None
+    bad = [k for k in gains if not (math.isfinite(k) and k > 0)]
+    if bad:
+        raise ValueError(f"gains: every gain k must be a finite positive number, got {bad[0]!r} in {text!r}")
+    return gains
+
+
+def _estimate_at(fi, dt, scheme, T, k=None):
+    """:func:`liefi.stability.estimate` at the scene's gains, or (``k``) at every gain equal to ``k``."""
+    est = estimate(fi if k is None else fi.with_gains(k), dt, scheme, t_final=T)
+    if k is not None and not (math.isfinite(est.lam) and est.lam < 1e300):
+        raise ValueError(f"gains: at k = {k:g} the largest eigenvalue of Hess V is {est.lam:.3g}, past the ~1e300 "
+                         "where a step's dt times the gains overflows; give a smaller gain")
+    return est
+
+
+def _estimate_dict(est):
+    return {
+        "scheme": est.scheme, "bound": est.bound, "dt": est.dt, "lambda_max": est.lam, "lambda_0": est.lam0,
+        "t_max": est.t_max, "ratio": est.ratio, "verdict": est.verdict, "dt_safe": est.dt_safe,
+        "gains": est.gains, "message": est.message()}
+
+
 def add_arguments(parser):
     """Add the arguments of ``liefi stability`` to an ``argparse`` (sub)parser."""
     parser.add_argument("scene", help="scene name (see `liefi list`)")
     parser.add_argument("--variant", default=None)
     parser.add_argument("--scheme", default="euler", help="euler, heun, rk4, ... (default euler)")
     parser.add_argument("--gains", default=None, metavar="K1,K2,...",
-                        help="the gains k of the sweep, every gain equal to k (default 1, 3.16, ..., 1e4)")
+                        help="the gains k of the sweep, every gain equal to k (default 1, 3.16, ..., 1e4); "
+                             "with --estimate, the estimate at each k (default: at the scene's gains)")
     parser.add_argument("--t-final", type=float, default=None, help="horizon of each run (default min(scene's, 10))")
     parser.add_argument("--tol", type=float, default=0.02, help="relative tolerance of the boundaries in dt")
     parser.add_argument("--accurate", type=float, default=1e-2, help="drift (relative to scale) called accurate")
@@ -65,6 +98,7 @@ def command(args, file=None):
     from .._json import dumps
 
     out = file or sys.stdout
+    gains = sweep_gains(args.gains)  # checked before any work
     sc = _scenes.get(args.scene)
     if args.out and not args.estimate and not os.path.isdir(args.out):  # the figure's format, before any work
         from ..plotting import check_format
@@ -72,18 +106,13 @@ def command(args, file=None):
         check_format(args.out, "out")
     fi = sc.integrator(sc.variant(args.variant))
     T = float(args.t_final) if args.t_final is not None else float(sc.t_final)
-    est = estimate(fi, sc.dt, args.scheme, t_final=T)
-    result = {"scene": sc.name, "estimate": {
-        "scheme": est.scheme, "bound": est.bound, "dt": est.dt, "lambda_max": est.lam, "lambda_0": est.lam0,
-        "t_max": est.t_max, "ratio": est.ratio, "verdict": est.verdict, "dt_safe": est.dt_safe,
-        "gains": est.gains, "message": est.message()}}
+    # --estimate --gains: the estimate at each k given (one k: "estimate" is its dict, several: a list)
+    at = gains if args.estimate and gains else [None]
+    ests = [_estimate_at(fi, sc.dt, args.scheme, T, k) for k in at]
+    est = ests[0]
+    result = {"scene": sc.name, "estimate": (_estimate_dict(est) if len(ests) == 1
+                                              else [_estimate_dict(e) for e in ests])}
     if not args.estimate:
-        gains = None
-        if args.gains:
-            try:
-                gains = [float(x) for x in str(args.gains).split(",")]
-            except ValueError:
-                raise ValueError(f"gains: expected a comma list of numbers, got {args.gains!r}") from None
         ex = None
         if args.jobs and int(args.jobs) > 1:
             from concurrent.futures import ProcessPoolExecutor
@@ -103,8 +132,10 @@ def command(args, file=None):
     if args.json:
         out.write(dumps(result, indent=2, default=float) + "\n")
         return 0
-    out.write(f"{sc.name}: at the scene's settings (dt = {sc.dt:g}, gains {sc.gains}, t in [0, {T:g}]):\n  "
-              + est.message() + "\n")
+    for k, e in zip(at, ests):
+        where = f"gains {sc.gains}" if k is None else f"every gain {k:g}"
+        what = "the scene's settings" if k is None else "the scene's step"
+        out.write(f"{sc.name}: at {what} (dt = {sc.dt:g}, {where}, t in [0, {T:g}]):\n  " + e.message() + "\n")
     if not args.estimate:
         out.write(f"\nmeasured map ({smap.scheme}, runs of t in [0, {smap.t_final:g}], boundaries to "
                   f"{100 * smap.tol:g} % in dt):\n" + smap.table() + "\n")

@@ -459,7 +459,8 @@ class Scene:
         ``backend``: ``"numpy"``, ``"numba"`` or ``"auto"`` (:mod:`liefi.engine`);
         default ``"auto"`` when numba is installed (``liefi[fast]``), else ``"numpy"``.
         ``rtol``/``atol`` without ``dt`` on a fixed-step scheme: the step is chosen for the
-        tolerance (:func:`liefi.tolerance.choose_step`) instead of the scene's, and with
+        tolerance (:func:`liefi.tolerance.choose_step`) instead of the scene's, the gains default to
+        ``"auto"`` (as ``liefi run`` and :class:`~liefi.FeedbackIntegrator`'s default), and with
         ``choose_order=True`` also the order (``imex-rk4``/``6``/``8`` for a split ``scheme``);
         ``RunResult.method`` says which method ran and why.
         """
@@ -478,8 +479,17 @@ class Scene:
         T = positive_number(self.t_final if t_final is None else t_final, "t_final", "must be a positive number")
         scheme = self.scheme if scheme is None else scheme
         fixed_step = scheme not in self.extra_schemes and not str(scheme).lower().startswith("scipy:")
+        if scheme in self.extra_schemes and dt is None and (rtol is not None or atol is not None):
+            raise ValueError(
+                f"rtol: the scheme {scheme!r} of scene {self.name!r} has no error control and liefi does not choose "
+                f"its step for a tolerance; give dt (default the scene's {self.dt:g}), or use a liefi scheme "
+                "(e.g. imex-rk4) for a step chosen for rtol/atol"
+            )
         chosen = None
         if fixed_step and dt is None and (rtol is not None or atol is not None):
+            # a step for a tolerance is liefi's method, as `liefi run` and FeedbackIntegrator run it: gains "auto"
+            # unless given (the scene's paper gains go with its paper step)
+            gains = "auto" if gains is None else gains
             with compile_notice():  # the step's check runs compile the kernels: a long compile is announced
                 dt, chosen, fi = self._step_for_tolerance(v, scheme, gains, configuration, T, rtol, atol,
                                                           choose_order)

@@ -29,11 +29,14 @@ class IntegrationError(FloatingPointError):
         The last finite state (whole batch).
     components : list of str
         Names (or indices) of the components that became non-finite.
+    what : str
+        What happened at ``step``: ``""`` for non-finite values, else the failure's own words (a linear
+        solve of the field that found a singular matrix: the run diverged out of the data's domain).
     """
 
-    def __init__(self, message, t, step, y, components):
+    def __init__(self, message, t, step, y, components, what=""):
         super().__init__(message)
-        self.t, self.step, self.y, self.components = t, step, y, components
+        self.t, self.step, self.y, self.components, self.what = t, step, y, components, what
 
     def __reduce__(self):  # pickles with its fields (process pools, sweeps)
         return (type(self), (str(self), self.t, self.step, self.y, self.components), self.__dict__)
@@ -298,7 +301,11 @@ def integrate(f, y0, dt, n_steps, scheme="euler", *, t0=0.0, save_every=1, names
     start = time.process_time()
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         for i in range(1, n_steps + 1):
-            y = sch.step(f, y, dt)
+            try:
+                y = sch.step(f, y, dt)
+            except np.linalg.LinAlgError as exc:  # a solve of the field met a singular matrix: the run diverged
+                _fail(y, last_good, last_good_step, i, t0, dt, sch, names, on_failure,
+                      what=f"could not be evaluated (a linear solve found a {str(exc).lower() or 'singular matrix'})")
             if i % check_every == 0 or i == n_steps:
                 if not np.all(np.isfinite(y)):
                     _fail(y, last_good, last_good_step, i, t0, dt, sch, names, on_failure)
@@ -311,17 +318,23 @@ def integrate(f, y0, dt, n_steps, scheme="euler", *, t0=0.0, save_every=1, names
     return Solution(t, out, sch.name, dt, n_steps, n_steps * sch.stages, cpu, tuple(names))
 
 
-def _fail(y, last_good, last_good_step, i, t0, dt, sch, names, on_failure):
+def _fail(y, last_good, last_good_step, i, t0, dt, sch, names, on_failure, what=""):
+    """Raise the :class:`IntegrationError` of step ``i``: non-finite values in ``y``, or (``what``) a field that
+    could not be evaluated there."""
     bad = ~np.isfinite(y)
     comp = np.nonzero(bad.reshape(-1, y.shape[-1]).any(axis=0))[0]
-    labels = [names[c] if c < len(names) else str(c) for c in comp]
-    t_fail = t0 + dt * i
-    msg = (
-        f"integration with {sch.name} (dt={dt:g}) produced non-finite values at step {i} "
-        f"(t={t_fail:g}) in components {labels}; the last finite state is at t={t0 + dt * last_good_step:g}."
-    )
+    labels = [] if what else [names[c] if c < len(names) else str(c) for c in comp]
+    msg = f"integration with {sch.name} (dt={dt:g}) {failure_words(what, i, t0 + dt * i, labels)}; the last " \
+          f"finite state is at t={t0 + dt * last_good_step:g}."
     if on_failure is not None:
         msg += " " + on_failure(last_good, t0 + dt * last_good_step, i)
     else:
         msg += " The step is probably beyond the scheme's stability limit: reduce dt or the gains."
-    raise IntegrationError(msg, t0 + dt * last_good_step, i, last_good, labels)
+    raise IntegrationError(msg, t0 + dt * last_good_step, i, last_good, labels, what)
+
+
+def failure_words(what, step, t, components):
+    """What went wrong at ``step`` (time ``t``), in the words of an :class:`IntegrationError`'s message."""
+    if what:
+        return f"diverged: the field {what} at step {step} (t={t:g}), its state left the data's domain"
+    return f"produced non-finite values at step {step} (t={t:g}) in components {list(components)}"
