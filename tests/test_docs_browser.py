@@ -132,7 +132,8 @@ def test_raw_markup_is_found():
 
 def test_no_raw_markup_on_any_page(site):
     out, _ = site
-    found = {str(page.relative_to(out)): n for page in _pages(out) if (n := raw_markup(page.read_text(encoding="utf-8")))}
+    found = {str(page.relative_to(out)): n for page in _pages(out)
+             if (n := raw_markup(page.read_text(encoding="utf-8")))}
     assert found == {}
 
 
