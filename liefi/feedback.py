@@ -710,11 +710,6 @@ class FeedbackIntegrator:
         invariants kept as at the steps; events located on these partial steps,
         ``terminal`` ends the run with ``status=1``); events need a single trajectory.
 
-        ``save_every``: keep every this many steps; default ``None``:
-        every step while the output stays under 256 MiB, else capped there.
-        ``progress``: progress on stderr (default: for runs expected to take
-        more than a few seconds, when stderr is a terminal).
-
         ``backend``: ``None`` (default: ``"auto"`` when numba is installed, else
         ``"numpy"``, silently), ``"numpy"`` (the reference implementation),
         ``"numba"`` or ``"auto"``: the same field generated as scalar code from
@@ -753,6 +748,50 @@ class FeedbackIntegrator:
         costs work.  ``solution.dropped`` lists ``{"name", "reason"}`` (also in a
         scene's ``RunResult`` and ``liefi run --json``); the invariant is still
         monitored.  ``drop_exact=False`` keeps every term.
+
+        Parameters
+        ----------
+        t_span : float or (float, float)
+            The final time (the run starts at 0) or ``(t0, t_final)``.
+        dt : float, optional
+            The step; default: chosen for ``rtol`` and ``atol``.
+        scheme : str, optional
+            A scheme of :mod:`liefi.schemes`; default: chosen with the step
+            (``solution.method`` says which).
+        t_eval : array_like, optional
+            Times at which to store the solution, as in ``solve_ivp``.
+        events : callable or list of callables, optional
+            Event functions ``event(t, y)``, as in ``solve_ivp``.
+        dense_output : bool, default False
+            Give the solution a continuous ``sol(t)``.
+        y0 : array_like, optional
+            The start (default: the one given at construction).
+        save_every : int, optional
+            Keep every this many steps (default: every step, up to 256 MiB of output).
+        check_every : int, default 1
+            Steps between two checks for non-finite numbers.
+        backend : {None, "numpy", "numba", "auto"}, optional
+            The numpy path or the compiled one (default: compiled when numba is installed).
+        check_stability : bool, default True
+            Estimate ``dt * lambda_max(A Hess V)`` before the run and watch the drift during it.
+        adaptive : bool, optional
+            Rescale the gains along the run (default: on for ``gains="auto"``).
+        monitor_every : int, optional
+            Steps between two stability checks (default: adaptive).
+        progress : bool, optional
+            Progress on stderr (default: for runs of more than a few seconds, on a terminal).
+        drop_exact : bool, default True
+            Leave out of ``V`` the invariants every step keeps to rounding.
+        errors : {"raise", "return"}, default "raise"
+            On non-finite numbers: raise, or return the run up to there.
+        rtol, atol : float, optional
+            The tolerance the step is chosen for (default ``1e-6`` and 0).
+
+        Returns
+        -------
+        Solution
+            The run, in the layout of scipy's ``OdeResult``
+            (:class:`~liefi.schemes.Solution`).
         """
         from ._progress import compile_notice
         from .run import method_scheme, positional_span, run_feedback

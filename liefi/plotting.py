@@ -224,8 +224,9 @@ def logplot(ax, t, values, *, label=None, **kw):
     ax.set_yscale("log")
 
 
-def run_caption(result):
-    """One line: scheme, step, horizon and gains of a run (the caption under a figure title)."""
+def run_caption(result, width=None, fontsize=10):
+    """Scheme, step, horizon and gains of a run (the caption under a figure title): one line, or
+    with ``width`` (inches) the lines of :func:`wrap_caption` that fit it at ``fontsize`` points."""
     scheme = result.scheme
     name = "Euler" if scheme == "euler" else ("first-order DLA" if scheme == "dla" else scheme)
     step = r"$h$" if scheme == "dla" else r"$\Delta t$"
@@ -235,7 +236,25 @@ def run_caption(result):
         gains = f", gains {vals[0]:g}" if len(vals) == 1 else ", gains " + ", ".join(
             f"{label(k)}: {v:g}" for k, v in result.gains.items()
         )
-    return f"{name}, {step} = {result.dt:g}, $0 \\leq t \\leq {result.t_final:g}${gains}"
+    text = f"{name}, {step} = {result.dt:g}, $0 \\leq t \\leq {result.t_final:g}${gains}"
+    return text if width is None else wrap_caption(text, width, fontsize)
+
+
+def wrap_caption(text, width, fontsize=10):
+    """``text`` broken after its commas into lines that fit ``width`` inches at ``fontsize`` points.
+
+    A character is taken as ``0.6 fontsize`` wide and mathtext is counted as written (both
+    overestimates), so a line of at most ``width * 72 / (0.6 fontsize)`` characters fits.
+    """
+    limit = max(20, int(width * 72 / (0.6 * fontsize)))
+    lines, line = [], ""
+    for piece in text.split(", "):
+        if line and len(line) + 2 + len(piece) > limit:
+            lines.append(line + ",")
+            line = piece
+        else:
+            line = f"{line}, {piece}" if line else piece
+    return "\n".join(lines + [line])
 
 
 def component(result, name):
@@ -290,7 +309,7 @@ def panel_row(fig, result, panels, *, title, width=11.0, height=3.4):
         else:
             ax.plot(*thinned(result.t, values), lw=0.9, color="C0")
             ax.ticklabel_format(axis="y", style="sci", scilimits=(-2, 2))
-    fig.suptitle(title + "\n" + run_caption(result), fontsize=10)
+    fig.suptitle(title + "\n" + run_caption(result, fig.bbox.width / fig.dpi), fontsize=10)
     return fig
 
 
@@ -325,7 +344,8 @@ def generic(result, fig=None, *, title=None, tag=""):
         a1.legend(fontsize=8, ncol=2)
     head = title or f"{result.scene}"
     tag = "" if f"variant {result.variant}" in tag else tag  # the title names the variant once
-    fig.suptitle(f"{head}, variant {result.variant} (no figure in the paper){tag}\n{run_caption(result)}", fontsize=10)
+    caption = run_caption(result, fig.bbox.width / fig.dpi)  # a stacked panel is a SubFigure
+    fig.suptitle(f"{head}, variant {result.variant} (no figure in the paper){tag}\n{caption}", fontsize=10)
     return fig
 
 

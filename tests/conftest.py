@@ -7,16 +7,28 @@ The number of hypothesis examples per property test is set in
 import os
 import sys
 
+import pytest
+
 _ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 for _p in (_ROOT, os.path.join(_ROOT, "tests")):
     if _p not in sys.path:
         sys.path.insert(0, _p)
 
 
-def pytest_collection_modifyitems(config, items):
-    """``@pytest.mark.slow`` tests run only when asked for with ``-m slow`` (as ``pyproject.toml`` says)."""
-    import pytest
+def slow_node_ids(path=os.path.join(_ROOT, "tests", "slow_tests.txt")):
+    """The node ids listed in ``tests/slow_tests.txt`` (the suite's long cases, measured)."""
+    with open(path, encoding="utf-8") as f:
+        return {line.split("#", 1)[0].strip() for line in f} - {""}
 
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config, items):
+    """``@pytest.mark.slow`` tests, and those listed in ``tests/slow_tests.txt``, run only when
+    asked for with ``-m slow`` (as ``pyproject.toml`` says)."""
+    listed = slow_node_ids()
+    for item in items:
+        if item.nodeid in listed:
+            item.add_marker(pytest.mark.slow)
     if "slow" in (config.getoption("-m") or ""):
         return
     skip = pytest.mark.skip(reason="slow: run with -m slow")

@@ -54,3 +54,14 @@ def test_page_code_runs(page, capsys):
         if absent:
             pytest.skip(f"{page}: block {i + 1} and after need {', '.join(absent)} (not on this branch)")
         exec(compile(code, f"{page}[block {i + 1}]", "exec"), ns)  # noqa: S102 -- the docs' own code
+
+
+def test_readme_lists_every_registered_scene():
+    """The README's scene list (the paragraph ``Scenes: ...``) names every scene of ``liefi.scenes``."""
+    from liefi import scenes
+
+    readme = (DOCS.parent / "README.md").read_text()
+    listed = re.search(r"^Scenes: (.*?)\n\n", readme, re.S | re.M)
+    assert listed, "the README has a paragraph starting 'Scenes: '"
+    named = set(re.findall(r"`([a-z0-9-]+)`", listed.group(1)))
+    assert set(scenes.REGISTRY) - named == set()

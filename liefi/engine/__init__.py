@@ -26,14 +26,21 @@ full disk) is not such a failure: the kernel is compiled in memory.
 
 Modules
 -------
-symbolic -- :class:`Sym` scalars: constant folding, exact sign rules, sharing, the exact algebra on sums,
-            symbolic derivatives
-trace    -- tracing sessions, traced solves, :class:`TracedData`
-codegen  -- straight-line source of a graph; the stepping, projection and DLA loops
-cache    -- the private kernel directory, loading, healing corrupt entries
-numba_cache -- numba's cache files of the kernels: in that directory only, signed and checked
-runners  -- :class:`CompiledField` and :class:`CompiledDLA`: running the loaded kernels
-kernels  -- what is traced (the feedback, constrained and DLA kernels) and the ``run`` hook
+symbolic
+    :class:`Sym` scalars: constant folding, exact sign rules, sharing, the exact algebra on sums,
+    symbolic derivatives.
+trace
+    Tracing sessions, traced solves, :class:`TracedData`.
+codegen
+    Straight-line source of a graph; the stepping, projection and DLA loops.
+cache
+    The private kernel directory, loading, healing corrupt entries.
+numba_cache
+    numba's cache files of the kernels: in that directory only, signed and checked.
+runners
+    :class:`CompiledField` and :class:`CompiledDLA`: running the loaded kernels.
+kernels
+    What is traced (the feedback, constrained and DLA kernels) and the ``run`` hook.
 """
 
 from __future__ import annotations

@@ -169,6 +169,10 @@ def loop_name(sch):
 class CompiledField(_Overhead):
     """A generated, compiled right-hand side ``rhs(y, p, out)`` and its fixed-step loops.
 
+    :attr:`load_seconds` and :attr:`overhead_seconds` (build + load + compiles)
+    are the one-off costs; :meth:`run` reports the unreported part of them as
+    ``solution.overhead_seconds``.
+
     Attributes
     ----------
     kernel : liefi.engine.cache.Kernel
@@ -191,10 +195,6 @@ class CompiledField(_Overhead):
         Number of invariant residuals of the projection (0: none).
     nodes : int
         Size of the traced graph (a measure of the generated code).
-
-    :attr:`load_seconds` and :attr:`overhead_seconds` (build + load + compiles)
-    are the one-off costs; :meth:`run` reports the unreported part of them as
-    ``solution.overhead_seconds``.
     """
 
     kernel: object

@@ -105,14 +105,14 @@ class LeftTrivialization:
 
         Parameters
         ----------
-        q, p : array_like, shape ``(..., d + n)``
+        q, p : array_like, shape (..., d + n)
             Canonical coordinates ``q = (s, x)`` and momenta ``p = (p_s, p_x)``.
 
         Returns
         -------
-        g : ndarray, shape ``(..., config_dim)``
+        g : ndarray, shape (..., config_dim)
             ``G(s)`` in the group's configuration embedding (``matrix_to_config``).
-        z : ndarray, shape ``(..., n + k + d + n)``
+        z : ndarray, shape (..., n + k + d + n)
             The reduced state ``(x, Gamma, mu, p_x)``, ``mu = T(s)^{-T} p_s``,
             ``Gamma = G(s)^{-1} . a_0`` (no ``Gamma`` without an advected vector).
         """
@@ -132,8 +132,8 @@ class LeftTrivialization:
 
         Returns
         -------
-        gdot : ndarray, shape ``(..., config_dim)``
-        zdot : ndarray, shape ``(..., nz)``
+        gdot : ndarray, shape (..., config_dim)
+        zdot : ndarray, shape (..., nz)
         """
         q, p, qdot, pdot = (np.asarray(a, dtype=float) for a in (q, p, qdot, pdot))
         h = _diff.STEP
@@ -221,7 +221,7 @@ def unreduce(system, chart, chart_jacobian, *, names=None, sample=None, check: b
     names : sequence of str, optional
         Names of the chart coordinates ``s`` (default ``s_1 ... s_d``); the
         shape coordinates keep the reduced system's names.
-    sample : array_like, shape ``(d + n,)``, optional
+    sample : array_like, shape (d + n,), optional
         A point ``q`` at which the chart and the unreduced data are checked
         (default ``q = 0``; pass one away from the chart's singularities, e.g.
         gimbal lock).
