@@ -674,96 +674,40 @@ class FeedbackIntegrator:
             **unknown):
         """Integrate from ``y0`` (default: the one given at construction) over ``t_span``, as ``solve_ivp``.
 
-        ``fi.run(t_span, dt=..., scheme=...)``: ``t_span`` is the final time
-        (the run starts at 0), a pair ``(t0, t_final)``, or, as ``solve_ivp``'s
-        users write it, two positional numbers ``fi.run(t0, t_final)``.  The loop is
-        :func:`liefi.run.run_feedback`.  Returns a
-        :class:`~liefi.schemes.Solution` in the layout of scipy's ``OdeResult``
-        (``t``, ``y``, ``success``, ``status``, ``message``, ``nfev``,
-        ``t_events``, ``y_events``, ``sol``; with ``cpu_seconds``, the
-        integration, ``overhead_seconds``, the rest, and ``plan``: steps, saved
-        memory, expected time); raises :class:`~liefi.schemes.IntegrationError`
-        naming the time and components if the run produces non-finite numbers
-        (``errors="return"``: returns the run up to there with ``success=False``,
-        ``status=-1`` and the error as ``message``).
-
-        The default method is the best one (:mod:`liefi.tolerance`): a split
-        scheme, compiled, with the gains of the constructor (``"auto"`` by
-        default).  Without ``dt``, its order -- ``"imex-rk4"``, ``"imex-rk6"``
-        or ``"imex-rk8"``, the one with the fewest field evaluations -- and its
-        step are those :func:`liefi.tolerance.choose_step` picks for ``rtol``
-        (default ``1e-6``) and ``atol`` (default 0: relative to each
-        component's size), the step at most ``max_step`` (as ``solve_ivp``'s);
-        with a given ``dt`` it is ``"imex-rk4"``.  ``solution.method`` says
-        which method ran and why.  A given ``dt`` that does not divide
-        ``t_final - t0`` runs whole steps and a last step shortened to end at
-        ``t_final``, as ``solve_ivp`` does; ``solution.method["last_step"]`` and
-        ``solution.method["why"]`` say so.  ``method=``: the
-        ``solve_ivp`` spelling of ``scheme=`` (a liefi scheme; ``solve_ivp``'s
-        own adaptive methods run through :meth:`liefi.scenes.Scene.run`,
-        ``scheme="scipy:RK45"``).  The old form ``run(dt, t_final, scheme)`` is
-        retired (a ``TypeError`` names the new call).
-
-        ``t_eval``, ``dense_output`` and ``events`` as in ``solve_ivp``: the
-        state between two steps is a partial step of the scheme from the last
-        step before it (:mod:`liefi.dense`: of the scheme's order, the
-        invariants kept as at the steps; events located on these partial steps,
-        ``terminal`` ends the run with ``status=1``); events need a single trajectory.
-
-        ``backend``: ``None`` (default: ``"auto"`` when numba is installed, else
-        ``"numpy"``, silently), ``"numpy"`` (the reference implementation),
-        ``"numba"`` or ``"auto"``: the same field generated as scalar code from
-        the system's data and the whole loop compiled (:mod:`liefi.engine`;
-        agrees with numpy to 1e-12).  When numba is missing or a datum cannot
-        be traced, a :class:`liefi.engine.CompilationWarning` says so and the
-        numpy path runs.
-
-        ``scheme``: a tableau of :mod:`liefi.schemes` (``"euler"``, ``"rk4"``, ...)
-        or a split scheme of :mod:`liefi.schemes.split` (``"imex-euler"``,
-        ``"imex-heun"``, ``"imex-rk4"``: the tableau on ``X``, then one linearly
-        implicit feedback step through the Gram matrix of the invariants'
-        gradients; stable for any gain, and with ``gains="auto"`` a Gauss--Newton
-        step onto the invariant set that keeps the invariants at rounding).
-
-        Stability (:mod:`liefi.stability`).  ``check_stability`` (default True):
-        before the run, estimate ``dt * lambda_max(A Hess V)`` at the start (one
-        vectorized Gram estimate over the whole batch) and compare it with the scheme's stability bound;
-        warn (:class:`liefi.stability.LiefiStabilityWarning`, with the largest
-        safe ``dt`` and gain) at or past the limit, refuse (``ValueError``) 10x
-        past it; during the run, stop with
-        :class:`liefi.stability.StabilityError` when the invariants' drift
-        explodes past the limit.  ``adaptive``: rescale the gains along the run so
-        that ``dt * lambda_max`` stays at the scheme's optimal value (default: on
-        for ``gains="auto"``, off otherwise; with fixed gains it only lowers them).
-        ``monitor_every``: steps between two checks (default: adaptive).  The
-        solution carries the report as ``solution.stability``.
-
-        Invariants the scheme keeps exactly.  With ``drop_exact`` (default True)
-        an invariant that every Runge--Kutta step keeps to rounding
-        (:func:`liefi.gains.exactly_kept`: a first integral with a constant
-        gradient ``a`` that no other feedback term moves, so ``a . y_{n+1} = a . y_n``;
-        e.g. the vertical disk's momenta, the roller racer's ``J_2``) and that
-        starts on its target is left out of ``V`` for an explicit tableau or a
-        split scheme (:meth:`without`): its feedback term vanishes identically and only
-        costs work.  ``solution.dropped`` lists ``{"name", "reason"}`` (also in a
-        scene's ``RunResult`` and ``liefi run --json``); the invariant is still
-        monitored.  ``drop_exact=False`` keeps every term.
+        The loop is :func:`liefi.run.run_feedback`.  The default method is the best one
+        (:mod:`liefi.tolerance`): a split scheme, compiled, with the constructor's gains
+        (``"auto"`` by default); without ``dt`` its order (``"imex-rk4"``, ``"imex-rk6"``
+        or ``"imex-rk8"``, the fewest field evaluations) and its step are those
+        :func:`liefi.tolerance.choose_step` picks for ``rtol`` and ``atol``; with a given
+        ``dt`` it is ``"imex-rk4"``.  ``solution.method`` says which method ran and why.
+        The old form ``run(dt, t_final, scheme)`` is retired (a ``TypeError`` names the new call).
 
         Parameters
         ----------
         t_span : float or (float, float)
-            The final time (the run starts at 0) or ``(t0, t_final)``.
+            The final time (the run starts at 0) or ``(t0, t_final)``; two positional
+            numbers ``fi.run(t0, t_final)`` are a span, as ``solve_ivp``'s users write it.
         dt : float, optional
-            The step; default: chosen for ``rtol`` and ``atol``.
+            The step; default: chosen for ``rtol`` and ``atol``.  One that does not divide
+            the span runs whole steps and a last one shortened to end at ``t_final``
+            (``solution.method["last_step"]`` and ``["why"]`` say so).
         scheme : str, optional
-            A scheme of :mod:`liefi.schemes`; default: chosen with the step
-            (``solution.method`` says which).
+            A tableau of :mod:`liefi.schemes` (``"euler"``, ``"rk4"``, ...) or a split scheme
+            of :mod:`liefi.schemes.split` (``"imex-rk4"``, ...: the tableau on ``X``, then one
+            linearly implicit feedback step, a Gauss--Newton step onto the invariant set with
+            ``gains="auto"``); default: chosen with the step.
+        method : str, optional
+            ``solve_ivp``'s spelling of ``scheme`` (a liefi scheme; ``solve_ivp``'s adaptive
+            methods run through :meth:`liefi.scenes.Scene.run`, ``scheme="scipy:RK45"``).
         t_eval : array_like, optional
-            Times at which to store the solution, as in ``solve_ivp``.
+            Times at which to store the solution, as in ``solve_ivp``: the state between two
+            steps is a partial step of the scheme from the last step before it
+            (:mod:`liefi.dense`: the scheme's order, the invariants kept as at the steps).
         events : callable or list of callables, optional
-            Event functions ``event(t, y)``, as in ``solve_ivp``.
+            Event functions ``event(t, y)``, as in ``solve_ivp``, located on those partial
+            steps; a ``terminal`` one ends the run with ``status=1``; a single trajectory only.
         dense_output : bool, default False
-            Give the solution a continuous ``sol(t)``.
+            Give the solution a continuous ``sol(t)``, from the same partial steps.
         y0 : array_like, optional
             The start (default: the one given at construction).
         save_every : int, optional
@@ -771,27 +715,42 @@ class FeedbackIntegrator:
         check_every : int, default 1
             Steps between two checks for non-finite numbers.
         backend : {None, "numpy", "numba", "auto"}, optional
-            The numpy path or the compiled one (default: compiled when numba is installed).
+            ``None``: ``"auto"`` when numba is installed, else ``"numpy"`` (the reference
+            path); compiled, the same field is generated as scalar code from the system's
+            data (:mod:`liefi.engine`; agrees with numpy to 1e-12); where it cannot be, a
+            :class:`liefi.engine.CompilationWarning` says so and numpy runs.
         check_stability : bool, default True
-            Estimate ``dt * lambda_max(A Hess V)`` before the run and watch the drift during it.
+            Estimate ``dt * lambda_max(A Hess V)`` before the run against the scheme's bound
+            (warn with the largest safe ``dt`` and gain at the limit, refuse 10x past it) and
+            stop with :class:`liefi.stability.StabilityError` when the drift explodes; the
+            report is ``solution.stability`` (:mod:`liefi.stability`).
         adaptive : bool, optional
-            Rescale the gains along the run (default: on for ``gains="auto"``).
+            Rescale the gains along the run so that ``dt * lambda_max`` stays at the scheme's
+            optimum (default: on for ``gains="auto"``; with fixed gains it only lowers them).
         monitor_every : int, optional
             Steps between two stability checks (default: adaptive).
         progress : bool, optional
             Progress on stderr (default: for runs of more than a few seconds, on a terminal).
         drop_exact : bool, default True
-            Leave out of ``V`` the invariants every step keeps to rounding.
+            Leave out of ``V`` an invariant that every Runge--Kutta step keeps to rounding
+            (:func:`liefi.gains.exactly_kept`: a constant gradient no other term moves) and
+            that starts on its target; ``solution.dropped`` lists them, still monitored.
         errors : {"raise", "return"}, default "raise"
-            On non-finite numbers: raise, or return the run up to there.
+            On non-finite numbers: raise :class:`~liefi.schemes.IntegrationError` naming the
+            time and components, or return the run up to there with ``success=False``,
+            ``status=-1`` and the error as ``message``.
         rtol, atol : float, optional
-            The tolerance the step is chosen for (default ``1e-6`` and 0).
+            The tolerance the step is chosen for (default ``1e-6`` and 0: relative to each
+            component's size).
+        max_step : float, optional
+            As ``solve_ivp``'s: the largest step for a step chosen for the tolerance.
 
         Returns
         -------
         Solution
-            The run, in the layout of scipy's ``OdeResult``
-            (:class:`~liefi.schemes.Solution`).
+            The run, in the layout of scipy's ``OdeResult`` (:class:`~liefi.schemes.Solution`:
+            ``t``, ``y``, ``success``, ``status``, ``message``, ``nfev``, ``t_events``,
+            ``y_events``, ``sol``; with ``cpu_seconds``, ``overhead_seconds`` and ``plan``).
         """
         from ._progress import compile_notice
         from .run import method_scheme, positional_span, run_feedback
