@@ -44,10 +44,10 @@ def test_auto_on_split_is_the_projection_limit_and_keeps_the_invariants_to_round
     fi = sc.integrator(gains="auto")
     z, acc = accurate_setting(fi, 1e-2, "imex-rk4", 3.0)
     assert z == pytest.approx(SPLIT_RATE_MAX)
-    sol = _quiet(fi.run, 1e-2, 3.0, "imex-rk4")
+    sol = _quiet(fi.run, 3.0, dt=1e-2, scheme="imex-rk4")
     assert not sol.stability.adaptive and sol.stability.gain_history == []
     assert sol.stability.gains == pytest.approx(acc, rel=1e-12)
-    free = _quiet(fi.with_gains(0.0).run, 1e-2, 3.0, "rk4")
+    free = _quiet(fi.with_gains(0.0).run, 3.0, dt=1e-2, scheme="rk4")
     vals = fi.invariant_values(np.moveaxis(sol.y, -1, 0))
     vals0 = fi.invariant_values(np.moveaxis(free.y, -1, 0))
     for name in ("J_1", "energy"):
@@ -60,7 +60,7 @@ def test_auto_on_split_is_the_projection_limit_and_keeps_the_invariants_to_round
 def test_auto_on_euler_keeps_adapting():
     sc = scenes.get("knife-edge")
     fi = sc.integrator(gains="auto")
-    sol = _quiet(fi.run, 1e-2, 1.0, "euler")  # Euler: z* = 1, near the limit 2: adapted at z*
+    sol = _quiet(fi.run, 1.0, dt=1e-2, scheme="euler")  # Euler: z* = 1, near the limit 2: adapted at z*
     assert sol.stability.adaptive
     lam = float(liefi.stability.stiffness(fi.with_gains(sol.stability.gains), fi.y0).lam)
     assert 1e-2 * lam == pytest.approx(accurate_setting(fi, 1e-2, "euler", 1.0)[0], rel=1e-9)
@@ -135,10 +135,10 @@ def test_roller_racer_drops_J2_only(backend):
     pytest.importorskip("numba") if backend == "numba" else None
     sc = scenes.get("roller-racer")
     fi = sc.integrator(gains=10.0)
-    sol = _quiet(fi.run, 1e-3, 1.0, "rk4", backend=backend)
+    sol = _quiet(fi.run, 1.0, dt=1e-3, scheme="rk4", backend=backend)
     assert [d["name"] for d in sol.dropped] == ["J_2"]
     assert sol.backend == backend
-    full = _quiet(fi.run, 1e-3, 1.0, "rk4", drop_exact=False, backend="numpy")
+    full = _quiet(fi.run, 1.0, dt=1e-3, scheme="rk4", drop_exact=False, backend="numpy")
     assert np.max(np.abs(sol.y - full.y)) < 1e-11
     vals = fi.invariant_values(sol.y.T)
     assert np.max(np.abs(vals["J_2"])) < 1e-13
@@ -151,12 +151,12 @@ def test_not_dropped_off_target_and_dropped_on_split_schemes():
                                    configuration=fi.configuration, field=fi.field)
     # on this field Pi_x is kept exactly by RK4 (else the test says nothing): only its target keeps it in V
     assert "Pi_x" in exactly_kept(off, "rk4")
-    sol = _quiet(off.run, 1e-3, 0.1, "rk4")
+    sol = _quiet(off.run, 0.1, dt=1e-3, scheme="rk4")
     assert {d["name"] for d in sol.dropped} == set(exactly_kept(off, "rk4")) - {"Pi_x"}
     # a split scheme: the kept invariant's row of the Gram system decouples with a zero residual
-    sol = _quiet(fi.run, 1e-3, 0.1, "imex-euler")
-    assert {d["name"] for d in sol.dropped} == {d["name"] for d in _quiet(fi.run, 1e-3, 0.1, "rk4").dropped} != set()
-    full = _quiet(fi.run, 1e-3, 0.1, "imex-euler", drop_exact=False)
+    sol = _quiet(fi.run, 0.1, dt=1e-3, scheme="imex-euler")
+    assert {d["name"] for d in sol.dropped} == {d["name"] for d in _quiet(fi.run, 0.1, dt=1e-3, scheme="rk4").dropped} != set()
+    full = _quiet(fi.run, 0.1, dt=1e-3, scheme="imex-euler", drop_exact=False)
     assert np.max(np.abs(sol.y - full.y)) < 1e-12
 
 
