@@ -130,7 +130,7 @@ def check_format(path, name="out"):
 def save(fig, path):
     """Write ``fig`` to ``path`` (the format from its suffix, e.g. ``.png``); returns ``path``."""
     require_matplotlib()
-    from ._files import writing
+    from .._files import writing
 
     with writing(path):
         fig.savefig(path)

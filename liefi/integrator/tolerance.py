@@ -104,7 +104,7 @@ import math
 
 import numpy as np
 
-from ._data import as_float_array
+from .._data import as_float_array
 
 #: The scheme :meth:`liefi.FeedbackIntegrator.run` and ``liefi run`` run unless told otherwise when ``dt`` is
 #: given; without ``dt`` it names the kind, and the order is chosen for the tolerance (:data:`ORDER_CANDIDATES`).
@@ -234,8 +234,8 @@ def unforced_field(fi, Y, backend):
         try:
             import warnings
 
-            from .engine.kernels import compile_split
-            from .engine.trace import NotCompilable
+            from ..engine.kernels import compile_split
+            from ..engine.trace import NotCompilable
 
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
@@ -388,7 +388,7 @@ def _global_check(fi, sch, y0, t0, T, H, tau, rtol, atol, p, backend):
       conservative wherever the convergence is slower than ``p`` at ``H/4`` only because ``H`` is
       outside the regime.
     """
-    from .schemes.core import IntegrationError
+    from ..schemes.core import IntegrationError
 
     n = max(64, int(math.ceil(tau / H)))
     m = max(1, n // max(CHECK_SAMPLES, _samples(y0)))
@@ -495,7 +495,7 @@ def _measure(fi, sch, y0, t0, T, dt, h, E, rtol, atol, p, backend):
     """``(e, dense, dt, drift, floor)``: the error of the run at ``dt`` (rounded to ``T/N``) against the run at
     ``dt/q <= h`` whose error is at most ``E (dt / (q h))^p`` (:func:`_verify_longer`), and the invariants' drift
     of the two runs (:func:`_run_drift`), or ``None`` when a run fails."""
-    from .schemes.core import IntegrationError
+    from ..schemes.core import IntegrationError
 
     N = max(1, int(math.ceil(T / dt - 1e-9)))
     m = max(1, -(-N // _samples(y0)))
@@ -626,7 +626,7 @@ def _cheapest_order(fi, sch, Y, T, rtol, atol, f=None):
     about the same for every order (it is the motion's, step 4), so it cancels in the comparison.
     ``costs`` maps each candidate's name to its predicted evaluations.
     """
-    from .schemes import registry as _registry
+    from ..schemes import registry as _registry
 
     names = ORDER_CANDIDATES.get(sch.kind, ())
     if sch.name not in names:

@@ -39,7 +39,7 @@ import numpy as np
 
 from .gains import adapted_gains, exact_drops, run_gains
 from .guard import Guard, RunReport
-from .schemes import steps_for
+from ..schemes import steps_for
 from .stability import RESOLUTION_LIMIT, LiefiStabilityWarning, dynamics_rates, stiffness
 from .tolerance import DEFAULT_RTOL, LiefiToleranceWarning, check_tolerance, choose_step, unmeasured_message
 
@@ -156,7 +156,7 @@ class Policy:
         return dt, self.chosen
 
     def _set_scheme(self, name):
-        from .schemes import registry
+        from ..schemes import registry
 
         self.sch = registry.get(name)
         self.beta = float(self.sch.real_stability_bound)
@@ -352,7 +352,7 @@ def _max_step(max_step):
     """``max_step`` checked: ``None`` (no cap: also for ``inf``, ``solve_ivp``'s default) or a positive number."""
     if max_step is None:
         return None
-    from .schemes import positive_number
+    from ..schemes import positive_number
 
     if isinstance(max_step, (int, float, np.integer, np.floating)) and max_step == math.inf:
         return None

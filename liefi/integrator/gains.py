@@ -134,9 +134,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .schemes import ExplicitRungeKutta, positive_number
-from .schemes import registry as _registry
-from .schemes import split as _split
+from ..schemes import ExplicitRungeKutta, positive_number
+from ..schemes import registry as _registry
+from ..schemes import split as _split
 from .stability import _scaled, drift_scales, dynamics_rate, dynamics_rates, estimate, resolve_scheme, stiffness
 
 
