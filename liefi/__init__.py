@@ -25,7 +25,7 @@ _MOVED = {"system": "systems.system", "sympy_input": "systems.sympy_input", "mec
           "policy": "integrator.policy", "tolerance": "integrator.tolerance", "gains": "integrator.gains",
           "guard": "integrator.guard", "stability": "integrator.stability", "drift": "integrator.drift",
           "dense": "integrator.dense", "dla": "schemes.dla_integrator", "export": "schemes.export",
-          "plot": "results.plot", "plotting": "results.plotting", "sweep": "results.sweep"}
+          "plot": "results.plot", "plotting": "results.scene_figures", "sweep": "results.sweep"}
 
 
 class _MovedFinder:

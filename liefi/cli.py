@@ -245,7 +245,7 @@ def plot_path(path, scene, variant=None, *, suffix=""):
     """
     import os
 
-    from .results import plotting
+    from .results import scene_figures as plotting
 
     plotting.require_matplotlib()
     if path.endswith(("/", os.sep)):
@@ -395,7 +395,7 @@ def cmd_run(args):
     method["why"] = why + "; " + method["why"]
     out["method"] = method
     if path:
-        from .results import plotting
+        from .results import scene_figures as plotting
 
         plotting.stack(scene.figures(result), path)
         out["plot"] = path
@@ -421,7 +421,7 @@ def cmd_reproduce(args):
                 raise UsageError(f"only: {exc}") from None
     if not (math.isfinite(args.t_final_scale) and args.t_final_scale > 0):
         raise UsageError(f"t-final-scale: must be a positive number, got {args.t_final_scale!r}")
-    from .results import plotting
+    from .results import scene_figures as plotting
 
     plotting.require_matplotlib()  # the figures are the point: fail before any work
     try:

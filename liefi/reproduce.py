@@ -349,7 +349,7 @@ def _scene_job(task):
 
 
 def _draw(output, spec, filename, failures):
-    from .results import plotting
+    from .results import scene_figures as plotting
 
     try:
         path = output.claim(filename)

@@ -101,7 +101,7 @@ def command(args, file=None):
     gains = sweep_gains(args.gains)  # checked before any work
     sc = _scenes.get(args.scene)
     if args.out and not args.estimate and not os.path.isdir(args.out):  # the figure's format, before any work
-        from ..results.plotting import check_format
+        from ..results.scene_figures import check_format
 
         check_format(args.out, "out")
     fi = sc.integrator(sc.variant(args.variant))

@@ -37,7 +37,7 @@ import warnings
 
 import numpy as np
 
-from . import plotting as _pl
+from . import scene_figures as _pl
 
 #: configuration coordinates looked for, in order, when the path's axes are not named
 PATH_CANDIDATES = (("x", "y"), ("q_1", "q_2"), ("r_1", "r_2"), ("x_1", "x_2"))

@@ -28,7 +28,7 @@ from functools import cached_property
 
 import numpy as np
 
-from ..results import plotting
+from ..results import scene_figures as plotting
 from .._keywords import SCENE_FOREIGN, keywords, unknown_keyword
 from ..integrator.feedback import FeedbackIntegrator
 from ..reduction import core as _core

@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..results import plotting
+from ..results import scene_figures as plotting
 from ..integrator.feedback import Invariant
 from ..groups import SO3
 from ..systems.rolling import ATTITUDE_CASIMIRS, rolling_body, rolling_start, sphere

@@ -38,7 +38,7 @@ neither grows nor decays), and ten percent more gain or step diverges.
 
 import numpy as np
 
-from ..results import plotting
+from ..results import scene_figures as plotting
 from ..phase_space import CotangentBundle
 from ..systems.system import NonholonomicSystem
 from . import exact as _exact

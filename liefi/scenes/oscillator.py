@@ -39,7 +39,7 @@ import time
 
 import numpy as np
 
-from ..results import plotting
+from ..results import scene_figures as plotting
 from ..schemes.dla_integrator import DLAIntegrator
 from ..integrator.feedback import Invariant
 from ..phase_space import CotangentBundle

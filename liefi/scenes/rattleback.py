@@ -60,7 +60,7 @@ from __future__ import annotations
 import math
 import numpy as np
 
-from ..results import plotting
+from ..results import scene_figures as plotting
 from ..groups import SO3
 from ..systems.rolling import ATTITUDE_CASIMIRS, ellipsoid, rolling_body, rolling_start
 from .base import Variant

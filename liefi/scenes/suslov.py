@@ -10,7 +10,7 @@ Variants: ``extended`` (``V`` penalizes ``h~``, eq. ``(grad:V:Suslov)``) and
 
 import numpy as np
 
-from ..results import plotting
+from ..results import scene_figures as plotting
 from ..groups import SO3
 from ..phase_space import LieGroupPhaseSpace
 from ..systems.system import NonholonomicSystem
