@@ -51,3 +51,85 @@ def test_the_top_level_holds_at_most_eight_public_modules():
     assert len(public) <= 8, public
     packages = {p.name for p in ROOT.iterdir() if (p / "__init__.py").exists()}
     assert {"groups", "systems", "reduction", "schemes", "engine", "integrator", "results", "scenes"} <= packages
+
+
+# --- the flow ------------------------------------------------------------------------------------
+
+#: the stages of the flow, lowest first: each may import only the stages before it (and the private
+#: helpers ``liefi/_*.py``, which import only each other); docs/concepts.md, "Where things live"
+FLOW = ("groups", "phase_space", "reduction", "systems", "schemes", "engine", "integrator", "results", "scenes",
+        "experiments", "reproduce", "bench", "cli", "__main__")
+
+
+def import_edges():
+    """``{(unit, unit_imported): [file, ...]}`` over every import of liefi, lazy imports included.
+
+    A unit is a subpackage or a top-level module of ``liefi/`` (``liefi`` itself for ``__init__.py``).
+    """
+    import ast
+
+    edges = {}
+    for p in ROOT.rglob("*.py"):
+        rel = p.relative_to(ROOT.parent).with_suffix("").parts
+        mod = ".".join(rel[:-1] if rel[-1] == "__init__" else rel)
+        pkg = mod if rel[-1] == "__init__" else mod.rsplit(".", 1)[0]
+        unit = mod.split(".")[1] if "." in mod else "liefi"
+        for n in ast.walk(ast.parse(p.read_text())):
+            if isinstance(n, ast.ImportFrom) and n.level:
+                base = ".".join(pkg.split(".")[: len(pkg.split(".")) - (n.level - 1)])
+                targets = [f"{base}.{n.module}"] if n.module else [f"{base}.{a.name}" for a in n.names]
+            elif isinstance(n, ast.ImportFrom):
+                targets = [n.module or ""]
+            elif isinstance(n, ast.Import):
+                targets = [a.name for a in n.names]
+            else:
+                continue
+            for t in targets:
+                parts = t.split(".")
+                if parts[0] == "liefi" and len(parts) > 1 and parts[1] != unit and not parts[1].startswith("__"):
+                    edges.setdefault((unit, parts[1]), []).append(str(p.relative_to(ROOT.parent)))
+    return edges
+
+
+def test_every_unit_of_liefi_is_a_stage_of_the_flow():
+    units = {p.stem if p.is_file() else p.name for p in ROOT.iterdir()
+             if (p.suffix == ".py" and not p.name.startswith("_")) or (p / "__init__.py").exists()}
+    assert units == set(FLOW) - {"__main__"}, units ^ (set(FLOW) - {"__main__"})
+
+
+def test_no_import_runs_back_up_the_flow():
+    """Each stage imports only the stages before it: a line of code knows its room by its folder."""
+    back = []
+    for (a, b), files in sorted(import_edges().items()):
+        if b.startswith("_"):
+            continue  # the private helpers serve every stage
+        if a.startswith("_") and a != "__main__":
+            back.append(f"the helper liefi/{a}.py imports {b} ({files[0]})")
+        elif a == "liefi":
+            if FLOW.index(b) > FLOW.index("results"):
+                back.append(f"liefi/__init__.py imports {b}")
+        elif b not in FLOW or FLOW.index(b) >= FLOW.index(a):
+            back.append(f"{a} imports {b} ({', '.join(sorted(set(files)))})")
+    assert not back, "imports that run back up the flow:\n" + "\n".join(back)
+
+
+def test_no_import_cycle_between_stages():
+    edges = {}
+    for a, b in import_edges():
+        edges.setdefault(a, set()).add(b)
+
+    def reach(u):
+        seen, todo = set(), [u]
+        while todo:
+            for v in edges.get(todo.pop(), ()):
+                if v not in seen:
+                    seen.add(v)
+                    todo.append(v)
+        return seen
+
+    assert not [u for u in edges if u in reach(u)]
+
+
+def test_no_module_over_800_lines():
+    long = {str(p.relative_to(ROOT.parent)): n for p in ROOT.rglob("*.py") if (n := len(p.read_text().splitlines())) > 800}
+    assert not long
