@@ -261,3 +261,27 @@ def test_modules_of_the_run_machinery_stay_under_800_lines():
     files += list((root / "schemes").glob("*.py")) + list((root / "experiments").glob("*.py"))
     long = {f.name: n for f in files if (n := len(f.read_text().splitlines())) > 800}
     assert not long
+
+
+# --- one resolution of the scheme per run (issue 24) ----------------------------------------------
+
+
+@pytest.mark.parametrize("kw", [{}, {"dt": 0.01}, {"dt": 0.01, "scheme": "rk4"}, {"dt": 0.01, "scheme": "rk4", "adaptive": True}],
+                         ids=["rtol-order-chosen", "dt", "rk4", "rk4-adaptive"])
+def test_the_run_loop_looks_its_scheme_up_by_name_once(suslov, kw, monkeypatch):
+    """The run loop resolves the scheme once and hands the object down: policy, tolerance, gains, guard and
+    stability never look it up by name again (the order chosen for a tolerance included)."""
+    from liefi.schemes import registry
+
+    get, by_name = registry.get, []
+
+    def counted(name, kind=None):
+        if isinstance(name, str):
+            by_name.append(name)
+        return get(name, kind)
+
+    fi = suslov.integrator(gains="auto")
+    monkeypatch.setattr(registry, "get", counted)
+    sol = fi.run(0.5, backend="numpy", **kw)
+    assert sol.success
+    assert by_name == [kw.get("scheme", "imex-rk4")], by_name

@@ -64,7 +64,7 @@ from .._diff import directions_after
 from .drift import drift, drift_scales, first_integral_defect  # noqa: F401 -- part of this module's API
 from ..schemes import IntegrationError
 from ..schemes import positive_int as _positive_int  # noqa: F401
-from ..schemes import registry as _registry
+from ..schemes.registry import takes_scheme
 from ..schemes import split as _stiff
 
 #: ``dt lambda_max / beta`` within this of 1 is "at the limit" (marginal: the stiff mode neither grows nor decays).
@@ -136,11 +136,15 @@ def _scaled(gains, factor):
 # --------------------------------------------------------------------------------
 
 
+@takes_scheme
 def resolve_scheme(scheme):
-    """``(scheme, beta)``: the registry's scheme and its real stability bound (``inf`` when stiff-safe)."""
+    """``(scheme, beta)``: the registry's scheme and its real stability bound (``inf`` when stiff-safe).
+
+    A name is looked up at the call (:func:`liefi.schemes.registry.takes_scheme`); a run passes its object.
+    """
     if isinstance(scheme, _stiff.BoundSplitStep):
         scheme = scheme.scheme
-    sch = _registry.get(scheme)
+    sch = scheme
     return sch, float(getattr(sch, "real_stability_bound", math.inf))
 
 

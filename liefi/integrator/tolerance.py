@@ -105,7 +105,7 @@ import math
 import numpy as np
 
 from .._data import as_float_array
-
+from ..schemes.registry import REGISTRY as _SCHEMES
 #: The scheme :meth:`liefi.FeedbackIntegrator.run` and ``liefi run`` run unless told otherwise when ``dt`` is
 #: given; without ``dt`` it names the kind, and the order is chosen for the tolerance (:data:`ORDER_CANDIDATES`).
 DEFAULT_SCHEME = "imex-rk4"
@@ -123,6 +123,7 @@ PART_FLOOR = 1e-2
 CHECK_PART_FLOOR = 1e-3
 #: The schemes among which ``choose_order`` picks, by kind: the same method at orders 4, 6 and 8.
 ORDER_CANDIDATES = {"split": ("imex-rk4", "imex-rk6", "imex-rk8"), "explicit": ("rk4", "rk6", "rk8")}
+ORDER_SCHEMES = {kind: tuple(_SCHEMES[n] for n in names) for kind, names in ORDER_CANDIDATES.items()}  # looked up once
 #: The first pilot step is the largest ``T / 4^k`` whose relative local error is below this.
 FIRST_ERROR = 1e-5
 #: The chosen step aims its estimated global error at this fraction of the tolerance (``solve_ivp``'s
@@ -533,6 +534,11 @@ def choose_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=
     (errors relative to the tolerance; ``check_*`` ``None`` without the check; ``unmeasured`` true when a
     run long enough to be checked could not be: the run warns, :class:`LiefiToleranceWarning`).
     """
+    return chosen_step(fi, sch, y0, t0, t_end, rtol, atol, check=check, backend=backend, choose_order=choose_order)[:2]
+
+
+def chosen_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=None, choose_order=False):
+    """``(dt, info, scheme)``: :func:`choose_step` and the scheme it chose (an object: no look-up by name)."""
     rtol, atol = check_tolerance(rtol, atol)
     tab = _tableau(sch)
     p = int(tab.order)
@@ -615,7 +621,7 @@ def choose_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=
     }
     if costs is not None:
         info["predicted_cost"] = costs
-    return dt, info
+    return dt, info, sch
 
 
 def _cheapest_order(fi, sch, Y, T, rtol, atol, f=None):
@@ -626,15 +632,12 @@ def _cheapest_order(fi, sch, Y, T, rtol, atol, f=None):
     about the same for every order (it is the motion's, step 4), so it cancels in the comparison.
     ``costs`` maps each candidate's name to its predicted evaluations.
     """
-    from ..schemes import registry as _registry
-
     names = ORDER_CANDIDATES.get(sch.kind, ())
     if sch.name not in names:
         C, h, _ = _local_estimate(fi, _tableau(sch), Y, T, rtol, atol, f)
         return sch, C, h, None
     best, costs = None, {}
-    for name in names:
-        cand = _registry.get(name)
+    for name, cand in zip(names, ORDER_SCHEMES[sch.kind]):
         tab = _tableau(cand)
         C, h, _ = _local_estimate(fi, tab, Y, T, rtol, atol, f)
         dt, _ = resolved_step(fi, tab, Y, min(_local_step(C / TARGET, T, int(tab.order), h), T), T, rtol)
