@@ -133,3 +133,33 @@ def test_no_import_cycle_between_stages():
 def test_no_module_over_800_lines():
     long = {str(p.relative_to(ROOT.parent)): n for p in ROOT.rglob("*.py") if (n := len(p.read_text().splitlines())) > 800}
     assert not long
+
+
+def test_the_tolerance_is_split_into_its_local_estimate_its_global_check_and_its_drift_rule():
+    """``integrator/tolerance.py`` chooses; the local estimate, the measured global check and the drift rule are
+    modules of their own, lowest first (drift rule, local estimate, check), and every name stays a name of
+    ``liefi.tolerance``."""
+    import liefi.tolerance as tol
+    from liefi.integrator import tolerance_check, tolerance_drift, tolerance_local
+
+    assert tol._local_estimate is tolerance_local._local_estimate
+    assert tol._global_check is tolerance_check._global_check and tol.CHECK_BUDGET == tolerance_check.CHECK_BUDGET
+    assert tol._drift_cap is tolerance_drift._drift_cap and tol.DRIFT_LEVEL == tolerance_drift.DRIFT_LEVEL
+    edges = import_edges_within("integrator")
+    assert not edges.get("tolerance_drift", set()) & {"tolerance", "tolerance_local", "tolerance_check"}
+    assert not edges.get("tolerance_local", set()) & {"tolerance", "tolerance_check"}
+    assert "tolerance" not in edges.get("tolerance_check", set())
+    for name in ("tolerance", "tolerance_local", "tolerance_check", "tolerance_drift"):
+        assert len((ROOT / "integrator" / f"{name}.py").read_text().splitlines()) <= 600
+
+
+def import_edges_within(package):
+    """``{module: {module imported, ...}}`` between the modules of one subpackage (lazy imports included)."""
+    import ast
+
+    edges = {}
+    for p in (ROOT / package).glob("*.py"):
+        for n in ast.walk(ast.parse(p.read_text())):
+            if isinstance(n, ast.ImportFrom) and n.level == 1 and n.module:
+                edges.setdefault(p.stem, set()).add(n.module.split(".")[0])
+    return edges
