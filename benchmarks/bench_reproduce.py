@@ -33,7 +33,7 @@ def _compiled_dla():
     import numpy as np
 
     from liefi import engine, scenes
-    from liefi.dla import DLAIntegrator
+    from liefi.schemes.dla_integrator import DLAIntegrator
 
     sc = scenes.get("oscillator")
     cls = type(sc)
@@ -70,7 +70,7 @@ def main(argv=None):
 
     w0, c0 = time.perf_counter(), cpu_now()
 
-    import liefi.feedback as F
+    import liefi.integrator.feedback as F
     from liefi import reproduce
 
     orig = F.FeedbackIntegrator.run

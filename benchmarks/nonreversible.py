@@ -244,7 +244,7 @@ _STYLE = {"0.1": ":", "1": "--", "auto": "-."}
 
 
 def plot_scene(curves, name, T, path):
-    from liefi.plotting import finish_panel_grid, panel_grid
+    from liefi.results.scene_figures import finish_panel_grid, panel_grid
 
     if not curves:
         return None

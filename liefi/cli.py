@@ -49,7 +49,7 @@ from . import __version__
 from . import _json
 from ._files import probe_writable
 from . import scenes as _scenes
-from .run import MAX_RUN_STEPS, check_step_count
+from .integrator.run import MAX_RUN_STEPS, check_step_count
 from .schemes import IntegrationError
 from .schemes import registry as _schemes
 
@@ -132,7 +132,7 @@ def parse_gains(text, scene, variant=None, configuration=None):
         return None
     if text.strip() == "auto":  # chosen by the library: no integrator to build for the gains' names
         return "auto"
-    from .feedback import parse_gains as _parse
+    from .integrator.feedback import parse_gains as _parse
 
     names = gain_names(scene, variant, configuration)
     try:  # the one gain parser, shared with the API
@@ -245,7 +245,7 @@ def plot_path(path, scene, variant=None, *, suffix=""):
     """
     import os
 
-    from . import plotting
+    from .results import scene_figures as plotting
 
     plotting.require_matplotlib()
     if path.endswith(("/", os.sep)):
@@ -307,7 +307,7 @@ def run_settings(scene, args):
     ``--paper``: the scene's paper settings (scheme, gains, dt).  What is given
     explicitly is kept either way.
     """
-    from . import tolerance as _tol
+    from .integrator import tolerance as _tol
 
     if args.dt is not None and (args.rtol is not None or args.atol is not None):
         raise UsageError("rtol: give --dt or --rtol/--atol, not both (without --dt the step is chosen for the "
@@ -395,7 +395,7 @@ def cmd_run(args):
     method["why"] = why + "; " + method["why"]
     out["method"] = method
     if path:
-        from . import plotting
+        from .results import scene_figures as plotting
 
         plotting.stack(scene.figures(result), path)
         out["plot"] = path
@@ -421,7 +421,7 @@ def cmd_reproduce(args):
                 raise UsageError(f"only: {exc}") from None
     if not (math.isfinite(args.t_final_scale) and args.t_final_scale > 0):
         raise UsageError(f"t-final-scale: must be a positive number, got {args.t_final_scale!r}")
-    from . import plotting
+    from .results import scene_figures as plotting
 
     plotting.require_matplotlib()  # the figures are the point: fail before any work
     try:

@@ -349,7 +349,7 @@ def _scene_job(task):
 
 
 def _draw(output, spec, filename, failures):
-    from . import plotting
+    from .results import scene_figures as plotting
 
     try:
         path = output.claim(filename)
@@ -466,7 +466,7 @@ def _parallel(tasks, jobs, finished):
     import multiprocessing as mp
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
-    from .sweep import _stop
+    from .results.sweep import _stop
 
     methods = mp.get_all_start_methods()
     ctx = mp.get_context("fork" if "fork" in methods else None)

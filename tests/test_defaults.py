@@ -172,7 +172,9 @@ def test_an_untrusted_check_is_conservative(monkeypatch):
         out = real(*a, **k)
         return None if out is None else out[:4] + (False,) + out[5:]
 
-    monkeypatch.setattr(tol, "_global_check", untrusted)
+    from liefi.integrator import tolerance_check
+
+    monkeypatch.setattr(tolerance_check, "_global_check", untrusted)
     dt, info = tol.choose_step(fi, sch, fi.y0, 0.0, 200.0, 1e-6)
     assert info["conservative"] and not info["check_trusted"]
     assert dt <= info["local_step"] * (1 + 1e-9) and dt <= dt_ok * (1 + 1e-9)

@@ -204,7 +204,7 @@ def test_progress_falls_back_to_a_plain_line_without_tqdm(suslov, capsys, monkey
 
 # --- layout -------------------------------------------------------------------------------------
 
-MINE = ("feedback", "stability", "run", "guard", "schemes", "experiments")
+MINE = ("integrator", "schemes", "engine", "experiments")
 
 
 def _import_graph():
@@ -235,7 +235,8 @@ def _import_graph():
 
 
 def test_no_import_cycle_through_the_run_machinery():
-    """feedback -> run -> guard -> stability -> schemes, experiments on top: no cycle, lazy imports included."""
+    """integrator (feedback -> run -> guard -> stability) -> engine -> schemes, experiments on top: no cycle, lazy
+    imports included."""
     edges = _import_graph()
 
     def reach(a):
@@ -249,14 +250,38 @@ def test_no_import_cycle_through_the_run_machinery():
 
     for u in MINE:
         assert u not in reach(u), f"{u} is on an import cycle"
-    assert "scenes" not in reach("stability") and "feedback" not in reach("stability")
+    assert "scenes" not in reach("integrator") and "integrator" not in reach("schemes")
 
 
 def test_modules_of_the_run_machinery_stay_under_800_lines():
     import pathlib
 
     root = pathlib.Path(liefi.__file__).parent
-    files = [root / f"{m}.py" for m in ("feedback", "stability", "run", "guard")]
+    files = list((root / "integrator").glob("*.py"))
     files += list((root / "schemes").glob("*.py")) + list((root / "experiments").glob("*.py"))
     long = {f.name: n for f in files if (n := len(f.read_text().splitlines())) > 800}
     assert not long
+
+
+# --- one resolution of the scheme per run (issue 24) ----------------------------------------------
+
+
+@pytest.mark.parametrize("kw", [{}, {"dt": 0.01}, {"dt": 0.01, "scheme": "rk4"}, {"dt": 0.01, "scheme": "rk4", "adaptive": True}],
+                         ids=["rtol-order-chosen", "dt", "rk4", "rk4-adaptive"])
+def test_the_run_loop_looks_its_scheme_up_by_name_once(suslov, kw, monkeypatch):
+    """The run loop resolves the scheme once and hands the object down: policy, tolerance, gains, guard and
+    stability never look it up by name again (the order chosen for a tolerance included)."""
+    from liefi.schemes import registry
+
+    get, by_name = registry.get, []
+
+    def counted(name, kind=None):
+        if isinstance(name, str):
+            by_name.append(name)
+        return get(name, kind)
+
+    fi = suslov.integrator(gains="auto")
+    monkeypatch.setattr(registry, "get", counted)
+    sol = fi.run(0.5, backend="numpy", **kw)
+    assert sol.success
+    assert by_name == [kw.get("scheme", "imex-rk4")], by_name

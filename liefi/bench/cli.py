@@ -29,7 +29,7 @@ from .. import engine as _engine
 from .. import scenes as _scenes
 from .._files import writing
 from .._signals import describe, exit_code, terminate_as_interrupt
-from ..sweep import ResultStore, StoreError, SweepInterrupted, TaskError, task_key
+from ..results.sweep import ResultStore, StoreError, SweepInterrupted, TaskError, task_key
 from .core import (FI_GAINS, FIXED_SCHEMES, IVP_METHODS, METHODS, REPEATS, STORE, applicable_methods, build_tasks,
                    error_row, work_precision)
 from .validate import positive, positive_int
@@ -207,7 +207,7 @@ def _check_steps(sc, tasks, args):
     """Refuse, before any work, runs longer than ``--max-steps``: :func:`liefi.run.check_step_count`,
     the check ``liefi run`` makes (on the grid's smallest step; the long horizon on the scene's
     step, where the feedback integrator's long run is made -- its peers run at matched cost)."""
-    from ..run import check_step_count
+    from ..integrator.run import check_step_count
 
     limit = getattr(args, "max_steps", None)
     dts = [t["dt"] for t in tasks if t["dt"] is not None]
@@ -340,7 +340,7 @@ def run_from_args(args, log=None):
 
 
 def _run(args, log, plan):
-    from ..sweep import default_scheduler, open_executor
+    from ..results.sweep import default_scheduler, open_executor
 
     if not _engine.available():
         log(f"liefi bench: numba is not available ({_engine.NUMBA_ERROR}); the generated code runs as plain "

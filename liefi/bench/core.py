@@ -93,7 +93,7 @@ import numpy as np
 from .. import engine as _engine
 from .. import scenes as _scenes
 from .._files import writing
-from ..sweep import ResultStore, StoreError, SweepInterrupted, TaskError, run_sweep
+from ..results.sweep import ResultStore, StoreError, SweepInterrupted, TaskError, run_sweep
 from .verdict import FI_METHODS, RTOL_METHOD, cheapest, summarize, summary  # noqa: F401  (re-exported)
 
 FIXED_SCHEMES = ("euler", "heun", "rk4", "imex-euler", "imex-heun", "imex-rk4")
@@ -348,14 +348,14 @@ def run_task(task):
                 cf = _engine.compile_constrained(fi, projection=True)
                 p, proj = np.zeros(0), _engine.projection_targets(fi)
             elif method == "FI-tuned":
-                from ..gains import auto_gains
+                from ..integrator.gains import auto_gains
 
                 fi = fi.with_gains(auto_gains(fi, task["dt"], scheme, y=fi.y0, t_final=T))
                 out["message"] = "gains " + ", ".join(f"{k}={v:.3g}" for k, v in fi.gains.items())
                 cf = compile_fi(fi)
                 p, proj = _engine.parameters(fi), None
             elif method == "FI-accurate":
-                from ..gains import accurate_gains, exactly_kept
+                from ..integrator.gains import accurate_gains, exactly_kept
 
                 g = accurate_gains(fi, task["dt"], scheme, t_final=T)
                 out["message"] = "gains " + ", ".join(f"{k}={v:.3g}" for k, v in g.items())
@@ -414,7 +414,7 @@ def run_task(task):
             else:
                 out.update(t=sol.t, y=sol.y)
         elif method == "DLA":
-            from ..dla import DLAIntegrator
+            from ..schemes.dla_integrator import DLAIntegrator
 
             sys_ = sc.system
             n, se = _steps(T, task["dt"], task["n_save"])

@@ -9,7 +9,7 @@ import numpy as np
 
 from .. import scenes as _scenes
 from .._files import writing
-from ..sweep import TaskError, run_sweep
+from ..results.sweep import TaskError, run_sweep
 from .core import FI_GAINS, _integrator, error_row, invariant_drifts, measure, run_task, write_csv
 from .verdict import label as _label
 from .plots import _series, plot_long_horizon, save_curves

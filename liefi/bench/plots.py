@@ -7,7 +7,7 @@ import os
 import numpy as np
 
 from .._files import writing
-from ..plotting import finish_panel_grid, legend_columns, panel_grid
+from ..results.scene_figures import finish_panel_grid, legend_columns, panel_grid
 
 # ======================================================================================
 # plots

@@ -257,7 +257,7 @@ def dla_applies(system):
 def compile_dla(system, *, engine=None):
     """The DLA scheme of :mod:`liefi.dla` compiled for ``system``: the trace of
     :meth:`~liefi.dla.DLAIntegrator.update` of :meth:`~liefi.dla.DLAIntegrator.from_system`."""
-    from ..dla import DLAIntegrator
+    from ..schemes.dla_integrator import DLAIntegrator
 
     if not dla_applies(system):
         raise NotCompilable("dla: the DLA integrator applies to systems on T*R^n with a constant metric")

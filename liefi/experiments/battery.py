@@ -21,7 +21,7 @@ import numpy as np
 from .._progress import Progress
 from ..schemes import IntegrationError
 from ..schemes import split as _stiff
-from ..stability import (
+from ..integrator.stability import (
     GUARD_DRIFT,
     LiefiStabilityWarning,
     StabilityError,

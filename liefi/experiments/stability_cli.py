@@ -6,7 +6,7 @@ import argparse
 import math
 
 from ..schemes import positive_int
-from ..stability import estimate
+from ..integrator.stability import estimate
 from .battery import battery_table, plot_work_precision, run_battery, stiff_work_precision
 from .stability_maps import plot_stability_map, stability_map
 
@@ -101,7 +101,7 @@ def command(args, file=None):
     gains = sweep_gains(args.gains)  # checked before any work
     sc = _scenes.get(args.scene)
     if args.out and not args.estimate and not os.path.isdir(args.out):  # the figure's format, before any work
-        from ..plotting import check_format
+        from ..results.scene_figures import check_format
 
         check_format(args.out, "out")
     fi = sc.integrator(sc.variant(args.variant))

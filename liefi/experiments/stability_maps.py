@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..schemes import IntegrationError, positive_number
-from ..stability import PILOT_MAX_EVALS, drift, drift_scales, estimate, resolve_scheme
+from ..integrator.stability import PILOT_MAX_EVALS, drift, drift_scales, estimate, resolve_scheme
 from .._progress import Progress
 
 # --------------------------------------------------------------------------------
@@ -114,7 +114,7 @@ class StabilityMap:
 
 def _target_integrator(target, variant=None):
     """``(FeedbackIntegrator, label, horizon)`` from a scene name, a Scene or an integrator."""
-    from ..feedback import FeedbackIntegrator
+    from ..integrator.feedback import FeedbackIntegrator
     from ..scenes import base as _base
 
     if isinstance(target, str):

@@ -28,9 +28,9 @@ from functools import cached_property
 
 import numpy as np
 
-from .. import plotting
+from ..results import scene_figures as plotting
 from .._keywords import SCENE_FOREIGN, keywords, unknown_keyword
-from ..feedback import FeedbackIntegrator
+from ..integrator.feedback import FeedbackIntegrator
 from ..reduction import core as _core
 
 
@@ -510,24 +510,24 @@ class Scene:
         if scheme in self.extra_schemes:
             t, Y, names, cpu, steps, nfev = self.run_extra(scheme, v, dt, T, save_every, fi)
             if check_stability:
-                from ..run import check_result_drift
+                from ..integrator.run import check_result_drift
 
                 check_result_drift(fi, t, Y, names, scheme, dt)  # e.g. DLA at a step that loses the motion
         elif str(scheme).lower().startswith("scipy:"):
-            from ..run import IVP_MAX_EVALUATIONS
+            from ..integrator.run import IVP_MAX_EVALUATIONS
             from ..schemes import registry as _schemes
-            from ..tolerance import check_tolerance
+            from ..integrator.tolerance import check_tolerance
 
             ivp = _schemes.get(scheme, kind="scipy")
             rtol, atol = 1e-9 if rtol is None else rtol, 1e-12 if atol is None else atol
             check_tolerance(rtol, atol)  # before any work: scipy would refuse them after the set-up
             gains_mode = getattr(fi, "gains_mode", "fixed")
             if gains_mode == "auto":
-                from ..gains import auto_gains
+                from ..integrator.gains import auto_gains
 
                 fi = fi.with_gains(auto_gains(fi, dt, "euler"))
             if check_stability:
-                from ..run import check_ivp
+                from ..integrator.run import check_ivp
 
                 check_ivp(fi, ivp, T)  # an explicit method on a stiff field would run for minutes
             t_eval = np.linspace(0.0, T, min(n_steps, max_saved) + 1)
@@ -543,7 +543,7 @@ class Scene:
                       "why": f"scheme {ivp.name} as asked (scipy solve_ivp, its own adaptive steps for rtol "
                              f"{float(rtol):g}); backend scipy"}
         else:
-            from ..run import run_feedback
+            from ..integrator.run import run_feedback
 
             # a step chosen for a tolerance brings the resolution limit its order and tolerance allow
             with compile_notice():
@@ -554,7 +554,7 @@ class Scene:
                 )
             method = sol.method
             if chosen is not None:
-                from ..tolerance import describe
+                from ..integrator.tolerance import describe
 
                 method = describe(method["scheme"], dt, fi.gains_mode, method["backend"], chosen=chosen,
                                   scheme_given=True)
@@ -590,8 +590,8 @@ class Scene:
         Known before the run (``liefi run`` refuses a run of too many steps with it); kept on the
         scene for the same arguments, so that the run that follows does not repeat the pilot.
         """
-        from ..run import _fixed_step_scheme
-        from ..tolerance import DEFAULT_RTOL, choose_step
+        from ..integrator.run import _fixed_step_scheme
+        from ..integrator.tolerance import DEFAULT_RTOL, choose_step
 
         v = self.variant(variant) if not isinstance(variant, Variant) else variant
         rtol = DEFAULT_RTOL if rtol is None else rtol
@@ -621,7 +621,7 @@ class Scene:
         """The reference solution is the *constrained* motion: the start must be on ``J = 0``."""
         if not self.system.K:
             return
-        from ..stability import drift_scales
+        from ..integrator.stability import drift_scales
 
         J = np.atleast_1d(np.asarray(self.system.constraint_momenta(fi.split(fi.y0)[1]), float))
         sc = drift_scales(fi)

@@ -32,10 +32,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import plotting
-from ..feedback import Invariant
+from ..results import scene_figures as plotting
+from ..integrator.feedback import Invariant
 from ..groups import SO3
-from ..rolling import ATTITUDE_CASIMIRS, rolling_body, rolling_start, sphere
+from ..systems.rolling import ATTITUDE_CASIMIRS, rolling_body, rolling_start, sphere
 from .base import Scene, Variant
 
 # reduced state z = (rho_1 (0:3), rho_2 (3:6), Gamma (6:9), Pi (9:12), p (12:14))

@@ -38,10 +38,10 @@ import time
 
 import numpy as np
 
-from ..feedback import Invariant
+from ..integrator.feedback import Invariant
 from ..groups import SO3, Representation
 from ..phase_space import LieGroupPhaseSpace
-from ..system import NonholonomicSystem
+from ..systems.system import NonholonomicSystem
 from .base import Scene, Variant
 
 # state z = (Gamma_1, Gamma_2, Gamma_3, Pi_1, Pi_2, Pi_3); traceable gradients for the engine

@@ -74,9 +74,9 @@ The paper leaves the simulation to the reader: liefi uses Euler,
 
 import numpy as np
 
-from ..feedback import Invariant
+from ..integrator.feedback import Invariant
 from ..phase_space import CotangentBundle
-from ..system import NonholonomicSystem
+from ..systems.system import NonholonomicSystem
 from . import exact as _exact
 from .base import Scene, Variant
 

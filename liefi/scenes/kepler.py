@@ -44,9 +44,9 @@ from functools import partial
 
 import numpy as np
 
-from ..feedback import Invariant
+from ..integrator.feedback import Invariant
 from ..phase_space import CotangentBundle
-from ..system import NonholonomicSystem
+from ..systems.system import NonholonomicSystem
 from . import exact as _exact
 from .base import PaperRun, Scene, Variant
 

@@ -38,9 +38,9 @@ neither grows nor decays), and ten percent more gain or step diverges.
 
 import numpy as np
 
-from .. import plotting
+from ..results import scene_figures as plotting
 from ..phase_space import CotangentBundle
-from ..system import NonholonomicSystem
+from ..systems.system import NonholonomicSystem
 from . import exact as _exact
 from .base import Scene, Variant
 

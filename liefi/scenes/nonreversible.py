@@ -71,7 +71,7 @@ the energy and ``H_y``; variants ``extended`` (``h~``) and ``original`` (``h``).
 import numpy as np
 
 from ..phase_space import CotangentBundle
-from ..system import NonholonomicSystem
+from ..systems.system import NonholonomicSystem
 from . import exact as _exact
 from .base import Scene, Variant
 from .oscillator import H_Y

@@ -34,7 +34,7 @@ gain 1.  Reference: the knife edge's closed form
 import numpy as np
 
 from ..phase_space import CotangentBundle
-from ..system import NonholonomicSystem
+from ..systems.system import NonholonomicSystem
 from .base import Variant
 from .knife_edge import KnifeEdge
 

@@ -39,11 +39,11 @@ import time
 
 import numpy as np
 
-from .. import plotting
-from ..dla import DLAIntegrator
-from ..feedback import Invariant
+from ..results import scene_figures as plotting
+from ..schemes.dla_integrator import DLAIntegrator
+from ..integrator.feedback import Invariant
 from ..phase_space import CotangentBundle
-from ..system import NonholonomicSystem
+from ..systems.system import NonholonomicSystem
 from . import exact as _exact
 from .base import PaperRun, Scene, Variant
 

@@ -60,9 +60,9 @@ from __future__ import annotations
 import math
 import numpy as np
 
-from .. import plotting
+from ..results import scene_figures as plotting
 from ..groups import SO3
-from ..rolling import ATTITUDE_CASIMIRS, ellipsoid, rolling_body, rolling_start
+from ..systems.rolling import ATTITUDE_CASIMIRS, ellipsoid, rolling_body, rolling_start
 from .base import Variant
 from .rolling_reference import RollingReferenceScene, rolling_equations
 

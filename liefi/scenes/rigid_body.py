@@ -44,10 +44,10 @@ import time
 
 import numpy as np
 
-from ..feedback import Invariant
+from ..integrator.feedback import Invariant
 from ..groups import SO3
 from ..phase_space import LieGroupPhaseSpace
-from ..system import NonholonomicSystem
+from ..systems.system import NonholonomicSystem
 from .base import Scene, Variant
 
 

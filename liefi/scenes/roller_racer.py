@@ -44,7 +44,7 @@ import numpy as np
 
 from ..groups import S1, SE2
 from ..phase_space import TrivialPrincipalBundle
-from ..system import NonholonomicSystem
+from ..systems.system import NonholonomicSystem
 from .base import Scene, Variant
 
 

@@ -43,9 +43,9 @@ import math
 
 import numpy as np
 
-from .. import plotting
+from ..results import scene_figures as plotting
 from ..groups import SO3
-from ..rolling import ATTITUDE_CASIMIRS, disk, rolling_body, rolling_start
+from ..systems.rolling import ATTITUDE_CASIMIRS, disk, rolling_body, rolling_start
 from .base import Variant
 from .rolling_reference import RollingReferenceScene, rolling_equations
 
@@ -255,7 +255,7 @@ def chaplygin_invariants(inertia=None, mass=MASS, radius=RADIUS, *, max_cos=None
     Pi_2 Gamma_2) / I_1`` -- all the integrals need.  First integrals of the constrained motion (on ``J =
     0``); monitored by the scene, and penalized in ``V`` by its default variant ``integrals-in-V``.
     """
-    from ..feedback import Invariant
+    from ..integrator.feedback import Invariant
 
     I1, I3 = axisymmetric_moments(inertia_matrix(mass, radius) if inertia is None else inertia)
     params = legendre_parameter(inertia, mass, radius)

@@ -10,10 +10,10 @@ Variants: ``extended`` (``V`` penalizes ``h~``, eq. ``(grad:V:Suslov)``) and
 
 import numpy as np
 
-from .. import plotting
+from ..results import scene_figures as plotting
 from ..groups import SO3
 from ..phase_space import LieGroupPhaseSpace
-from ..system import NonholonomicSystem
+from ..systems.system import NonholonomicSystem
 from . import exact as _exact
 from .base import Scene, Variant
 

@@ -60,7 +60,7 @@ import numpy as np
 
 from ..groups import SE2, S1
 from ..phase_space import LieGroupPhaseSpace
-from ..system import NonholonomicSystem
+from ..systems.system import NonholonomicSystem
 from . import exact as _exact
 from .base import Scene, Variant
 

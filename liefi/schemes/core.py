@@ -120,7 +120,7 @@ class Solution:
         adds the monitored invariants (:meth:`liefi.FeedbackIntegrator.invariant_values`)
         as columns; it needs :attr:`integrator`.  Needs pandas (``pip install liefi[export]``).
         """
-        from ..export import to_dataframe
+        from .export import to_dataframe
 
         return to_dataframe(self, invariants=invariants)
 
@@ -134,7 +134,7 @@ class Solution:
         (``ds.to_netcdf(path, engine="scipy")``).  Needs xarray
         (``pip install liefi[export]``).
         """
-        from ..export import to_xarray
+        from .export import to_xarray
 
         return to_xarray(self, invariants=invariants)
 

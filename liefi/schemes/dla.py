@@ -28,7 +28,7 @@ class DLAScheme:
 
     def integrator(self, system):
         """The :class:`~liefi.dla.DLAIntegrator` of a system (positions ``q``, mass from the metric)."""
-        from ..dla import DLAIntegrator
+        from .dla_integrator import DLAIntegrator
 
         return DLAIntegrator.from_system(system)
 

@@ -67,6 +67,28 @@ def get(name, kind=None):
     return sch
 
 
+def takes_scheme(func):
+    """Decorator of a public function whose ``scheme`` argument may be a name: the name becomes the registry's
+    scheme at the call (:func:`get`, which hands a scheme object, or a split scheme bound to an integrator, back
+    as it is).  The body works on the object: a run, which resolves its scheme once in its run loop
+    (:mod:`liefi.integrator.run`), hands the object down and no module below looks it up again.
+    """
+    import functools
+    import inspect
+
+    pos = list(inspect.signature(func).parameters).index("scheme")
+
+    @functools.wraps(func)
+    def wrapper(*args, **kwargs):
+        if len(args) > pos:
+            args = args[:pos] + (get(args[pos]),) + args[pos + 1:]
+        elif "scheme" in kwargs:
+            kwargs["scheme"] = get(kwargs["scheme"])
+        return func(*args, **kwargs)
+
+    return wrapper
+
+
 def describe(kind=None):
     """One line per scheme: name, kind, order, stability (for ``--help`` and ``liefi list``)."""
     lines = []

@@ -43,12 +43,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._data import as_state
-from ._progress import Progress, stderr_is_terminal
-from .schemes import IntegrationError, Solution, integrate, positive_int
-from .schemes.core import step_grid
-from .schemes import registry as _registry
-from .schemes import split as _split
+from .._data import as_state
+from .._progress import Progress, stderr_is_terminal
+from ..schemes import IntegrationError, Solution, integrate, positive_int
+from ..schemes.core import step_grid
+from ..schemes import registry as _registry
+from ..schemes import split as _split
 from .tolerance import MAX_RUN_STEPS  # a run of more steps is refused before it starts (``--max-steps``)
 
 #: Saved output kept by default (``save_every=None``): at most this many bytes.
@@ -169,7 +169,7 @@ def _segment_runner(sch, dt, backend, names, t_start=0.0):
     def run(fi_cur, y, n, s0, save_every, check_every, out=None):
         t0 = t_start + s0 * dt
         if state["backend"] != "numpy":
-            from .engine import run_feedback
+            from ..engine import run_feedback
 
             try:
                 sol = run_feedback(fi_cur, dt, n, sch, y, save_every, check_every, state["backend"])
@@ -191,7 +191,7 @@ def _segment_runner(sch, dt, backend, names, t_start=0.0):
     def prepare(fi_cur, y):
         """Compile (or load) the kernel now, before the progress starts; the numpy path if it cannot run."""
         if state["backend"] != "numpy":
-            from .engine.kernels import prepare_feedback
+            from ..engine.kernels import prepare_feedback
 
             if prepare_feedback(fi_cur, sch, y, state["backend"]) is None:
                 state["backend"] = "numpy"
@@ -301,7 +301,7 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
     """
     from . import dense as _dense
     from .policy import Policy, _segment
-    from .schemes.core import MESSAGE_EVENT
+    from ..schemes.core import MESSAGE_EVENT
     from .stability import StabilityError
 
     from . import tolerance as _tol

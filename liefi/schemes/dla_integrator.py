@@ -327,7 +327,7 @@ class DLAIntegrator:
             configuration-dependent metric.
         """
         from liefi.phase_space import CotangentBundle
-        from liefi.system import NonholonomicSystem
+        from liefi.systems.system import NonholonomicSystem
 
         if not isinstance(system, NonholonomicSystem):
             raise TypeError(f"system: expected a liefi.NonholonomicSystem, got {system!r}")

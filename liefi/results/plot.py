@@ -37,7 +37,7 @@ import warnings
 
 import numpy as np
 
-from . import plotting as _pl
+from . import scene_figures as _pl
 
 #: configuration coordinates looked for, in order, when the path's axes are not named
 PATH_CANDIDATES = (("x", "y"), ("q_1", "q_2"), ("r_1", "r_2"), ("x_1", "x_2"))
@@ -138,7 +138,7 @@ def states(sol, names=None, *, ax=None, member=0):
 def drift(sol, *, ax=None, member=0, invariants=None):
     """``|I(t) - I_0|`` of every monitored invariant (or those in ``invariants``), on a log scale."""
     _pl.require_matplotlib()
-    from .export import energy_name, invariant_series, invariant_targets
+    from ..schemes.export import energy_name, invariant_series, invariant_targets
 
     series = invariant_series(sol)  # "energy" is h~ or h: one series per quantity
     targets = invariant_targets(sol)
@@ -256,7 +256,7 @@ def _path_of(sol, x, y, contact):
         a, b = path_names(sol, x, y)
         i, j = _index(sol, a, "x"), _index(sol, b, "y")
         return lambda Y: (Y[i], Y[j]), (a, b)
-    from .rolling import ATTITUDE_NAMES, contact_point
+    from ..systems.rolling import ATTITUDE_NAMES, contact_point
 
     if not callable(contact):
         raise TypeError(f"contact: expected the body's contact function r(Gamma), got {contact!r}")
@@ -311,7 +311,7 @@ def animate(sol, filename, *, x=None, y=None, contact=None, heading=None, frames
     _pl.require_matplotlib()
     from matplotlib.animation import PillowWriter
 
-    from .schemes.core import positive_int, positive_number
+    from ..schemes.core import positive_int, positive_number
 
     frames = positive_int(frames, "frames")
     fps = positive_number(fps, "fps")

@@ -192,7 +192,7 @@ def from_sympy(L, q, qd, constraints=(), names=None, *, scaling="unit", **kw):
         for parameters), or data liefi refuses (an indefinite ``M``, dependent rows).
     """
     sympy = _sympy()
-    from .phase_space import CotangentBundle
+    from ..phase_space import CotangentBundle
     from .system import NonholonomicSystem
 
     X, M, b, U, rows, q = lagrangian_data(sympy, _scalar_lagrangian(sympy, L), q, qd, constraints)

@@ -25,9 +25,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ._data import check_real
-from .schemes import IntegrationError
-from .schemes import split as _split
+from .._data import check_real
+from ..schemes import IntegrationError
+from ..schemes import split as _split
 from .stability import (
     GUARD_DRIFT,
     LIMIT_BAND,
@@ -278,7 +278,7 @@ def _advice(fi, y, t, dt, sch, beta, earlier=None):
 
 def _relabel(exc, dt, sch, extra, t0=0.0):
     """Rebuild an IntegrationError (absolute ``t``, ``step`` from the start ``t0``) with our advice appended."""
-    from .schemes.core import failure_words
+    from ..schemes.core import failure_words
 
     comps, what = list(exc.components or []), getattr(exc, "what", "")
     msg = (

@@ -95,6 +95,11 @@ dozen numpy steps.  The measurement is in ``docs/choosing-a-method.md``.
 A tolerance controls the error of the *state*; the invariants are at rounding
 whatever the tolerance (the split feedback step, at a step whose measured drift
 is at rounding: step 5), so ``rtol`` is not a knob for them.
+
+Where the code lives: this module chooses (steps 6 and after, the default method, the description of a
+run's method); steps 1--4, the local estimate, are :mod:`liefi.integrator.tolerance_local`; step 5, the
+measured global check, :mod:`liefi.integrator.tolerance_check`, and its drift rule
+:mod:`liefi.integrator.tolerance_drift`.  Every name of those is also a name of this module.
 """
 
 from __future__ import annotations
@@ -104,7 +109,20 @@ import math
 
 import numpy as np
 
-from ._data import as_float_array
+from .._data import as_float_array
+from .tolerance_drift import (  # noqa: F401 -- re-exported: liefi.tolerance.X as before the split
+    DRIFT_AIM, DRIFT_FLOOR_RATIO, DRIFT_LEVEL, _drift_cap, _run_drift,
+)
+from .tolerance_local import (  # noqa: F401 -- re-exported: liefi.tolerance.X as before the split
+    FIRST_ERROR, PART_FLOOR, PILOT_STEPS, TARGET, _local_estimate, _local_step, _parts, _size, _tableau,
+    unforced_field,
+)
+from .tolerance_check import (  # noqa: F401 -- re-exported: liefi.tolerance.X as before the split
+    CHECK_BUDGET, CHECK_BYTES, CHECK_COARSEST, CHECK_ERROR, CHECK_FLOOR, CHECK_GROWTH, CHECK_MIN_STEPS,
+    CHECK_PART_FLOOR, CHECK_SAMPLES, CHECK_TRIES_BUDGET, CHECK_TRUST, CHECK_WIDEN, WIDEN_FACTOR, _check_plan,
+    _global_check, _measure, _samples, _verify_longer,
+)
+from ..schemes.registry import REGISTRY as _SCHEMES
 
 #: The scheme :meth:`liefi.FeedbackIntegrator.run` and ``liefi run`` run unless told otherwise when ``dt`` is
 #: given; without ``dt`` it names the kind, and the order is chosen for the tolerance (:data:`ORDER_CANDIDATES`).
@@ -114,64 +132,13 @@ DEFAULT_RTOL = 1e-6
 #: A step chosen for a tolerance is at most this fraction of the largest step stable along the run (explicit
 #: scheme, fixed gains: :func:`stable_step`), a margin for the stiffness the guard's pilot did not reach.
 STABLE_FRACTION = 0.9
-#: Steps of the pilot (each with a step-doubling error estimate).
-PILOT_STEPS = 24
-#: A component's error scale is at least this fraction of the largest size of its part.
-PART_FLOOR = 1e-2
-#: ... in the check's comparisons, over the whole horizon (where each component's size is seen, not a pilot's
-#: window of it): a position beside a winding angle is measured against its own size, not 1e-2 of the angle's.
-CHECK_PART_FLOOR = 1e-3
 #: The schemes among which ``choose_order`` picks, by kind: the same method at orders 4, 6 and 8.
 ORDER_CANDIDATES = {"split": ("imex-rk4", "imex-rk6", "imex-rk8"), "explicit": ("rk4", "rk6", "rk8")}
-#: The first pilot step is the largest ``T / 4^k`` whose relative local error is below this.
-FIRST_ERROR = 1e-5
-#: The chosen step aims its estimated global error at this fraction of the tolerance (``solve_ivp``'s
-#: achieved error is of the order of ``rtol``; a default run's should not exceed it).
-TARGET = 1.0 / 3.0
-#: The check's coarse step has a relative error of at most this by the local model (asymptotic regime).
-CHECK_ERROR = 1e-3
-#: ... and is at most this many local-model steps.
-CHECK_COARSEST = 64.0
+ORDER_SCHEMES = {kind: tuple(_SCHEMES[n] for n in names) for kind, names in ORDER_CANDIDATES.items()}  # looked up once
 #: A run of more steps than this is refused before it starts (``liefi run``, ``liefi bench``: ``--max-steps``;
 #: :meth:`liefi.FeedbackIntegrator.run`); where the local model already predicts more, the check is not run
 #: (its runs would cost minutes before the refusal).
 MAX_RUN_STEPS = 10**8
-#: A run of fewer steps than this is not checked (the local model alone: the check would cost more than the run).
-CHECK_MIN_STEPS = 256
-#: The check's two runs cost at most this fraction of the run the local model predicts.
-CHECK_BUDGET = 0.25
-#: ... or at most this many field evaluations when that is more (a few milliseconds of compiled loop; compiled
-#: backends only: on numpy that would be seconds).
-CHECK_FLOOR = 3e5
-#: Common times at which the check's two runs are compared (at least; every coarse step up to this many
-#: steps): dense enough to catch a short transient where the error peaks.
-CHECK_SAMPLES = 4096
-#: ... and every coarse step while a run's saved states take at most this many bytes (a comparison at every
-#: step measures the error of the whole run: its step counts as resolved, :func:`resolved_step`).
-CHECK_BYTES = 2**25
-#: A check whose two runs differ by more than this (relative) is not trusted (not asymptotic).
-CHECK_TRUST = 1e-2
-#: An untrusted check is repeated at half the coarse step while all its tries cost at most this many budgets.
-CHECK_TRIES_BUDGET = 4.0
-#: Longer steps tried, each run and measured, where a trusted check allows more than its coarse step
-#: (:func:`_verify_longer`).
-CHECK_WIDEN = 3
-#: ... each at most this many times the longest step measured so far.
-WIDEN_FACTOR = 4.0
-#: The step is at most this many times the check's coarse step (where the error was measured).
-CHECK_GROWTH = 2.0
-#: The invariants' relative drift (:func:`liefi.drift.drift`, against their scales at the start) that counts as
-#: rounding: ``1e4 u`` (``2.2e-12``), ten times the highest floor of evaluating the invariants in floating point
-#: that no step lowers (the non-reversible knife edge: ``1.5e-13 = 700 u`` whatever the step).  Below it the
-#: drift need not follow the step: the roller racer's stays at ``1.2e-12`` from ``dt = 0.92`` to ``1.01``.
-DRIFT_LEVEL = 1e4 * np.finfo(float).eps
-#: A run's drift above :data:`DRIFT_LEVEL` is the step's when it is more than this many times the drift of the
-#: run at a shorter step it was compared with (the Gauss--Newton residual falls like ``dt^{2(p+1)}``; a floor
-#: that a shorter step does not lower is the evaluation's rounding, not the step's).
-DRIFT_FLOOR_RATIO = 4.0
-#: The step a drift above the level is cut to aims at this fraction of :data:`DRIFT_LEVEL`: the measured drift
-#: falls a little slower than ``dt^{2(p+1)}`` (Kepler at order 8: ``dt^{16.8}``, not ``dt^{18}``).
-DRIFT_AIM = 0.25
 
 
 class LiefiToleranceWarning(UserWarning):
@@ -215,310 +182,6 @@ def check_tolerance(rtol, atol):
     return r, a
 
 
-def _tableau(sch):
-    """The explicit tableau that steps ``X`` in ``sch`` (the split scheme's, or ``sch`` itself)."""
-    return getattr(sch, "explicit", sch)
-
-
-def _parts(fi):
-    """The slices of the state whose components share units: the group element, ``x``, the momenta."""
-    nc, nx = fi.nc, fi.system.space.n
-    cuts = [0, nc, nc + nx, fi.n]
-    return [slice(a, b) for a, b in zip(cuts, cuts[1:]) if b > a]
-
-
-def unforced_field(fi, Y, backend):
-    """``f(y)``: ``X`` at a batch ``y`` of shape ``(k, n)``, compiled when ``backend`` allows and the
-    system compiles (the split kernel's ``xrhs``, the one the run loads anyway), else numpy."""
-    if backend != "numpy" and Y.shape[0] == 1:
-        try:
-            import warnings
-
-            from .engine.kernels import compile_split
-            from .engine.trace import NotCompilable
-
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                cf = compile_split(fi)
-                p = np.ascontiguousarray(fi.parameters(), dtype=float)
-                out = np.empty(fi.n)
-                cf._first_call("xrhs", "xrhs", np.ascontiguousarray(Y[0]), p, out)
-            xrhs = cf.module.xrhs
-
-            def f(y):
-                out = np.empty(fi.n)
-                xrhs(np.ascontiguousarray(y[0]), p, out)
-                return out[None]
-
-            return f
-        except (NotCompilable, ImportError, RuntimeError, AttributeError, TypeError, ValueError):
-            pass
-    return fi.unforced_vector_field
-
-
-def _local_estimate(fi, tab, Y, T, rtol, atol, f=None):
-    """``(C, h, mag)``: the local error constant of ``tab`` on ``X`` from the step-doubling pilot.
-
-    ``C`` the largest ``e / h^{p+1}`` over :data:`PILOT_STEPS` steps of ``h`` (steps 1--3 of the module
-    docstring), in the scaled norm; ``mag`` the componentwise largest ``|y|`` seen.  ``f``: ``X``
-    (default: numpy's, :func:`unforced_field`).
-    """
-    p = int(tab.order)
-    if f is None:
-        f = fi.unforced_vector_field
-
-    with np.errstate(all="ignore"):
-        mag = np.abs(Y)
-
-        def first_error(hh):
-            try:
-                y1 = tab.step(f, Y, hh)
-                yh = tab.step(f, tab.step(f, Y, hh / 2), hh / 2)
-            except (ArithmeticError, np.linalg.LinAlgError, ValueError):
-                # a trial step so long that its stages leave the data's domain (a singular metric or
-                # constraint there, e.g. a rolling body's stage far from the plane): too long, not an error
-                return math.inf
-            e = float(np.max(np.abs(y1 - yh) / _size(fi, np.maximum(mag, np.abs(yh)))))
-            return e if math.isfinite(e) else math.inf
-
-        # the first pilot step: the largest T / 4^k in the asymptotic regime (its error small, and a quarter
-        # of it has an error 4^(p+1) times smaller, so that no step aliases with a period of the motion)
-        h, e_h = T, first_error(T)
-        for _ in range(60):
-            e_q = first_error(h / 4)
-            if (e_h <= FIRST_ERROR and (e_q <= 1e3 * np.finfo(float).eps or e_q * 4 ** (p + 1) / 8 <= e_h)
-                    or h < 1e-12 * T):
-                break
-            h, e_h = h / 4, e_q
-        C, hC = 0.0, h
-        for _ in range(12):  # enlarge the pilot step until its error is well above rounding
-            y, big, c, m = Y, 0.0, 0.0, mag
-            for _k in range(PILOT_STEPS):
-                try:
-                    y1 = tab.step(f, y, h)
-                    yh = tab.step(f, tab.step(f, y, h / 2), h / 2)
-                except (ArithmeticError, np.linalg.LinAlgError, ValueError):  # out of the data's domain
-                    e = math.inf
-                    break
-                m = np.maximum(m, np.abs(yh))
-                err = np.abs(y1 - yh) / (1.0 - 2.0 ** -p)
-                e = float(np.max(err / (atol + rtol * _size(fi, m))))
-                if not math.isfinite(e):
-                    break
-                big = max(big, float(np.max(err / (np.finfo(float).eps * _size(fi, m)))))
-                hp = h ** (p + 1)
-                if hp > 0:  # a step so short that h^(p+1) underflows (a horizon of 1e-200) has no error to measure
-                    c = max(c, e / hp)
-                y = yh
-            if not math.isfinite(e):
-                break  # past the tableau's stability: keep the last estimate
-            C, hC, mag = c, h, m
-            if big > 1e4 or h >= T:
-                break
-            h = min(8.0 * h, T)
-    return C, hC, mag
-
-
-def _size(fi, m, floor_fraction=PART_FLOOR):
-    """Each component's size ``m``, floored at :data:`PART_FLOOR` times the largest of its part (group
-    element, ``x``, momenta).
-
-    A component that stays near zero is measured against its neighbours of the same units, so that the
-    error scale never vanishes; a small component beside a large one (a position beside an angle that
-    winds up over the run) keeps its own scale.
-    """
-    parts = _parts(fi)
-    floor = np.empty_like(m)
-    for sl in parts:
-        floor[..., sl] = np.max(m[..., sl], axis=-1, keepdims=True)
-    return np.maximum(np.maximum(m, floor_fraction * floor), 1e-300)
-
-
-def _local_step(C, T, p, h):
-    """The step of the local model, ``(1 / (T C))^{1/p}`` (``T`` if ``X`` is exact at the pilot's step)."""
-    if not (C > 0 and math.isfinite(C)):
-        return T  # X is (numerically) exact at any step here, e.g. a state at rest
-    return (1.0 / (max(T, h) * C)) ** (1.0 / p)
-
-
-def _check_plan(fi, sch, tab, y0, t0, T, dt0, rtol, atol, p, backend):
-    """The check of step 5 over the whole horizon, or ``None`` for a run of too few steps to protect.
-
-    The three runs cost at most :data:`CHECK_BUDGET` of the run ``dt0`` predicts, or, compiled,
-    :data:`CHECK_FLOOR` field evaluations when that is more (the fixed cost of a run, a few
-    milliseconds, is not worth saving below it; on numpy an evaluation costs about 1000 times more).  The coarse step is the asymptotic one (its relative
-    error :data:`CHECK_ERROR` by the local model, at most :data:`CHECK_COARSEST` ``dt0``) when the
-    budget affords it over ``[t0, T]``, else the finest the budget affords: the whole horizon is always
-    measured, so that an error that grows late in the run (the rattleback's spin reversal) is seen;
-    a check outside the asymptotic regime is repeated at half the step while all the tries cost at most
-    :data:`CHECK_TRIES_BUDGET` budgets, and the last gives the conservative bound.
-    """
-    if T / dt0 < CHECK_MIN_STEPS:
-        return None
-    # the floor is a few milliseconds of compiled loop; on numpy (an evaluation costs ~1000x) only the fraction
-    floor = CHECK_FLOOR / max(1, int(getattr(sch, "stages", 1))) if backend != "numpy" else 0.0
-    budget = max(CHECK_BUDGET * T / dt0, floor)
-    H = dt0 * min(max(1.0, (CHECK_ERROR / rtol) ** (1.0 / p)), CHECK_COARSEST)
-    H = min(max(H, 7.0 * T / budget), T / 64)
-    spent, chk = 0.0, None
-    while spent + 7.0 * T / H <= CHECK_TRIES_BUDGET * budget or chk is None:
-        spent += 7.0 * T / H
-        chk = _global_check(fi, sch, y0, t0, T, H, T, rtol, atol, p, backend)
-        if chk is None or chk[4]:
-            break
-        H /= 2.0  # outside the asymptotic regime: halve the coarse step while the budget allows
-    return chk
-
-
-def _global_check(fi, sch, y0, t0, T, H, tau, rtol, atol, p, backend):
-    """The measured global error over ``[t0, t0 + tau]`` (step 5 of the module docstring), or ``None``.
-
-    Three runs of the scheme itself, at ``H``, ``H/2`` and ``H/4``, compared at every coarse step while
-    :data:`CHECK_BYTES` allows (else at :data:`CHECK_SAMPLES` common times or more).  Returns ``(E, E_safe, H/2, tau, trusted, dense)``, errors in
-    units of the tolerance at the horizon ``T``, ``dense`` whether the runs were compared at every coarse
-    step:
-
-    - ``E``: the run at ``H/2`` has the error ``|y_{H/2} - y_{H/4}| / (1 - 2^{-p})`` (Richardson),
-      ``E = max_t`` of it, times ``T / tau`` when ``tau < T`` (linear growth past the prefix);
-    - ``trusted``: the asymptotic regime, the difference at ``H`` at least ``2^{p-1}`` times the
-      difference at ``H/2`` (it is ``2^p`` there) and at most :data:`CHECK_TRUST` relative;
-    - ``E_safe``: without the asymptotic regime, the bound that assumes only that halving the step does
-      not increase the error, ``err(H/4) <= |y_{H/2} - y_{H/4}|``, expressed at ``H/2`` as
-      ``2^p max_t |y_{H/2} - y_{H/4}|`` (``T / tau`` as ``E``): scaled to a step by the order it is
-      conservative wherever the convergence is slower than ``p`` at ``H/4`` only because ``H`` is
-      outside the regime.
-    """
-    from .schemes.core import IntegrationError
-
-    n = max(64, int(math.ceil(tau / H)))
-    m = max(1, n // max(CHECK_SAMPLES, _samples(y0)))
-    n = m * int(math.ceil(n / m))
-    H = tau / n
-    kw = dict(scheme=sch.name, progress=False, check_stability=False, backend=backend, drop_exact=True)
-    try:
-        import warnings
-
-        with warnings.catch_warnings(), np.errstate(all="ignore"):
-            warnings.simplefilter("ignore")
-            ys = [np.moveaxis(np.asarray(fi.run((t0, t0 + tau), dt=H / k, save_every=k * m, y0=y0, **kw).y), -1, 0)
-                  for k in (1, 2, 4)]
-    except (IntegrationError, ArithmeticError, np.linalg.LinAlgError, ValueError, RuntimeError):
-        return None
-    if any(y.shape != ys[0].shape or not np.all(np.isfinite(y)) for y in ys):
-        return None
-    size = _size(fi, np.max(np.abs(ys[2]), axis=0), CHECK_PART_FLOOR)
-    d1 = float(np.max(np.abs(ys[0] - ys[2]) / size))
-    d2 = float(np.max(np.abs(ys[1] - ys[2]) / size))
-    diff = np.abs(ys[1] - ys[2]) / (atol + rtol * size)
-    E = float(np.max(diff)) / (1.0 - 2.0 ** -p) * (T / tau)
-    E_safe = float(np.max(diff)) * 2.0 ** p * (T / tau)
-    if not (math.isfinite(E) and math.isfinite(E_safe)):
-        return None
-    trusted = d1 <= CHECK_TRUST and not (d2 > 1e3 * np.finfo(float).eps and d1 < 2.0 ** (p - 1) * d2)
-    return E, E_safe, H / 2, tau, trusted, m == 1, _run_drift(fi, ys[0]), _run_drift(fi, ys[2])
-
-
-def _run_drift(fi, ys):
-    """The largest relative drift of the invariants over a run's saved states ``ys`` (:func:`liefi.drift.drift`,
-    scales at the start); ``0`` where it cannot be evaluated (no invariant: nothing to keep)."""
-    from .drift import drift, drift_scales
-
-    try:
-        with np.errstate(all="ignore"):
-            d = drift(fi, np.asarray(ys, float), drift_scales(fi, ys[0]))[0]
-    except (ArithmeticError, np.linalg.LinAlgError, ValueError, TypeError, KeyError, IndexError):
-        return 0.0
-    return float(d) if math.isfinite(d) else math.inf
-
-
-def _drift_cap(dt, drift, floor, p):
-    r"""The longest step whose run keeps the invariants at rounding, from the drift ``drift`` measured at ``dt``.
-
-    One Gauss--Newton step onto the invariant set leaves ``K e^2`` of the tableau's per-step defect
-    ``e = c dt^{p+1}`` (measured: ``K`` 0.2 to 1.1 on the Chaplygin sleighs, Suslov, the oscillator, the roller
-    racer), so the drift scales like ``dt^{2(p+1)}`` and the cap is ``dt (a L / drift)^{1 / (2(p+1))}``, ``L`` =
-    :data:`DRIFT_LEVEL`, ``a`` = :data:`DRIFT_AIM`.  ``inf`` when the drift is at rounding: below ``L``, or within
-    :data:`DRIFT_FLOOR_RATIO` of ``floor``, the drift of a run at a shorter step (rounding that no step lowers).
-    """
-    if not drift > max(DRIFT_LEVEL, DRIFT_FLOOR_RATIO * floor):
-        return math.inf
-    if not math.isfinite(drift):
-        return 0.0
-    return dt * (DRIFT_AIM * DRIFT_LEVEL / drift) ** (1.0 / (2.0 * (p + 1)))
-
-
-def _samples(y0):
-    """The states of ``y0``'s size that a run may save for a comparison (:data:`CHECK_BYTES`)."""
-    return max(1, int(CHECK_BYTES // (8 * max(1, np.asarray(y0).size))))
-
-
-def _verify_longer(fi, sch, y0, t0, T, chk, rtol, atol, p, backend):
-    r"""``(dt, e, dense)``: a step longer than the trusted check's coarse step, with its run's measured error
-    ``e`` (in units of the tolerance, ``e <= 1``), or ``None``.
-
-    The check measured the error up to its coarse step ``H``; past it the error is not known to follow
-    ``h^p`` (the asymptotic regime may end there).  So a longer step ``dt`` is *run*, over the whole
-    horizon, and compared at every one of its steps (or as many as :data:`CHECK_BYTES` allows:
-    ``dense``) with a run of the same scheme at ``dt / q``, ``q`` the least integer with ``dt / q <= H/2``.
-    That run is inside the measured regime, its error at most ``E (dt / (q H/2))^p <= E`` (``E`` the
-    check's, at ``H/2``), so
-
-    .. math:: e(dt) \le \max_n |y_{dt}(t_n) - y_{dt/q}(t_n)| / (atol + rtol\, s) + E .
-
-    The candidates start from the order's extrapolation ``H (TARGET / e(H))^{1/p}`` and follow each
-    measurement the same way, each at most :data:`WIDEN_FACTOR` times the longest step accepted so far,
-    :data:`CHECK_WIDEN` tries; a step is accepted when ``e <= 1``: the run that follows is the one
-    measured (same scheme, start and ``dt = T/N``), so its error is within the tolerance by measurement,
-    not by a model.
-    """
-    E, _E_safe, h = chk[0], chk[1], chk[2]
-    lo, e_lo = CHECK_GROWTH * h, E * CHECK_GROWTH ** p
-    best, hi = None, math.inf  # hi: the least step cut for its drift so far (no later candidate past it)
-    prop = lo * (TARGET / e_lo) ** (1.0 / p) if e_lo > 0 else math.inf
-    for _ in range(CHECK_WIDEN):
-        cand = min(prop, hi, WIDEN_FACTOR * lo, T / 64)
-        if not cand > 1.05 * lo:
-            break
-        got = _measure(fi, sch, y0, t0, T, cand, h, E, rtol, atol, p, backend)
-        if got is None:
-            break
-        e, dense, cand, drift, floor = got
-        cap = _drift_cap(cand, drift, floor, p)
-        if e <= 1.0 and cap == math.inf:
-            best, lo = (cand, e, dense), cand
-        hi = min(hi, cap)
-        prop = cand * (TARGET / e) ** (1.0 / p) if e > 0 else math.inf
-    return best
-
-
-def _measure(fi, sch, y0, t0, T, dt, h, E, rtol, atol, p, backend):
-    """``(e, dense, dt, drift, floor)``: the error of the run at ``dt`` (rounded to ``T/N``) against the run at
-    ``dt/q <= h`` whose error is at most ``E (dt / (q h))^p`` (:func:`_verify_longer`), and the invariants' drift
-    of the two runs (:func:`_run_drift`), or ``None`` when a run fails."""
-    from .schemes.core import IntegrationError
-
-    N = max(1, int(math.ceil(T / dt - 1e-9)))
-    m = max(1, -(-N // _samples(y0)))
-    N = m * int(math.ceil(N / m))
-    dt = T / N
-    q = max(1, int(math.ceil(dt / h - 1e-9)))
-    kw = dict(scheme=sch.name, progress=False, check_stability=False, backend=backend, drop_exact=True)
-    try:
-        import warnings
-
-        with warnings.catch_warnings(), np.errstate(all="ignore"):
-            warnings.simplefilter("ignore")
-            ys = [np.moveaxis(np.asarray(fi.run((t0, t0 + T), dt=dt / k, save_every=k * m, y0=y0, **kw).y), -1, 0)
-                  for k in (1, q)]
-    except (IntegrationError, ArithmeticError, np.linalg.LinAlgError, ValueError, RuntimeError):
-        return None
-    if ys[0].shape != ys[1].shape or not all(np.all(np.isfinite(y)) for y in ys):
-        return None
-    size = _size(fi, np.max(np.abs(ys[1]), axis=0), CHECK_PART_FLOOR)
-    e = float(np.max(np.abs(ys[0] - ys[1]) / (atol + rtol * size))) + E * (dt / (q * h)) ** p
-    return (e, m == 1, dt, _run_drift(fi, ys[0]), _run_drift(fi, ys[1])) if math.isfinite(e) else None
-
-
 def choose_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=None, choose_order=False):
     """``(dt, info)``: the fixed step for ``rtol``/``atol`` over ``[t0, t_end]`` (module docstring).
 
@@ -533,6 +196,11 @@ def choose_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=
     (errors relative to the tolerance; ``check_*`` ``None`` without the check; ``unmeasured`` true when a
     run long enough to be checked could not be: the run warns, :class:`LiefiToleranceWarning`).
     """
+    return chosen_step(fi, sch, y0, t0, t_end, rtol, atol, check=check, backend=backend, choose_order=choose_order)[:2]
+
+
+def chosen_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=None, choose_order=False):
+    """``(dt, info, scheme)``: :func:`choose_step` and the scheme it chose (an object: no look-up by name)."""
     rtol, atol = check_tolerance(rtol, atol)
     tab = _tableau(sch)
     p = int(tab.order)
@@ -615,7 +283,7 @@ def choose_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=
     }
     if costs is not None:
         info["predicted_cost"] = costs
-    return dt, info
+    return dt, info, sch
 
 
 def _cheapest_order(fi, sch, Y, T, rtol, atol, f=None):
@@ -626,15 +294,12 @@ def _cheapest_order(fi, sch, Y, T, rtol, atol, f=None):
     about the same for every order (it is the motion's, step 4), so it cancels in the comparison.
     ``costs`` maps each candidate's name to its predicted evaluations.
     """
-    from .schemes import registry as _registry
-
     names = ORDER_CANDIDATES.get(sch.kind, ())
     if sch.name not in names:
         C, h, _ = _local_estimate(fi, _tableau(sch), Y, T, rtol, atol, f)
         return sch, C, h, None
     best, costs = None, {}
-    for name in names:
-        cand = _registry.get(name)
+    for name, cand in zip(names, ORDER_SCHEMES[sch.kind]):
         tab = _tableau(cand)
         C, h, _ = _local_estimate(fi, tab, Y, T, rtol, atol, f)
         dt, _ = resolved_step(fi, tab, Y, min(_local_step(C / TARGET, T, int(tab.order), h), T), T, rtol)

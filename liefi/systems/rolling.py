@@ -63,11 +63,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import _diff
-from ._data import as_float, as_float_array
-from .feedback import Invariant
-from .groups import SO3, Representation, Rn
-from .phase_space import LieGroupPhaseSpace
+from .. import _diff
+from .._data import as_float, as_float_array
+from .invariant import Invariant
+from ..groups import SO3, Representation, Rn
+from ..phase_space import LieGroupPhaseSpace
 from .system import NonholonomicSystem
 
 #: names of the advected vector ``(R^T e_1, R^T e_2, R^T e_3)``

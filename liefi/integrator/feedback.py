@@ -28,33 +28,12 @@ from functools import cached_property
 
 import numpy as np
 
-from . import _diff
-from .reduction import core as _core
-from ._keywords import RUN_FOREIGN, keywords, unknown_keyword
-from ._parameters import gain_number, parse_gains, per_member, target_number, target_value  # noqa: F401
-from .system import NonholonomicSystem
-
-
-@dataclass(frozen=True)
-class Invariant:
-    """A user-given first integral of the extended field, a function of the reduced state.
-
-    Parameters
-    ----------
-    name : str
-    fun : callable
-        ``fun(z)``: ``(..., nz) -> (...)``, complex-step safe unless ``grad`` is given.
-    grad : callable, optional
-        ``grad(z)``: ``(..., nz) -> (..., nz)``.
-    """
-
-    name: str
-    fun: object
-    grad: object = None
-
-    def value_and_grad(self, z, data=_core.NUMPY_DATA):
-        """``(I(z), dI/dz)``: ``grad`` if given, else by complex step (or traced, with the engine's ``data``)."""
-        return data.value_and_gradient(self.fun, z, self.grad, f"invariant {self.name!r}")
+from .. import _diff
+from ..reduction import core as _core
+from .._keywords import RUN_FOREIGN, keywords, unknown_keyword
+from .._parameters import gain_number, parse_gains, per_member, target_number, target_value  # noqa: F401
+from ..systems.invariant import Invariant  # noqa: F401  (liefi.Invariant: a first integral the user adds)
+from ..systems.system import NonholonomicSystem
 
 
 @dataclass(frozen=True)
@@ -208,7 +187,7 @@ class FeedbackIntegrator:
         self.n = self.nc + sp.nz
         self.names = (tuple(sp.group.config_names) if self.configuration else ()) + sp.state_names
 
-        from ._data import as_float_array
+        from .._data import as_float_array
 
         y0 = as_float_array(y0, "y0")
         if y0.shape[-1:] != (self.n,):
@@ -662,7 +641,7 @@ class FeedbackIntegrator:
         ``LSODA`` need no finite differences (``docs/getting-started.md`` has the
         counts).  A system whose data cannot be traced gets a ``ValueError``.
         """
-        from .engine.jacobian import field_jacobian
+        from ..engine.jacobian import field_jacobian
 
         return field_jacobian(self, y)
 
@@ -752,7 +731,7 @@ class FeedbackIntegrator:
             ``t``, ``y``, ``success``, ``status``, ``message``, ``nfev``, ``t_events``,
             ``y_events``, ``sol``; with ``cpu_seconds``, ``overhead_seconds`` and ``plan``).
         """
-        from ._progress import compile_notice
+        from .._progress import compile_notice
         from .run import method_scheme, positional_span, run_feedback
 
         if unknown:

@@ -1,4 +1,5 @@
-"""Generic figures and the helpers scenes draw their own figures with.
+"""Generic figures and the helpers scenes draw their own figures with (liefi's own figures: scenes, bench,
+reproduce).  A user's figures of their own run are :mod:`liefi.plot` (``liefi/results/plot.py``).
 
 Every function here draws into a matplotlib ``Figure`` (or ``SubFigure``) and
 returns it; matplotlib is imported *inside* the functions (Agg backend), never
@@ -130,7 +131,7 @@ def check_format(path, name="out"):
 def save(fig, path):
     """Write ``fig`` to ``path`` (the format from its suffix, e.g. ``.png``); returns ``path``."""
     require_matplotlib()
-    from ._files import writing
+    from .._files import writing
 
     with writing(path):
         fig.savefig(path)

@@ -39,9 +39,9 @@ import numpy as np
 
 from .gains import adapted_gains, exact_drops, run_gains
 from .guard import Guard, RunReport
-from .schemes import steps_for
+from ..schemes import steps_for
 from .stability import RESOLUTION_LIMIT, LiefiStabilityWarning, dynamics_rates, stiffness
-from .tolerance import DEFAULT_RTOL, LiefiToleranceWarning, check_tolerance, choose_step, unmeasured_message
+from .tolerance import DEFAULT_RTOL, LiefiToleranceWarning, check_tolerance, chosen_step, unmeasured_message
 
 
 def _span_length(t0, t_end):
@@ -143,9 +143,9 @@ class Policy:
         y_pilot = fi.y0 if y0 is None else np.asarray(y0, dtype=float)
         if not (np.shape(y_pilot)[-1:] == (fi.n,) and np.all(np.isfinite(y_pilot))):
             return t_end - t_start, None
-        dt, self.chosen = choose_step(fi.for_batch(np.shape(y_pilot)[:-1]), self.sch, y_pilot, t_start, t_end,
-                                      rtol, atol, backend=self.backend, choose_order=self.choose_order)
-        self._set_scheme(self.chosen["scheme"])  # the order chosen for the tolerance
+        dt, self.chosen, sch = chosen_step(fi.for_batch(np.shape(y_pilot)[:-1]), self.sch, y_pilot, t_start, t_end,
+                                           rtol, atol, backend=self.backend, choose_order=self.choose_order)
+        self._set_scheme(sch)  # the order chosen for the tolerance
         if self.chosen.get("unmeasured"):
             warnings.warn(unmeasured_message(self.chosen, dt, t_start, t_end), LiefiToleranceWarning,
                           stacklevel=self.stacklevel + 2)
@@ -155,10 +155,8 @@ class Policy:
                              f"{t_end:g}], more than the {max_steps:.0e} allowed; loosen rtol or atol")
         return dt, self.chosen
 
-    def _set_scheme(self, name):
-        from .schemes import registry
-
-        self.sch = registry.get(name)
+    def _set_scheme(self, sch):
+        self.sch = sch
         self.beta = float(self.sch.real_stability_bound)
         self.split = self.sch.kind == "split"
 
@@ -352,7 +350,7 @@ def _max_step(max_step):
     """``max_step`` checked: ``None`` (no cap: also for ``inf``, ``solve_ivp``'s default) or a positive number."""
     if max_step is None:
         return None
-    from .schemes import positive_number
+    from ..schemes import positive_number
 
     if isinstance(max_step, (int, float, np.integer, np.floating)) and max_step == math.inf:
         return None

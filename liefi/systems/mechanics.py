@@ -60,7 +60,7 @@ class _Constants:
 
     def parse(self, constants):
         """An array ``(..., P)`` from a mapping ``{symbol or name: value(s)}`` or an array."""
-        from . import _data
+        from .. import _data
 
         P = len(self.symbols)
         if isinstance(constants, dict):
@@ -82,7 +82,7 @@ class _Constants:
                                  f"({[np.shape(c) for c in cols]})") from None
             arr = np.stack(cols, -1) if cols else np.zeros((0,))
         else:
-            from ._data import as_float_array
+            from .._data import as_float_array
 
             arr = as_float_array(constants, "constants")
             if arr.shape[-1:] != (P,):
@@ -106,7 +106,7 @@ class _Constants:
         member's constants (states that are not the ensemble's, e.g. a few members standing
         for it in a stiffness estimate).
         """
-        from ._diff import state_batch
+        from .._diff import state_batch
 
         c = self.values
         cb = c.shape[:-1]
@@ -338,7 +338,7 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
     """
     sympy = _sympy()
     import sympy.physics.mechanics as me
-    from .phase_space import CotangentBundle
+    from ..phase_space import CotangentBundle
 
     parts = _parts(sympy, me, model)
     q, qd, u = parts["q"], parts["qd"], parts["u"]

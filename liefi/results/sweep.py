@@ -84,9 +84,9 @@ import time
 import traceback as _traceback
 from concurrent.futures import FIRST_COMPLETED, Executor, wait
 
-from ._json import plain as _plain
-from ._progress import Progress
-from ._signals import ignore_in_worker, signum_of
+from .._json import plain as _plain
+from .._progress import Progress
+from .._signals import ignore_in_worker, signum_of
 
 __all__ = ["run_sweep", "open_executor", "TaskError", "SweepInterrupted", "ResultStore", "StoreError", "task_key"]
 

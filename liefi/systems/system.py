@@ -34,9 +34,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._data import DataFunction, as_float_array, as_state, check_real
-from . import reduction as _red
-from .phase_space import PhaseSpace
+from .._data import DataFunction, as_float_array, as_state, check_real
+from .. import reduction as _red
+from ..phase_space import PhaseSpace
 
 
 class NonholonomicSystem:
@@ -336,7 +336,7 @@ class NonholonomicSystem:
         a given ``metric_derivative`` is scaled the same way.  ``changes``: other
         constructor arguments to replace (e.g. ``sample``).
         """
-        from ._data import as_float_array
+        from .._data import as_float_array
 
         D = self.space.D
         S = as_float_array(S, "S")

@@ -60,12 +60,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ._diff import directions_after
+from .._diff import directions_after
 from .drift import drift, drift_scales, first_integral_defect  # noqa: F401 -- part of this module's API
-from .schemes import IntegrationError
-from .schemes import positive_int as _positive_int  # noqa: F401
-from .schemes import registry as _registry
-from .schemes import split as _stiff
+from ..schemes import IntegrationError
+from ..schemes import positive_int as _positive_int  # noqa: F401
+from ..schemes.registry import takes_scheme
+from ..schemes import split as _stiff
 
 #: ``dt lambda_max / beta`` within this of 1 is "at the limit" (marginal: the stiff mode neither grows nor decays).
 LIMIT_BAND = 0.01
@@ -136,11 +136,15 @@ def _scaled(gains, factor):
 # --------------------------------------------------------------------------------
 
 
+@takes_scheme
 def resolve_scheme(scheme):
-    """``(scheme, beta)``: the registry's scheme and its real stability bound (``inf`` when stiff-safe)."""
+    """``(scheme, beta)``: the registry's scheme and its real stability bound (``inf`` when stiff-safe).
+
+    A name is looked up at the call (:func:`liefi.schemes.registry.takes_scheme`); a run passes its object.
+    """
     if isinstance(scheme, _stiff.BoundSplitStep):
         scheme = scheme.scheme
-    sch = _registry.get(scheme)
+    sch = scheme
     return sch, float(getattr(sch, "real_stability_bound", math.inf))
 
 
@@ -278,7 +282,7 @@ def pilot(fi, y0, t_final, *, max_evals=2000, max_rate=None):
     find where the stiffness grows) and spreads the budget over ``[0, t_final]``.  ``X`` keeps every invariant, so the
     feedback run stays near this trajectory.
     """
-    from .schemes.rk import RK4
+    from ..schemes.rk import RK4
 
     max_rate = PILOT_MAX_RATE if max_rate is None else max_rate
     y0 = np.asarray(y0, dtype=float)

@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from .reduction import core as _core
+from ..reduction import core as _core
 
 
 def drift_scales(fi, y=None):

@@ -134,9 +134,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .schemes import ExplicitRungeKutta, positive_number
-from .schemes import registry as _registry
-from .schemes import split as _split
+from ..schemes import ExplicitRungeKutta, positive_number
+from ..schemes.registry import names as _scheme_names, takes_scheme
+from ..schemes import split as _split
 from .stability import _scaled, drift_scales, dynamics_rate, dynamics_rates, estimate, resolve_scheme, stiffness
 
 
@@ -249,15 +249,16 @@ def adapted_gains(fi, y, rate, dt, *, auto, split=False):
 # --------------------------------------------------------------------------------
 
 
+@takes_scheme
 def _tableau(scheme):
     """``(scheme, A, b, c)``: the explicit tableau of ``scheme`` (of its explicit part for a split scheme)."""
-    sch = _registry.get(scheme) if isinstance(scheme, str) else scheme
+    sch = scheme
     sch = getattr(sch, "scheme", sch)  # a split scheme bound to an integrator
     tab = sch.explicit if getattr(sch, "kind", None) == "split" else sch
     if not isinstance(tab, ExplicitRungeKutta):
         raise ValueError(
             f"scheme: accurate gains are derived for explicit Runge-Kutta tableaux and the split schemes, got "
-            f"{scheme!r}; use one of {', '.join(_registry.names('explicit') + _registry.names('split'))}"
+            f"{scheme!r}; use one of {', '.join(_scheme_names('explicit') + _scheme_names('split'))}"
         )
     s = tab.stages
     A = np.array([list(r) + [0.0] * (s - len(r)) for r in tab.A], float)
@@ -572,7 +573,7 @@ def exact_drops(fi, sch, y0, *, rtol=1e-12):
     Y = np.asarray(y0, float).reshape(-1, fi.n)
     flat = fi.for_batch(np.shape(y0)[:-1]).members()  # every member's own target
     with np.errstate(all="ignore"):
-        kept = exactly_kept(flat.members(0), sch.name, Y[0])
+        kept = exactly_kept(flat.members(0), sch, Y[0])
         if not kept:
             return {}
         jet = flat.invariant_gradients(Y)
@@ -639,7 +640,7 @@ def run_gains(fi, y, dt, scheme, t_final, *, adaptive=None) -> RunGains:
     if not auto:
         run_fi = fi.with_gains(lowered_gains(fi, y, rate, dt, split=scheme.kind == "split")) if adapt else fi
         return RunGains(run_fi, rate, adapt, mask, None)
-    z, acc, unit, omega = _accurate(fi, dt, scheme.name, t_final, y, None)
+    z, acc, unit, omega = _accurate(fi, dt, scheme, t_final, y, None)
     if adaptive is None:
         mask = np.broadcast_to(z >= AUTO_ADAPT_FRACTION * float(scheme.real_stability_bound), batch)
         adapt = bool(np.any(mask))

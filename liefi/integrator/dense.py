@@ -76,7 +76,7 @@ def partial_step(fi, sch, y, h):
     returned unchanged (bit for bit).  Module docstring: why this is the
     dense output.
     """
-    from .schemes.split import feedback_step
+    from ..schemes.split import feedback_step
 
     y = np.asarray(y, dtype=float)
     h = np.asarray(h, dtype=float)

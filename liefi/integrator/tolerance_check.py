@@ -1,0 +1,199 @@
+r"""The measured global check of a step chosen for a tolerance: the scheme run over the whole horizon.
+
+Step 5 of :mod:`liefi.integrator.tolerance` (the maths there): the scheme itself is run at a coarse step ``H``,
+at ``H/2`` and ``H/4`` (:func:`_global_check`, planned within a budget by :func:`_check_plan`), and the
+Richardson error ``|y_{H/2} - y_{H/4}| / (1 - 2^{-p})`` is compared along the run; where the tolerance
+allows more, a longer step is run and measured (:func:`_verify_longer`).  The invariants' drift of these
+runs is judged by :mod:`liefi.integrator.tolerance_drift`.  Re-exported by :mod:`liefi.integrator.tolerance`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .tolerance_local import TARGET, _size
+from .tolerance_drift import _drift_cap, _run_drift
+
+#: The floor of the error scale (:data:`PART_FLOOR`) in the check's comparisons, over the whole horizon
+#: (where each component's size is seen, not a pilot's window of it): a position beside a winding angle is
+#: measured against its own size, not 1e-2 of the angle's.
+CHECK_PART_FLOOR = 1e-3
+#: The check's coarse step has a relative error of at most this by the local model (asymptotic regime).
+CHECK_ERROR = 1e-3
+#: ... and is at most this many local-model steps.
+CHECK_COARSEST = 64.0
+#: A run of fewer steps than this is not checked (the local model alone: the check would cost more than the run).
+CHECK_MIN_STEPS = 256
+#: The check's two runs cost at most this fraction of the run the local model predicts.
+CHECK_BUDGET = 0.25
+#: ... or at most this many field evaluations when that is more (a few milliseconds of compiled loop; compiled
+#: backends only: on numpy that would be seconds).
+CHECK_FLOOR = 3e5
+#: Common times at which the check's two runs are compared (at least; every coarse step up to this many
+#: steps): dense enough to catch a short transient where the error peaks.
+CHECK_SAMPLES = 4096
+#: ... and every coarse step while a run's saved states take at most this many bytes (a comparison at every
+#: step measures the error of the whole run: its step counts as resolved, :func:`resolved_step`).
+CHECK_BYTES = 2**25
+#: A check whose two runs differ by more than this (relative) is not trusted (not asymptotic).
+CHECK_TRUST = 1e-2
+#: An untrusted check is repeated at half the coarse step while all its tries cost at most this many budgets.
+CHECK_TRIES_BUDGET = 4.0
+#: Longer steps tried, each run and measured, where a trusted check allows more than its coarse step
+#: (:func:`_verify_longer`).
+CHECK_WIDEN = 3
+#: ... each at most this many times the longest step measured so far.
+WIDEN_FACTOR = 4.0
+#: The step is at most this many times the check's coarse step (where the error was measured).
+CHECK_GROWTH = 2.0
+
+
+def _check_plan(fi, sch, tab, y0, t0, T, dt0, rtol, atol, p, backend):
+    """The check of step 5 over the whole horizon, or ``None`` for a run of too few steps to protect.
+
+    The three runs cost at most :data:`CHECK_BUDGET` of the run ``dt0`` predicts, or, compiled,
+    :data:`CHECK_FLOOR` field evaluations when that is more (the fixed cost of a run, a few
+    milliseconds, is not worth saving below it; on numpy an evaluation costs about 1000 times more).  The coarse step is the asymptotic one (its relative
+    error :data:`CHECK_ERROR` by the local model, at most :data:`CHECK_COARSEST` ``dt0``) when the
+    budget affords it over ``[t0, T]``, else the finest the budget affords: the whole horizon is always
+    measured, so that an error that grows late in the run (the rattleback's spin reversal) is seen;
+    a check outside the asymptotic regime is repeated at half the step while all the tries cost at most
+    :data:`CHECK_TRIES_BUDGET` budgets, and the last gives the conservative bound.
+    """
+    if T / dt0 < CHECK_MIN_STEPS:
+        return None
+    # the floor is a few milliseconds of compiled loop; on numpy (an evaluation costs ~1000x) only the fraction
+    floor = CHECK_FLOOR / max(1, int(getattr(sch, "stages", 1))) if backend != "numpy" else 0.0
+    budget = max(CHECK_BUDGET * T / dt0, floor)
+    H = dt0 * min(max(1.0, (CHECK_ERROR / rtol) ** (1.0 / p)), CHECK_COARSEST)
+    H = min(max(H, 7.0 * T / budget), T / 64)
+    spent, chk = 0.0, None
+    while spent + 7.0 * T / H <= CHECK_TRIES_BUDGET * budget or chk is None:
+        spent += 7.0 * T / H
+        chk = _global_check(fi, sch, y0, t0, T, H, T, rtol, atol, p, backend)
+        if chk is None or chk[4]:
+            break
+        H /= 2.0  # outside the asymptotic regime: halve the coarse step while the budget allows
+    return chk
+
+
+def _global_check(fi, sch, y0, t0, T, H, tau, rtol, atol, p, backend):
+    """The measured global error over ``[t0, t0 + tau]`` (step 5 of the module docstring), or ``None``.
+
+    Three runs of the scheme itself, at ``H``, ``H/2`` and ``H/4``, compared at every coarse step while
+    :data:`CHECK_BYTES` allows (else at :data:`CHECK_SAMPLES` common times or more).  Returns ``(E, E_safe, H/2, tau, trusted, dense)``, errors in
+    units of the tolerance at the horizon ``T``, ``dense`` whether the runs were compared at every coarse
+    step:
+
+    - ``E``: the run at ``H/2`` has the error ``|y_{H/2} - y_{H/4}| / (1 - 2^{-p})`` (Richardson),
+      ``E = max_t`` of it, times ``T / tau`` when ``tau < T`` (linear growth past the prefix);
+    - ``trusted``: the asymptotic regime, the difference at ``H`` at least ``2^{p-1}`` times the
+      difference at ``H/2`` (it is ``2^p`` there) and at most :data:`CHECK_TRUST` relative;
+    - ``E_safe``: without the asymptotic regime, the bound that assumes only that halving the step does
+      not increase the error, ``err(H/4) <= |y_{H/2} - y_{H/4}|``, expressed at ``H/2`` as
+      ``2^p max_t |y_{H/2} - y_{H/4}|`` (``T / tau`` as ``E``): scaled to a step by the order it is
+      conservative wherever the convergence is slower than ``p`` at ``H/4`` only because ``H`` is
+      outside the regime.
+    """
+    from ..schemes.core import IntegrationError
+
+    n = max(64, int(math.ceil(tau / H)))
+    m = max(1, n // max(CHECK_SAMPLES, _samples(y0)))
+    n = m * int(math.ceil(n / m))
+    H = tau / n
+    kw = dict(scheme=sch.name, progress=False, check_stability=False, backend=backend, drop_exact=True)
+    try:
+        import warnings
+
+        with warnings.catch_warnings(), np.errstate(all="ignore"):
+            warnings.simplefilter("ignore")
+            ys = [np.moveaxis(np.asarray(fi.run((t0, t0 + tau), dt=H / k, save_every=k * m, y0=y0, **kw).y), -1, 0)
+                  for k in (1, 2, 4)]
+    except (IntegrationError, ArithmeticError, np.linalg.LinAlgError, ValueError, RuntimeError):
+        return None
+    if any(y.shape != ys[0].shape or not np.all(np.isfinite(y)) for y in ys):
+        return None
+    size = _size(fi, np.max(np.abs(ys[2]), axis=0), CHECK_PART_FLOOR)
+    d1 = float(np.max(np.abs(ys[0] - ys[2]) / size))
+    d2 = float(np.max(np.abs(ys[1] - ys[2]) / size))
+    diff = np.abs(ys[1] - ys[2]) / (atol + rtol * size)
+    E = float(np.max(diff)) / (1.0 - 2.0 ** -p) * (T / tau)
+    E_safe = float(np.max(diff)) * 2.0 ** p * (T / tau)
+    if not (math.isfinite(E) and math.isfinite(E_safe)):
+        return None
+    trusted = d1 <= CHECK_TRUST and not (d2 > 1e3 * np.finfo(float).eps and d1 < 2.0 ** (p - 1) * d2)
+    return E, E_safe, H / 2, tau, trusted, m == 1, _run_drift(fi, ys[0]), _run_drift(fi, ys[2])
+
+
+def _samples(y0):
+    """The states of ``y0``'s size that a run may save for a comparison (:data:`CHECK_BYTES`)."""
+    return max(1, int(CHECK_BYTES // (8 * max(1, np.asarray(y0).size))))
+
+
+def _verify_longer(fi, sch, y0, t0, T, chk, rtol, atol, p, backend):
+    r"""``(dt, e, dense)``: a step longer than the trusted check's coarse step, with its run's measured error
+    ``e`` (in units of the tolerance, ``e <= 1``), or ``None``.
+
+    The check measured the error up to its coarse step ``H``; past it the error is not known to follow
+    ``h^p`` (the asymptotic regime may end there).  So a longer step ``dt`` is *run*, over the whole
+    horizon, and compared at every one of its steps (or as many as :data:`CHECK_BYTES` allows:
+    ``dense``) with a run of the same scheme at ``dt / q``, ``q`` the least integer with ``dt / q <= H/2``.
+    That run is inside the measured regime, its error at most ``E (dt / (q H/2))^p <= E`` (``E`` the
+    check's, at ``H/2``), so
+
+    .. math:: e(dt) \le \max_n |y_{dt}(t_n) - y_{dt/q}(t_n)| / (atol + rtol\, s) + E .
+
+    The candidates start from the order's extrapolation ``H (TARGET / e(H))^{1/p}`` and follow each
+    measurement the same way, each at most :data:`WIDEN_FACTOR` times the longest step accepted so far,
+    :data:`CHECK_WIDEN` tries; a step is accepted when ``e <= 1``: the run that follows is the one
+    measured (same scheme, start and ``dt = T/N``), so its error is within the tolerance by measurement,
+    not by a model.
+    """
+    E, _E_safe, h = chk[0], chk[1], chk[2]
+    lo, e_lo = CHECK_GROWTH * h, E * CHECK_GROWTH ** p
+    best, hi = None, math.inf  # hi: the least step cut for its drift so far (no later candidate past it)
+    prop = lo * (TARGET / e_lo) ** (1.0 / p) if e_lo > 0 else math.inf
+    for _ in range(CHECK_WIDEN):
+        cand = min(prop, hi, WIDEN_FACTOR * lo, T / 64)
+        if not cand > 1.05 * lo:
+            break
+        got = _measure(fi, sch, y0, t0, T, cand, h, E, rtol, atol, p, backend)
+        if got is None:
+            break
+        e, dense, cand, drift, floor = got
+        cap = _drift_cap(cand, drift, floor, p)
+        if e <= 1.0 and cap == math.inf:
+            best, lo = (cand, e, dense), cand
+        hi = min(hi, cap)
+        prop = cand * (TARGET / e) ** (1.0 / p) if e > 0 else math.inf
+    return best
+
+
+def _measure(fi, sch, y0, t0, T, dt, h, E, rtol, atol, p, backend):
+    """``(e, dense, dt, drift, floor)``: the error of the run at ``dt`` (rounded to ``T/N``) against the run at
+    ``dt/q <= h`` whose error is at most ``E (dt / (q h))^p`` (:func:`_verify_longer`), and the invariants' drift
+    of the two runs (:func:`_run_drift`), or ``None`` when a run fails."""
+    from ..schemes.core import IntegrationError
+
+    N = max(1, int(math.ceil(T / dt - 1e-9)))
+    m = max(1, -(-N // _samples(y0)))
+    N = m * int(math.ceil(N / m))
+    dt = T / N
+    q = max(1, int(math.ceil(dt / h - 1e-9)))
+    kw = dict(scheme=sch.name, progress=False, check_stability=False, backend=backend, drop_exact=True)
+    try:
+        import warnings
+
+        with warnings.catch_warnings(), np.errstate(all="ignore"):
+            warnings.simplefilter("ignore")
+            ys = [np.moveaxis(np.asarray(fi.run((t0, t0 + T), dt=dt / k, save_every=k * m, y0=y0, **kw).y), -1, 0)
+                  for k in (1, q)]
+    except (IntegrationError, ArithmeticError, np.linalg.LinAlgError, ValueError, RuntimeError):
+        return None
+    if ys[0].shape != ys[1].shape or not all(np.all(np.isfinite(y)) for y in ys):
+        return None
+    size = _size(fi, np.max(np.abs(ys[1]), axis=0), CHECK_PART_FLOOR)
+    e = float(np.max(np.abs(ys[0] - ys[1]) / (atol + rtol * size))) + E * (dt / (q * h)) ** p
+    return (e, m == 1, dt, _run_drift(fi, ys[0]), _run_drift(fi, ys[1])) if math.isfinite(e) else None
