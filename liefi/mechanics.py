@@ -356,7 +356,7 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
     else:
         if not bodies:
             raise ValueError(f"model: the {parts['kind']} has no bodies; pass bodies= (or call kanes_equations(bodies, loads))")
-        L = me.kinetic_energy(frame, *bodies)
+        L = me.kinetic_energy(frame, *bodies) if not u else sympy.S.Zero  # with speeds: _kinetic_form below
         if parts["potential_energy"]:  # a System formed with LagrangesMethod: its Lagrangian holds them
             L = L - sum((b.potential_energy for b in bodies), sympy.S.Zero)
         else:
@@ -367,7 +367,11 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
     # the parameters: the model's free symbols, in the order of `constants` first
     t = me.dynamicsymbols._t
     free = set()
-    for e in [L, *constraints, *(list(Kq) + list(Ku) if u else [])]:
+    H = c_w = None
+    if u and parts["L"] is None:
+        H, c_w, T0 = _kinetic_form(sympy, me, frame, bodies, list(qd) + list(u), aux0)
+        L = L + T0
+    for e in [L, *constraints, *(list(Kq) + list(Ku) if u else []), *(list(H) + list(c_w) if H is not None else [])]:
         free |= e.free_symbols
     free.discard(t)
     checks = _Checks(sympy, q, qd, u, frame, aux0)
@@ -390,6 +394,9 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
 
     X, M, b, U, rows, q = lagrangian_data(sympy, L - U_loads, q, qd, constraints, params, speeds=u)
     w = len(M)  # n velocities qdot, or 2n: (qdot, u)
+    if H is not None:  # T = 1/2 w.H w + c.w + T0 from the partial velocities, never expanded
+        M = [[H[i, j].xreplace(dict(zip(q, X))) for j in range(w)] for i in range(w)]
+        b = [e + c.xreplace(dict(zip(q, X))) for e, c in zip(b, c_w)]
     metric = _bound(sympy, X, params, [e for row in M for e in row], (w, w), holder, "metric")
     pot = None if U == 0 else _bound(sympy, X, params, [U], (), holder, "potential")
     b = [sympy.expand(e) for e in b]
@@ -456,6 +463,38 @@ def _parts(sympy, me, model):
         raise TypeError("model: a sympy expression; for a Lagrangian use liefi.from_sympy(L, q, qd, constraints), "
                         "or wrap it: liefi.from_mechanics(LagrangesMethod(L, q, nonhol_coneqs=...))")
     raise TypeError(f"model: expected a sympy.physics.mechanics LagrangesMethod, KanesMethod or System, got {kind}")
+
+
+def _kinetic_form(sympy, me, frame, bodies, w, aux0):
+    r"""``(H, c, T0)`` with ``T = 1/2 w^T H w + c . w + T0``: the kinetic energy of the bodies in the velocities ``w``.
+
+    Each velocity is affine in ``w`` (``v = J_v w + v_0``, ``omega = J_w w + omega_0``: the
+    partial velocities), so ``H = sum m J_v^T J_v + J_w^T I J_w`` (``I`` the central inertia
+    in the body's frame), ``c = sum m J_v^T v_0 + J_w^T I omega_0`` and
+    ``T0 = sum m |v_0|^2/2 + omega_0 . I omega_0 / 2`` -- products of Jacobians, never an
+    expansion of ``T`` (Kane & Levinson 1985, Sec. 2.14 and 4.11).
+    """
+    zero = dict.fromkeys(w, 0)
+    n = len(w)
+    H, c, T0 = sympy.zeros(n, n), sympy.zeros(n, 1), sympy.S.Zero
+    for body in bodies:
+        m = body.mass
+        ref = body.frame if isinstance(body, me.RigidBody) else frame
+        parts = [(m * sympy.eye(3), body.masscenter.vel(frame).to_matrix(ref))]
+        if isinstance(body, me.RigidBody):
+            parts.append((body.central_inertia.to_matrix(ref), body.frame.ang_vel_in(frame).to_matrix(ref)))
+        for inertia, vel in parts:
+            vel = vel.xreplace(aux0)
+            J = vel.jacobian(w)
+            if any(J.has(s) for s in w):
+                raise ValueError(f"model: the velocity of {body} is not linear in the speeds and qdot")
+            v0 = vel.xreplace(zero)
+            IJ = inertia * J
+            H += J.T * IJ
+            if any(e != 0 for e in v0):
+                c += IJ.T * v0
+                T0 += (v0.T * inertia * v0)[0, 0] / 2
+    return H, c, T0
 
 
 def _kinematics(sympy, kd, q, qd, u):
