@@ -346,6 +346,11 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
     parts = _parts(sympy, me, model)
     q, qd, u = parts["q"], parts["qd"], parts["u"]
     n = len(q)
+    if set(u) & set(qd):  # speeds that are the velocities themselves (a joint given u = q')
+        if list(u) != list(qd):
+            raise ValueError(f"model: the speeds {list(u)} are partly the coordinates' derivatives {list(qd)}; "
+                             "give independent speeds with kinematic differential equations, or u = q' for all")
+        u = parts["u"] = []
     aux0 = dict.fromkeys(parts["aux"], 0)  # sympy forms the equations with the auxiliary speeds at zero
     Kq = Ku = None
     if u:
@@ -451,6 +456,7 @@ def _parts(sympy, me, model):
             raise ValueError("model: the System has holonomic constraints or dependent coordinates; liefi needs "
                              "independent coordinates q")
         q, u = list(model.q), list(model.u)
+        u = [] if u == [s.diff(t) for s in q] else u  # joints given u = q': the velocities themselves
         if u and len(model.kdes) != len(q):
             raise ValueError(f"model: the System has {len(u)} speeds but {len(model.kdes)} kinematic differential "
                              f"equations for {len(q)} coordinates; add_kdes(...) one per coordinate")

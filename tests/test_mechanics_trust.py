@@ -1,0 +1,292 @@
+"""``liefi.from_mechanics`` on models as sympy's docs and tests write them: no crash, no silent wrong answer (issue 25).
+
+Each test compares with the model's own equations: sympy's ``mass_matrix_full`` and
+``forcing_full`` (lambdified here), whose rates ``(q', u')`` are carried to liefi's state
+``z = (q, p)`` by a complex-step derivative of ``z(q, u) = (q, M(q) qdot(q, u))`` (exact to
+rounding), with ``qdot(q, u)`` from the model's ``kindiffdict()``.
+
+* the speeds in a point's ``pos_from(O).dt(N)`` (``set_ang_vel``, joints) were never
+  substituted (``NameError: name 'u1'``);
+* ``System.actuators`` were ignored (a particle on a ``LinearSpring`` stayed free);
+* a ``KanesMethod`` got the bodies' ``potential_energy``, which Kane's equations ignore;
+* the kinematic map was inverted symbolically, on a pivot ``sin(q3)`` that vanishes at an
+  ordinary configuration (0/0 at the upright of a yaw--roll--pitch body), or hung in
+  ``expand``.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+
+import numpy as np
+import pytest
+
+sympy = pytest.importorskip("sympy")
+me = pytest.importorskip("sympy.physics.mechanics")
+
+import liefi  # noqa: E402
+from liefi.mechanics import NonConservativeLoadError  # noqa: E402
+
+t = me.dynamicsymbols._t
+
+
+# --- the model's own equations, carried to liefi's state ------------------------------------------
+def own_field(system, eom, constants, q_sym, u_sym, qv, uv):
+    """``(z, dz/dt)``: liefi's state at ``(q, u)`` and the model's own rates carried to it."""
+    sub = {s: v for s, v in constants.items()}
+    MM = sympy.lambdify(q_sym + u_sym, eom.mass_matrix_full.subs(sub), "numpy")
+    FF = sympy.lambdify(q_sym + u_sym, eom.forcing_full.subs(sub), "numpy")
+    kdd = eom.kindiffdict()
+    qdot = sympy.lambdify(q_sym + u_sym, [kdd[s.diff(t)].subs(sub) for s in q_sym], "numpy")
+    rates = np.linalg.solve(np.asarray(MM(*qv, *uv), float), np.asarray(FF(*qv, *uv), float).ravel())
+    n = len(q_sym)
+
+    def z(qq, uu):
+        v = np.asarray(qdot(*qq, *uu), dtype=complex if np.iscomplexobj(qq) else float)
+        return np.concatenate([qq, system.metric(qq) @ v])
+
+    h = 1e-30
+    dz = np.imag(z(qv + 1j * h * rates[:n], uv + 1j * h * rates[n:])) / h
+    return z(qv, uv), dz
+
+
+def dependent_speeds(eom, constants, q_sym, u_sym, cons, qv, ui):
+    """All speeds: the independent ``ui`` and the dependent ones solved from the model's velocity constraints."""
+    kdd = eom.kindiffdict()
+    C = sympy.Matrix(cons).xreplace(kdd).jacobian(u_sym).subs(constants)
+    Cn = np.asarray(sympy.lambdify(q_sym, C, "numpy")(*qv), float)
+    k = len(ui)
+    return np.concatenate([ui, np.linalg.solve(Cn[:, k:], -Cn[:, :k] @ ui)])
+
+
+def assert_field(system, z, dz, tol=1e-12):
+    f = system.constrained_vector_field(z)
+    err = np.max(np.abs(f - dz)) / np.max(np.abs(dz))
+    assert err <= tol, err
+
+
+# --- the models, as sympy's docs and tests write them ---------------------------------------------
+def sleigh_kane(body_speeds=False):
+    """Chaplygin sleigh, KanesMethod: ``B.set_ang_vel(N, u3*N.z)``, the mass centre ``a`` ahead of the blade, in ``B``.
+
+    Inertial speeds ``u1, u2`` of the blade point, or body-frame speeds ``u1 = v.B.x``, ``u2 = v.B.y``.
+    """
+    x, y, th = me.dynamicsymbols("x y theta")
+    u1, u2, u3 = me.dynamicsymbols("u1:4")
+    m, I, a = sympy.symbols("m I a")
+    N = me.ReferenceFrame("N")
+    B = N.orientnew("B", "Axis", [th, N.z])
+    O = me.Point("O")
+    O.set_vel(N, 0)
+    P = O.locatenew("P", x * N.x + y * N.y)
+    if body_speeds:
+        v = P.pos_from(O).dt(N)
+        kd = [u1 - v.dot(B.x), u2 - v.dot(B.y), u3 - th.diff()]
+        P.set_vel(N, u1 * B.x + u2 * B.y)
+    else:
+        kd = [x.diff() - u1, y.diff() - u2, th.diff() - u3]
+        P.set_vel(N, u1 * N.x + u2 * N.y)
+    B.set_ang_vel(N, u3 * N.z)
+    G = P.locatenew("G", a * B.x)
+    G.v2pt_theory(P, N, B)
+    sled = me.RigidBody("sled", G, B, m, (me.inertia(B, 0, 0, I), G))
+    cons = [P.vel(N).dot(B.y)]
+    KM = me.KanesMethod(N, [x, y, th], [u1, u3], kd_eqs=kd, u_dependent=[u2], velocity_constraints=cons)
+    KM.kanes_equations([sled], [])
+    return KM, {m: 1.5, I: 0.7, a: 0.4}, cons
+
+
+def cart_pendulum():
+    """sympy's ``System`` docs: a cart on a rail (PrismaticJoint) and a pendulum bob (PinJoint), gravity."""
+    g, l = sympy.symbols("g l")
+    rail, cart, bob = me.RigidBody("rail"), me.RigidBody("cart"), me.Particle("bob")
+    bob_frame = me.ReferenceFrame("bob_frame")
+    system = me.System.from_newtonian(rail)
+    system.add_joints(
+        me.PrismaticJoint("slider", rail, cart, joint_axis=rail.x),
+        me.PinJoint("pin", cart, bob, joint_axis=cart.z, child_interframe=bob_frame, child_point=l * bob_frame.y),
+    )
+    system.apply_uniform_gravity(-g * system.y)
+    consts = {g: 9.81, l: 0.8, cart.mass: 2.0, bob.mass: 0.5}
+    return system, consts
+
+
+def spring_particle(l0=0):
+    """A particle on a ``LinearSpring`` actuator from the wall (System, PrismaticJoint)."""
+    q, u = me.dynamicsymbols("q u")
+    m, k = sympy.symbols("m k")
+    wall = me.RigidBody("wall")
+    system = me.System.from_newtonian(wall)
+    bob = me.Particle("bob", mass=m)
+    system.add_joints(me.PrismaticJoint("J", wall, bob, q, u))
+    return system, wall, bob, (m, k), me.LinearPathway(wall.masscenter, bob.masscenter)
+
+
+def top_ypr(heavy=True):
+    """A heavy top on a fixed point, yaw q1 - roll q2 - pitch q3, the body rates as speeds (PyDy's examples):
+    the kinematic equations solved for the angle rates, so ``K_u`` has ``sin(q3)`` in its first pivot.
+    ``heavy=False``: Euler's free rigid body (mass centre at the fixed point, no loads)."""
+    q1, q2, q3 = me.dynamicsymbols("q1:4")
+    u1, u2, u3 = me.dynamicsymbols("u1:4")
+    m, g, l, A, B, C = sympy.symbols("m g l A B C")
+    N = me.ReferenceFrame("N")
+    R = N.orientnew("R", "Body", [q1, q2, q3], "zxy")
+    w = R.ang_vel_in(N)
+    qd = sympy.solve([w.dot(R.x) - u1, w.dot(R.y) - u2, w.dot(R.z) - u3], [q1.diff(), q2.diff(), q3.diff()])
+    kd = [s.diff() - qd[s.diff()] for s in (q1, q2, q3)]
+    R.set_ang_vel(N, u1 * R.x + u2 * R.y + u3 * R.z)
+    O = me.Point("O")
+    O.set_vel(N, 0)
+    if not heavy:
+        body = me.RigidBody("body", O, R, m, (me.inertia(R, A, B, C), O))
+        KM = me.KanesMethod(N, [q1, q2, q3], [u1, u2, u3], kd_eqs=kd)
+        KM.kanes_equations([body], [])
+        return KM, {m: 1.0, A: 0.02, B: 0.03, C: 0.015}
+    G = O.locatenew("G", l * R.z)
+    G.v2pt_theory(O, N, R)
+    top = me.RigidBody("top", G, R, m, (me.inertia(R, A, B, C), G))
+    KM = me.KanesMethod(N, [q1, q2, q3], [u1, u2, u3], kd_eqs=kd)
+    KM.kanes_equations([top], [(G, -m * g * N.z)])
+    return KM, {m: 1.0, g: 9.81, l: 0.3, A: 0.02, B: 0.03, C: 0.015}
+
+
+# --- 1. the speeds in pos_from(O).dt(N) -----------------------------------------------------------
+def test_sleigh_with_set_ang_vel_and_an_offset_mass_centre_agrees_with_kanes_equations():
+    KM, consts, cons = sleigh_kane()
+    sleigh = liefi.from_mechanics(KM, consts)  # was NameError / "depends on 't'"
+    q, u = list(KM.q), list(KM.u)
+    rng = np.random.default_rng(0)
+    for _ in range(3):
+        qv = rng.uniform(-1, 1, 3)
+        uv = dependent_speeds(KM, consts, q, u, cons, qv, rng.normal(size=2))
+        assert_field(sleigh, *own_field(sleigh, KM, consts, q, u, qv, uv))
+
+
+def test_joints_cart_pendulum_from_the_docs_agrees_with_form_eoms():
+    system, consts = cart_pendulum()
+    cp = liefi.from_mechanics(system, consts)  # was NameError / "depends on 't'"
+    system.form_eoms()
+    q, u = list(system.q), list(system.u)
+    rng = np.random.default_rng(1)
+    for _ in range(3):
+        qv, uv = rng.uniform(-1, 1, 2), rng.normal(size=2)
+        assert_field(cp, *own_field(cp, system.eom_method, consts, q, u, qv, uv))
+
+
+# --- 2. actuators ------------------------------------------------------------------------------------
+def _run_q(system, consts, q0, t_final, sample=None):
+    s = liefi.from_mechanics(system, consts, sample=sample)
+    z0 = s.state([q0], u=[0.0])
+    sol = liefi.FeedbackIntegrator(s, z0, gains=1.0).run(t_final, dt=1e-2, scheme="rk4", backend="numpy")
+    return sol.y[0, -1]
+
+
+def _sympy_q(system, consts, q0, t_final):
+    from scipy.integrate import solve_ivp
+
+    system.form_eoms()
+    y = list(system.q) + list(system.u)
+    MM = sympy.lambdify(y, system.mass_matrix_full.subs(consts))
+    FF = sympy.lambdify(y, system.forcing_full.subs(consts))
+    r = solve_ivp(lambda tt, s: np.linalg.solve(MM(*s), FF(*s)).ravel(), (0, t_final), [q0, 0.0],
+                  method="DOP853", rtol=1e-12, atol=1e-12)
+    return r.y[0, -1]
+
+
+@pytest.mark.parametrize("l0, q0", [(0.0, 0.5), (0.8, 1.0)])
+def test_linear_spring_actuator_is_integrated_as_sympy_means_it(l0, q0):
+    system, wall, bob, (m, k), path = spring_particle()
+    system.add_actuators(me.LinearSpring(k, path, l0))
+    consts = {m: 1.0, k: 2.0}
+    got = _run_q(system, consts, q0, 2.0, sample=np.array([q0]))  # (the length |q| has a kink at q = 0)
+    want = _sympy_q(system, consts, q0, 2.0)
+    assert abs(got - want) < 1e-7, (got, want)  # RK4 at dt = 1e-2; was q(2) = q0: the spring ignored
+
+
+@pytest.mark.parametrize("make", ["damper", "torque", "time"])
+def test_non_conservative_actuators_and_loads_are_named(make):
+    system, wall, bob, (m, k), path = spring_particle()
+    c = sympy.symbols("c")
+    if make == "damper":
+        system.add_actuators(me.LinearDamper(c, path))
+        what = "LinearDamper"
+    elif make == "torque":
+        system.add_actuators(me.TorqueActuator(c, wall.frame.z, wall.frame))
+        what = "TorqueActuator"
+    else:
+        system.add_loads((bob.masscenter, c * sympy.sin(t) * wall.frame.x))
+        what = "sin"
+    with pytest.raises(NonConservativeLoadError, match=rf"does not take non-conservative loads yet.*{what}"):
+        liefi.from_mechanics(system, {m: 1.0, c: 0.3})
+
+
+# --- 3. potential_energy: the model's own meaning -------------------------------------------------
+def _particle_with_potential_energy(kane=True):
+    x, v = me.dynamicsymbols("x v")
+    m, k = sympy.symbols("m k")
+    N = me.ReferenceFrame("N")
+    O = me.Point("O")
+    O.set_vel(N, 0)
+    P = O.locatenew("P", x * N.x)
+    P.set_vel(N, v * N.x if kane else x.diff() * N.x)
+    p = me.Particle("p", P, m)
+    p.potential_energy = k * x**2 / 2
+    return x, v, m, k, N, p
+
+
+def test_kanes_method_ignores_potential_energy_as_sympy_does_and_says_so():
+    x, v, m, k, N, p = _particle_with_potential_energy()
+    KM = me.KanesMethod(N, [x], [v], kd_eqs=[x.diff() - v])
+    KM.kanes_equations([p], [])
+    assert KM.forcing[0] == 0  # sympy: no loads, no force
+    with pytest.warns(UserWarning, match=r"potential_energy of \['p'\] is ignored"):
+        s = liefi.from_mechanics(KM, {m: 1.0, k: 4.0})
+    sol = liefi.FeedbackIntegrator(s, s.state([1.0], u=[0.0]), gains=1.0).run(1.0, dt=1e-2, scheme="rk4",
+                                                                             backend="numpy")
+    assert np.max(np.abs(sol.y[0] - 1.0)) == 0.0  # at rest, as Kane's equations say (was cos(2 t))
+
+
+def test_lagranges_method_and_a_lagrange_system_keep_potential_energy():
+    x, v, m, k, N, p = _particle_with_potential_energy(kane=False)
+    LM = me.LagrangesMethod(me.Lagrangian(N, p), [x], frame=N)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        s = liefi.from_mechanics(LM, {m: 1.0, k: 4.0})
+    sol = liefi.FeedbackIntegrator(s, s.state([1.0], [0.0]), gains=1.0).run(1.0, dt=1e-2, scheme="rk4",
+                                                                           backend="numpy")
+    assert abs(sol.y[0, -1] - np.cos(2.0)) < 1e-7
+    # sympy's System docs: a bob with potential_energy on a PrismaticJoint, formed with LagrangesMethod
+    q, qd = me.dynamicsymbols("q"), me.dynamicsymbols("q", 1)
+    wall = me.RigidBody("W")
+    system = me.System.from_newtonian(wall)
+    bob = me.Particle("P", mass=m)
+    bob.potential_energy = sympy.S.Half * k * q**2
+    system.add_joints(me.PrismaticJoint("J", wall, bob, q, qd))
+    system.form_eoms(me.LagrangesMethod)
+    s = liefi.from_mechanics(system, {m: 1.0, k: 4.0})
+    np.testing.assert_allclose(s.potential(np.array([0.5])), 4.0 * 0.25 / 2, rtol=1e-15)
+
+
+# --- 4. the kinematic map solved numerically -------------------------------------------------------
+@pytest.mark.parametrize("heavy", [False, True])
+@pytest.mark.parametrize("q3", [0.0, 1e-9, 1e-6])
+def test_yaw_roll_pitch_body_at_the_singular_pivot_agrees_with_kanes_equations(q3, heavy):
+    KM, consts = top_ypr(heavy)
+    top = liefi.from_mechanics(KM, consts, sample=np.array([0.1, 0.2, 0.3]))
+    q, u = list(KM.q), list(KM.u)
+    qv, uv = np.array([0.3, 0.2, q3]), np.array([0.4, -0.3, 6.0])
+    assert_field(top, *own_field(top, KM, consts, q, u, qv, uv))  # was 0/0 at q3 = 0
+
+
+def test_sleigh_with_body_frame_speeds_builds_in_seconds_and_agrees():
+    KM, consts, cons = sleigh_kane(body_speeds=True)
+    t0 = time.perf_counter()
+    sleigh = liefi.from_mechanics(KM, consts)  # hung > 300 s in sympy.expand
+    assert time.perf_counter() - t0 < 20.0
+    q, u = list(KM.q), list(KM.u)
+    rng = np.random.default_rng(2)
+    for _ in range(3):
+        qv = rng.uniform(-1, 1, 3)
+        uv = dependent_speeds(KM, consts, q, u, cons, qv, rng.normal(size=2))
+        assert_field(sleigh, *own_field(sleigh, KM, consts, q, u, qv, uv))
