@@ -8,9 +8,10 @@ coordinates ``q``, state ``(q, p)``.  It forms the Lagrangian
 .. math:: L(q, \\dot q) = T(q, \\dot q) - U(q),
 
 where ``T`` is the kinetic energy of the bodies (``sympy.physics.mechanics.kinetic_energy``)
-with the generalized speeds replaced by ``u = u(q, qdot)`` from the kinematic
-differential equations (Kane), or the model's own ``L`` (Lagrange), and ``U`` is the
-potential energy of the bodies plus that of the loads: a constant force ``F`` at a
+with the generalized speeds ``u = W(q) qdot`` from the kinematic differential equations,
+solved numerically at each evaluation (Kane: :class:`_Speeds`), or the model's own ``L``
+(Lagrange, whose ``U`` holds the bodies' potential energies), and ``U`` is the
+potential of the loads and springs: a constant force ``F`` at a
 point ``P`` (gravity) has ``U = -F . r_P`` with ``r_P`` the position of ``P`` from a
 point fixed in the inertial frame.  The velocity constraints ``a_i(q) . qdot = 0`` are
 the model's nonholonomic constraints in ``qdot``.  The metric, vector potential,
@@ -291,11 +292,14 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
           loads in ``forcelist``.
         * ``KanesMethod(N, q_ind, u_ind, kd_eqs=..., u_dependent=..., velocity_constraints=...,
           bodies=..., forcelist=...)`` (bodies and loads also from ``kanes_equations(bodies,
-          loads)``): the kinetic energy of the bodies, ``u`` replaced by ``u(q, qdot)`` from
-          the kinematic differential equations, and the velocity constraints in ``qdot``.
-        * ``System``: its bodies, loads, kinematic differential equations (if it has speeds)
-          and nonholonomic constraints; the potential of a load is taken from its
-          ``fixed_point``.
+          loads)``): the kinetic energy of the bodies, ``u = W(q) qdot`` solved numerically at
+          each evaluation from ``K_qdot qdot + K_u u = 0`` (no symbolic inverse), the velocity
+          constraints in ``qdot``; auxiliary speeds are zero, as in sympy's equations, and the
+          loads at points moving with them only (reactions) do no work.  Kane's equations take
+          forces only from the loads: a body's ``potential_energy`` is ignored, with a warning.
+        * ``System``: its bodies, loads, actuators (``LinearSpring``/``DuffingSpring`` potential
+          ``k (l - l0)^2 / 2`` ...), kinematic differential equations and nonholonomic
+          constraints; ``potential_energy`` counts if it was formed with ``LagrangesMethod``.
     constants : dict, optional
         ``{symbol or name: value}`` for every symbolic parameter of the model (PyDy's
         ``constants``); they become :attr:`MechanicsSystem.constants`, changeable without a
@@ -330,7 +334,7 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
         kinematics; liefi needs the contact point's coordinates among ``q`` and the rolling
         condition as velocity constraints (``u_dependent`` / ``velocity_constraints``).
     ValueError
-        For holonomic constraints, auxiliary speeds, missing constants and every error of
+        For holonomic constraints, dependent coordinates, missing constants and every error of
         :func:`liefi.from_sympy` (a ``T`` not quadratic, nonlinear constraints ...).
 
     References
@@ -351,7 +355,7 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
             raise ValueError(f"model: the speeds {list(u)} are partly the coordinates' derivatives {list(qd)}; "
                              "give independent speeds with kinematic differential equations, or u = q' for all")
         u = parts["u"] = []
-    aux0 = dict.fromkeys(parts["aux"], 0)  # sympy forms the equations with the auxiliary speeds at zero
+    aux0 = dict.fromkeys(parts["aux"], sympy.S.Zero)  # sympy forms the equations with the auxiliary speeds at zero
     Kq = Ku = None
     if u:
         Kq, Ku = _kinematics(sympy, parts["kd"], q, qd, u)
@@ -627,12 +631,13 @@ def _parameters(free, constants):
     return params, values
 
 
-def _fixed_point(point, frame):
-    """A point of ``point``'s position tree with velocity set to zero in ``frame``, or None."""
+def _fixed_point(point, frame, aux0=None):
+    """A point of ``point``'s position tree with velocity set to zero in ``frame`` (the auxiliary speeds at zero), or None."""
     seen, todo = {point}, [point]
     while todo:
         p = todo.pop(0)
-        if p._vel_dict.get(frame, None) == 0:
+        v = p._vel_dict.get(frame, None)
+        if v == 0 or (aux0 and v is not None and all(e == 0 for e in v.to_matrix(frame).xreplace(aux0))):
             return p
         for other in p._pos_dict:
             if other not in seen:
@@ -658,17 +663,21 @@ def _load_potential(sympy, me, parts, checks, potential):
             return vec.dot(where.ang_vel_in(frame))
         return vec.dot(where.vel(frame))
 
+    aux0 = dict.fromkeys(parts["aux"], sympy.S.Zero)
     for load in parts["loads"]:
         try:
             where, vec = load
         except (TypeError, ValueError):
             raise ValueError(f"model: a load {load!r} is not a (Point or ReferenceFrame, Vector) pair") from None
+        moves = where.ang_vel_in(frame) if isinstance(where, me.ReferenceFrame) else where.vel(frame)
+        if aux0 and all(sympy.simplify(e) == 0 for e in moves.to_matrix(frame).xreplace(aux0)):
+            continue  # moves with the auxiliary speeds only: a constraint force of the auxiliary equations
         W += power(where, vec)
         if isinstance(where, me.ReferenceFrame):
             bad.append(load)
             continue
         F = vec.to_matrix(frame)
-        O = parts["fixed"] or _fixed_point(where, frame)
+        O = parts["fixed"] or _fixed_point(where, frame, aux0)
         if me.find_dynamicsymbols(F) or F.has(t) or O is None:
             bad.append(load)
             continue
@@ -753,7 +762,7 @@ class _Checks:
     def velocities_are_derivatives(self, me, bodies, fixed):
         for body in bodies:
             P = body.masscenter
-            O = fixed or _fixed_point(P, self.frame)
+            O = fixed or _fixed_point(P, self.frame, self.aux0)
             if O is None:
                 continue
             try:

@@ -343,3 +343,56 @@ def test_rattleback_started_upright_agrees_with_kanes_equations():
     for q3 in (0.0, 1e-9, 1e-6):
         qv = np.array([0.3, 0.02, q3, 0.1, -0.2])
         assert_field(rb, *field(qv, speeds(qv, np.array([0.1, -0.2, 5.0]))))
+
+
+# --- 5. auxiliary speeds ----------------------------------------------------------------------------
+def test_auxiliary_speeds_for_a_reaction_force_leave_the_equations_unchanged():
+    """Kane & Levinson's way to a pivot's reaction: the pivot moves with auxiliary speeds ``ua1, ua2`` and
+    carries the unknown reaction ``(R1, R2)``; sympy forms the equations with the auxiliary speeds at zero."""
+    q, u = me.dynamicsymbols("q u")
+    ua1, ua2, R1, R2 = me.dynamicsymbols("ua1 ua2 R1 R2")
+    m, g, l = sympy.symbols("m g l")
+    N = me.ReferenceFrame("N")
+    A = N.orientnew("A", "Axis", [q, N.z])
+    A.set_ang_vel(N, u * N.z)
+    O = me.Point("O")
+    O.set_vel(N, 0)
+    pivot = O.locatenew("pivot", 0)
+    pivot.set_vel(N, ua1 * N.x + ua2 * N.y)
+    bob = pivot.locatenew("bob", -l * A.y)
+    bob.v2pt_theory(pivot, N, A)
+    loads = [(bob, -m * g * N.y), (pivot, R1 * N.x + R2 * N.y)]
+    KM = me.KanesMethod(N, [q], [u], kd_eqs=[q.diff() - u], u_auxiliary=[ua1, ua2])
+    KM.kanes_equations([me.Particle("P", bob, m)], loads)
+    consts = {m: 1.0, g: 9.81, l: 0.7}
+    pend = liefi.from_mechanics(KM, consts)  # was refused: "auxiliary speeds"
+    field = own_field(pend, KM, consts, [q], [u])
+    for qv, uv in ((0.3, -1.0), (2.0, 0.5)):
+        assert_field(pend, *field(np.array([qv]), np.array([uv])))
+
+
+def test_the_rolling_disc_with_auxiliary_speeds_gets_its_real_trait_named():
+    """sympy's test_kane aux disc: refused for its minimal speeds (the centre's velocity from the contact
+    point), no longer for the auxiliary speeds, which change nothing."""
+    from liefi.mechanics import MinimalSpeedsError
+
+    q1, q2, q3, u1, u2, u3 = me.dynamicsymbols("q1 q2 q3 u1 u2 u3")
+    u4, u5, f1, f2 = me.dynamicsymbols("u4, u5, f1, f2")
+    r, m, g = sympy.symbols("r m g")
+    N = me.ReferenceFrame("N")
+    Y = N.orientnew("Y", "Axis", [q1, N.z])
+    L = Y.orientnew("L", "Axis", [q2, Y.x])
+    R = L.orientnew("R", "Axis", [q3, L.y])
+    w_R_N_qd = R.ang_vel_in(N)
+    R.set_ang_vel(N, u1 * L.x + u2 * L.y + u3 * L.z)
+    C = me.Point("C")
+    C.set_vel(N, u4 * L.x + u5 * (Y.z ^ L.x))
+    Dmc = C.locatenew("Dmc", r * L.z)
+    Dmc.v2pt_theory(C, N, R)
+    I = me.inertia(L, m / 4 * r**2, m / 2 * r**2, m / 4 * r**2)
+    kd = [me.dot(R.ang_vel_in(N) - w_R_N_qd, uv) for uv in L]
+    ForceList = [(Dmc, -m * g * Y.z), (C, f1 * L.x + f2 * (Y.z ^ L.x))]
+    KM2 = me.KanesMethod(N, q_ind=[q1, q2, q3], u_ind=[u1, u2, u3], kd_eqs=kd, u_auxiliary=[u4, u5])
+    KM2.kanes_equations([me.RigidBody("BodyD", Dmc, R, m, (I, Dmc))], ForceList)
+    with pytest.raises(MinimalSpeedsError, match="minimal speeds"):
+        liefi.from_mechanics(KM2, {r: 0.5, m: 1.0, g: 9.81})
