@@ -144,6 +144,11 @@ def _bound(sympy, args, params, exprs, shape, holder, what):
         batch = x.shape[:-1]
         c = holder.aligned(batch)
         vals = f(*[x[..., i] for i in range(n)], *[c[..., k] for k in range(P)])
+        if x.dtype != object:  # numbers: one array filled (a broadcast_to per entry dominated small batches)
+            out = np.empty(batch + (len(vals),), complex if np.iscomplexobj(x) or np.iscomplexobj(c) else float)
+            for k, v in enumerate(vals):
+                out[..., k] = v
+            return out.reshape(batch + shape)
         return np.stack([np.broadcast_to(np.asarray(v), batch) for v in vals], -1).reshape(batch + shape)
 
     return fun
