@@ -8,9 +8,10 @@ coordinates ``q``, state ``(q, p)``.  It forms the Lagrangian
 .. math:: L(q, \\dot q) = T(q, \\dot q) - U(q),
 
 where ``T`` is the kinetic energy of the bodies (``sympy.physics.mechanics.kinetic_energy``)
-with the generalized speeds replaced by ``u = u(q, qdot)`` from the kinematic
-differential equations (Kane), or the model's own ``L`` (Lagrange), and ``U`` is the
-potential energy of the bodies plus that of the loads: a constant force ``F`` at a
+with the generalized speeds ``u = W(q) qdot`` from the kinematic differential equations,
+solved numerically at each evaluation (Kane: :class:`_Speeds`), or the model's own ``L``
+(Lagrange, whose ``U`` holds the bodies' potential energies), and ``U`` is the
+potential of the loads and springs: a constant force ``F`` at a
 point ``P`` (gravity) has ``U = -F . r_P`` with ``r_P`` the position of ``P`` from a
 point fixed in the inertial frame.  The velocity constraints ``a_i(q) . qdot = 0`` are
 the model's nonholonomic constraints in ``qdot``.  The metric, vector potential,
@@ -128,6 +129,9 @@ class _Constants:
 
 def _bound(sympy, args, params, exprs, shape, holder, what):
     """``(..., n) -> (..., *shape)``: the lambdified ``exprs`` with the constants bound (complex safe)."""
+    # |e| as sqrt(e^2) (of the plain, not real, symbols: it stays so), which is complex-step safe
+    # (a spring's pathway length |q| along one coordinate)
+    exprs = [sympy.sympify(e).replace(sympy.Abs, lambda a: sympy.sqrt(a**2)) for e in exprs]
     f = lambdify_checked(sympy, list(args) + list(params), list(exprs), what, cse=True, dummify=True)
     n, P = len(args), len(params)
     shape = tuple(shape)
@@ -140,6 +144,11 @@ def _bound(sympy, args, params, exprs, shape, holder, what):
         batch = x.shape[:-1]
         c = holder.aligned(batch)
         vals = f(*[x[..., i] for i in range(n)], *[c[..., k] for k in range(P)])
+        if x.dtype != object:  # numbers: one array filled (a broadcast_to per entry dominated small batches)
+            out = np.empty(batch + (len(vals),), complex if np.iscomplexobj(x) or np.iscomplexobj(c) else float)
+            for k, v in enumerate(vals):
+                out[..., k] = v
+            return out.reshape(batch + shape)
         return np.stack([np.broadcast_to(np.asarray(v), batch) for v in vals], -1).reshape(batch + shape)
 
     return fun
@@ -288,11 +297,14 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
           loads in ``forcelist``.
         * ``KanesMethod(N, q_ind, u_ind, kd_eqs=..., u_dependent=..., velocity_constraints=...,
           bodies=..., forcelist=...)`` (bodies and loads also from ``kanes_equations(bodies,
-          loads)``): the kinetic energy of the bodies, ``u`` replaced by ``u(q, qdot)`` from
-          the kinematic differential equations, and the velocity constraints in ``qdot``.
-        * ``System``: its bodies, loads, kinematic differential equations (if it has speeds)
-          and nonholonomic constraints; the potential of a load is taken from its
-          ``fixed_point``.
+          loads)``): the kinetic energy of the bodies, ``u = W(q) qdot`` solved numerically at
+          each evaluation from ``K_qdot qdot + K_u u = 0`` (no symbolic inverse), the velocity
+          constraints in ``qdot``; auxiliary speeds are zero, as in sympy's equations, and the
+          loads at points moving with them only (reactions) do no work.  Kane's equations take
+          forces only from the loads: a body's ``potential_energy`` is ignored, with a warning.
+        * ``System``: its bodies, loads, actuators (``LinearSpring``/``DuffingSpring`` potential
+          ``k (l - l0)^2 / 2`` ...), kinematic differential equations and nonholonomic
+          constraints; ``potential_energy`` counts if it was formed with ``LagrangesMethod``.
     constants : dict, optional
         ``{symbol or name: value}`` for every symbolic parameter of the model (PyDy's
         ``constants``); they become :attr:`MechanicsSystem.constants`, changeable without a
@@ -327,7 +339,7 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
         kinematics; liefi needs the contact point's coordinates among ``q`` and the rolling
         condition as velocity constraints (``u_dependent`` / ``velocity_constraints``).
     ValueError
-        For holonomic constraints, auxiliary speeds, missing constants and every error of
+        For holonomic constraints, dependent coordinates, missing constants and every error of
         :func:`liefi.from_sympy` (a ``T`` not quadratic, nonlinear constraints ...).
 
     References
@@ -343,60 +355,76 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
     parts = _parts(sympy, me, model)
     q, qd, u = parts["q"], parts["qd"], parts["u"]
     n = len(q)
-    u_of_qd = qd_of_u = None
+    if set(u) & set(qd):  # speeds that are the velocities themselves (a joint given u = q')
+        if list(u) != list(qd):
+            raise ValueError(f"model: the speeds {list(u)} are partly the coordinates' derivatives {list(qd)}; "
+                             "give independent speeds with kinematic differential equations, or u = q' for all")
+        u = parts["u"] = []
+    aux0 = dict.fromkeys(parts["aux"], sympy.S.Zero)  # sympy forms the equations with the auxiliary speeds at zero
+    Kq = Ku = None
     if u:
-        u_of_qd, qd_of_u = _kinematics(sympy, parts["kd"], q, qd, u)
-    subs_u = dict(zip(u, u_of_qd)) if u else {}
+        Kq, Ku = _kinematics(sympy, parts["kd"], q, qd, u)
     frame, bodies = parts["frame"], parts["bodies"]
     if parts["L"] is not None:
         L = parts["L"]
     else:
         if not bodies:
             raise ValueError(f"model: the {parts['kind']} has no bodies; pass bodies= (or call kanes_equations(bodies, loads))")
-        L = me.kinetic_energy(frame, *bodies).xreplace(subs_u) - sum((b.potential_energy for b in bodies), sympy.S.Zero)
-    L = sympy.sympify(L).xreplace(subs_u)
-    constraints = [sympy.sympify(c).xreplace(subs_u) for c in parts["constraints"]]
+        L = me.kinetic_energy(frame, *bodies) if not u else sympy.S.Zero  # with speeds: _kinetic_form below
+        if parts["potential_energy"]:  # a System formed with LagrangesMethod: its Lagrangian holds them
+            L = L - sum((b.potential_energy for b in bodies), sympy.S.Zero)
+        else:
+            _warn_ignored_potential_energy(sympy, parts, bodies)
+    L = sympy.sympify(L).xreplace(aux0)
+    constraints = [sympy.sympify(c).xreplace(aux0) for c in parts["constraints"]]
 
     # the parameters: the model's free symbols, in the order of `constants` first
     t = me.dynamicsymbols._t
     free = set()
-    for e in [L, *constraints, *(u_of_qd or []), *(qd_of_u or [])]:
+    H = c_w = None
+    if u and parts["L"] is None:
+        H, c_w, T0 = _kinetic_form(sympy, me, frame, bodies, list(qd) + list(u), aux0)
+        L = L + T0
+    for e in [L, *constraints, *(list(Kq) + list(Ku) if u else []), *(list(H) + list(c_w) if H is not None else [])]:
         free |= e.free_symbols
     free.discard(t)
-    checks = _Checks(sympy, q, qd, u, subs_u, frame)
+    checks = _Checks(sympy, q, qd, u, frame, aux0)
     U_loads, power = _load_potential(sympy, me, parts, checks, potential)
     free |= (U_loads.free_symbols | power.free_symbols) - {t}
     params, values = _parameters(free, constants)
     holder = _Constants(params, None)
     holder.values = holder.parse(values) if params else np.zeros((0,))
+    speeds = None
+    if u:  # the kinematic map, solved numerically at each evaluation (never a symbolic inverse)
+        Xk = [sympy.Dummy(f"x{i}") for i in range(n)]
+        flat = lambda K: [e.xreplace(dict(zip(q, Xk))) for e in K]  # noqa: E731
+        speeds = _Speeds(_bound(sympy, Xk, params, flat(Kq), (n, n), holder, "kinematic differential equations"),
+                         _bound(sympy, Xk, params, flat(Ku), (n, n), holder, "kinematic differential equations"))
     checks.values = np.asarray(holder.values, float).reshape(-1, len(params))[0] if params else np.zeros(0)
-    checks.params = params
+    checks.params, checks.speeds = params, speeds
     checks.velocities_are_derivatives(me, bodies, parts["fixed"])
-    if parts["loads"]:
-        checks.power_is_minus_dU_dt(power, U_loads, parts["loads"], potential is not None)
+    if parts["loads"] or parts["actuators"]:
+        checks.power_is_minus_dU_dt(power, U_loads, parts["loads"] + parts["actuators"], potential is not None)
 
-    X, M, b, U, rows, q = lagrangian_data(sympy, L - U_loads, q, qd, constraints, params)
-    metric = _bound(sympy, X, params, [e for row in M for e in row], (n, n), holder, "metric")
+    X, M, b, U, rows, q = lagrangian_data(sympy, L - U_loads, q, qd, constraints, params, speeds=u)
+    w = len(M)  # n velocities qdot, or 2n: (qdot, u)
+    if H is not None:  # T = 1/2 w.H w + c.w + T0 from the partial velocities, never expanded
+        M = [[H[i, j].xreplace(dict(zip(q, X))) for j in range(w)] for i in range(w)]
+        b = [e + c.xreplace(dict(zip(q, X))) for e, c in zip(b, c_w)]
+    metric = _bound(sympy, X, params, [e for row in M for e in row], (w, w), holder, "metric")
     pot = None if U == 0 else _bound(sympy, X, params, [U], (), holder, "potential")
     b = [sympy.expand(e) for e in b]
-    vp = None if all(e == 0 for e in b) else _bound(sympy, X, params, b, (n,), holder, "vector potential")
+    vp = None if all(e == 0 for e in b) else _bound(sympy, X, params, b, (w,), holder, "vector potential")
+    A = None if not rows else _bound(sympy, X, params, [e for row in rows for e in row], (len(rows), w), holder,
+                                     "constraints")
     mech = dict(constants=holder, q=q, u=u, qdot_of_u=None, u_of_qdot=None, speed_constraints=None)
-    if u:
-        Xm, Vm = [sympy.Dummy(f"x{i}") for i in range(n)], [sympy.Dummy(f"v{i}") for i in range(n)]
-        plain = {**dict(zip(qd, Vm)), **dict(zip(u, Vm))}
-        to_plain = lambda e: e.xreplace(plain).xreplace(dict(zip(q, Xm)))  # noqa: E731
-        mech["u_of_qdot"] = _bound(sympy, Xm + Vm, params, [to_plain(e) for e in u_of_qd], (n,), holder,
-                                  "kinematic differential equations")
-        mech["qdot_of_u"] = _bound(sympy, Xm + Vm, params, [to_plain(e) for e in qd_of_u], (n,), holder,
-                                  "kinematic differential equations")
-        if parts["constraints"]:  # the rows in u: k_nh(q) u = 0
-            cu = sympy.Matrix(parts["constraints"]).xreplace(dict(zip(qd, qd_of_u))).jacobian(u)
-            mech["speed_constraints"] = _bound(sympy, Xm, params, [to_plain(e) for e in cu], (cu.rows, n), holder,
-                                             "constraints")
+    if u:  # the data in qdot: u = W(q) qdot, (qdot, u) = S qdot with S = [1; W]
+        mech["u_of_qdot"], mech["qdot_of_u"] = speeds.u_of_qdot, speeds.qdot_of_u
+        mech["speed_constraints"] = None if A is None else speeds.rows_in_u(A)
+        metric, vp, A = speeds.metric(metric), speeds.covector(vp), speeds.rows(A)
     space = CotangentBundle(n, names=coordinate_names(sympy, q) if names is None else names)
     if not rows:
         return MechanicsSystem(space, metric, None, pot, vector_potential=vp, mechanics=mech, **kw)
-    A = _bound(sympy, X, params, [e for row in rows for e in row], (len(rows), n), holder, "constraints")
     return MechanicsSystem.from_velocity_constraints(
         space, metric, A, pot, scaling=scaling, vector_potential=vp, mechanics=mech, **kw
     )
@@ -413,55 +441,175 @@ def _parts(sympy, me, model):
         q = list(model.q)
         return dict(kind=kind, q=q, qd=[s.diff(t) for s in q], u=[], kd=None, L=model._L[0], frame=model.inertial,
                     bodies=list(model._bodies or []), loads=list(model._forcelist or []), fixed=None,
-                    constraints=list(model.coneqs))
+                    constraints=list(model.coneqs), aux=[], actuators=[], potential_energy=True)
     if isinstance(model, me.KanesMethod):
-        if len(model._qdep) or len(model._uaux):
-            raise ValueError("model: the KanesMethod has dependent coordinates or auxiliary speeds; liefi needs "
-                             "independent coordinates q and no auxiliary speeds (constraint forces are not integrated)")
+        if len(model._qdep):
+            raise ValueError("model: the KanesMethod has dependent coordinates (configuration constraints); liefi "
+                             "needs independent coordinates q")
         if model._qdot_u_map is None:
             raise ValueError("model: the KanesMethod has no kinematic differential equations (kd_eqs)")
         q, u = list(model.q), list(model.u)
-        kd = [qdi - e for qdi, e in model._qdot_u_map.items()]
+        if hasattr(model, "_k_kqdot_implicit"):  # the model's own K_qdot qdot + K_u u + f_k, not sympy's solved form
+            kd = list(model._k_kqdot_implicit * sympy.Matrix([s.diff(t) for s in q]) + model._k_ku_implicit * model.u
+                      + model._f_k_implicit)
+        else:  # pragma: no cover - older sympy
+            kd = [qdi - e for qdi, e in model._qdot_u_map.items()]
         cons = []
         if len(model._udep):
             cons = list(model._k_nh * model.u + model._f_nh)
         return dict(kind=kind, q=q, qd=[s.diff(t) for s in q], u=u, kd=kd, L=None, frame=model._inertial,
-                    bodies=list(model._bodylist or []), loads=list(model._forcelist or []), fixed=None, constraints=cons)
+                    bodies=list(model._bodylist or []), loads=list(model._forcelist or []), fixed=None, constraints=cons,
+                    aux=list(model._uaux), actuators=[], potential_energy=False)
     if isinstance(model, me.System):
-        if len(model.holonomic_constraints) or len(model.q_dep) or len(model.u_aux):
-            raise ValueError("model: the System has holonomic constraints, dependent coordinates or auxiliary "
-                             "speeds; liefi needs independent coordinates q and no auxiliary speeds")
+        if len(model.holonomic_constraints) or len(model.q_dep):
+            raise ValueError("model: the System has holonomic constraints or dependent coordinates; liefi needs "
+                             "independent coordinates q")
         q, u = list(model.q), list(model.u)
+        u = [] if u == [s.diff(t) for s in q] else u  # joints given u = q': the velocities themselves
         if u and len(model.kdes) != len(q):
             raise ValueError(f"model: the System has {len(u)} speeds but {len(model.kdes)} kinematic differential "
                              f"equations for {len(q)} coordinates; add_kdes(...) one per coordinate")
+        lagrange = isinstance(model.eom_method, me.LagrangesMethod) or not u
         return dict(kind=kind, q=q, qd=[s.diff(t) for s in q], u=u, kd=list(model.kdes), L=None, frame=model.frame,
                     bodies=list(model.bodies), loads=list(model.loads), fixed=model.fixed_point,
-                    constraints=list(model.nonholonomic_constraints))
+                    constraints=list(model.nonholonomic_constraints), aux=list(model.u_aux),
+                    actuators=list(model.actuators), potential_energy=lagrange)
     if isinstance(model, (sympy.Basic, sympy.MatrixBase)):
         raise TypeError("model: a sympy expression; for a Lagrangian use liefi.from_sympy(L, q, qd, constraints), "
                         "or wrap it: liefi.from_mechanics(LagrangesMethod(L, q, nonhol_coneqs=...))")
     raise TypeError(f"model: expected a sympy.physics.mechanics LagrangesMethod, KanesMethod or System, got {kind}")
 
 
+def _kinetic_form(sympy, me, frame, bodies, w, aux0):
+    r"""``(H, c, T0)`` with ``T = 1/2 w^T H w + c . w + T0``: the kinetic energy of the bodies in the velocities ``w``.
+
+    Each velocity is affine in ``w`` (``v = J_v w + v_0``, ``omega = J_w w + omega_0``: the
+    partial velocities), so ``H = sum m J_v^T J_v + J_w^T I J_w`` (``I`` the central inertia
+    in the body's frame), ``c = sum m J_v^T v_0 + J_w^T I omega_0`` and
+    ``T0 = sum m |v_0|^2/2 + omega_0 . I omega_0 / 2`` -- products of Jacobians, never an
+    expansion of ``T`` (Kane & Levinson 1985, Sec. 2.14 and 4.11).
+    """
+    zero = dict.fromkeys(w, 0)
+    n = len(w)
+    H, c, T0 = sympy.zeros(n, n), sympy.zeros(n, 1), sympy.S.Zero
+    for body in bodies:
+        m = body.mass
+        ref = body.frame if isinstance(body, me.RigidBody) else frame
+        parts = [(m * sympy.eye(3), body.masscenter.vel(frame).to_matrix(ref))]
+        if isinstance(body, me.RigidBody):
+            parts.append((body.central_inertia.to_matrix(ref), body.frame.ang_vel_in(frame).to_matrix(ref)))
+        for inertia, vel in parts:
+            vel = vel.xreplace(aux0)
+            J = vel.jacobian(w)
+            if any(J.has(s) for s in w):
+                raise ValueError(f"model: the velocity of {body} is not linear in the speeds and qdot")
+            v0 = vel.xreplace(zero)
+            IJ = inertia * J
+            H += J.T * IJ
+            if any(e != 0 for e in v0):
+                c += IJ.T * v0
+                T0 += (v0.T * inertia * v0)[0, 0] / 2
+    return H, c, T0
+
+
 def _kinematics(sympy, kd, q, qd, u):
-    """``u(q, qdot)`` and ``qdot(q, u)`` solved from the kinematic differential equations (linear in both)."""
+    """``(K_qdot, K_u)``: the kinematic differential equations as ``K_qdot(q) qdot + K_u(q) u = 0``.
+
+    Only the matrices: the map is solved numerically at each evaluation (:class:`_Speeds`),
+    never by a symbolic inverse, whose pivots may vanish where the map is regular.
+    """
     n = len(q)
     if len(u) != n:
         raise ValueError(f"model: {len(u)} generalized speeds for {n} coordinates; liefi needs one speed per coordinate")
     K = sympy.Matrix(kd)
     Ku, Kq = K.jacobian(u), K.jacobian(qd)
     rest = K.xreplace(dict.fromkeys(u, 0)).xreplace(dict.fromkeys(qd, 0))
-    if any(s in (Ku.free_symbols | Kq.free_symbols) for s in list(u) + list(qd)) or any(
-        Ku.has(s) or Kq.has(s) for s in list(u) + list(qd)
-    ):
+    if any(Ku.has(s) or Kq.has(s) for s in list(u) + list(qd)):
         raise ValueError("model: the kinematic differential equations are not linear in u and qdot")
+    if any(e != 0 and sympy.simplify(e) != 0 for e in rest):
+        raise ValueError("model: the kinematic differential equations K_qdot qdot + K_u u + f_k = 0 have a term "
+                         f"f_k = {list(rest)} free of u and qdot; liefi needs the speeds linear and homogeneous in "
+                         "qdot (time-dependent kinematics are not integrated)")
+    return Kq, Ku
+
+
+def _solve(A, B):
+    """``A^{-1} B`` batch-first: LAPACK's pivoted LU on numbers (complex-step safe); traced (compiled engine)
+    matrices, which have no magnitude to pivot on, by the normal equations ``A^T A X = A^T B`` (positive
+    definite, so elimination without pivots meets no vanishing pivot where ``A`` is regular)."""
+    A, B = np.asarray(A), np.asarray(B)
+    if A.dtype == object:
+        At = np.swapaxes(A, -1, -2)
+        return np.linalg.solve(At @ A, At @ B)
+    if B.dtype == object:
+        return np.linalg.inv(A) @ B
     try:
-        u_of_qd = list(Ku.LUsolve(-(Kq * sympy.Matrix(qd) + rest)))
-        qd_of_u = list(Kq.LUsolve(-(Ku * sympy.Matrix(u) + rest)))
-    except (ValueError, ZeroDivisionError) as exc:
-        raise ValueError(f"model: the kinematic differential equations cannot be solved for u and qdot ({exc})") from None
-    return u_of_qd, qd_of_u
+        return np.linalg.solve(A, B)
+    except np.linalg.LinAlgError:
+        raise ValueError("model: the kinematic differential equations K_qdot(q) qdot + K_u(q) u = 0 are singular "
+                         "at a state of the run (K_u or K_qdot not invertible): the model's speeds do not "
+                         "parametrize its velocities there") from None
+
+
+class _Speeds:
+    r"""The model's speeds as a numerical map: ``u = W(q) qdot``, ``W = -K_u^{-1} K_qdot``.
+
+    The data extracted in the velocities ``w = (qdot, u)`` (``2n x 2n`` metric ``H``, covector
+    ``c``, rows ``C``) become data in ``qdot`` through ``w = S qdot``, ``S = [1; W]``:
+
+    .. math:: M = S^T H S, \qquad b = S^T c, \qquad a = C S,
+
+    each evaluated from the numeric ``K_qdot(q)``, ``K_u(q)`` by a linear solve, so ``M`` is
+    regular wherever the model's kinematic map and mass matrix are (no symbolic pivot).
+    """
+
+    def __init__(self, Kq, Ku):
+        self.Kq, self.Ku = Kq, Ku
+
+    def W(self, x):
+        return -_solve(self.Ku(x), self.Kq(x))
+
+    def S(self, x):
+        W = self.W(x)
+        return np.concatenate([np.broadcast_to(np.eye(W.shape[-1]), W.shape), W], -2)
+
+    def metric(self, H):
+        def metric(x):
+            S = self.S(x)
+            return np.swapaxes(S, -1, -2) @ H(x) @ S
+        return metric
+
+    def covector(self, c):
+        if c is None:
+            return None
+        return lambda x: (np.swapaxes(self.S(x), -1, -2) @ c(x)[..., None])[..., 0]
+
+    def rows(self, C):
+        if C is None:
+            return None
+        return lambda x: C(x) @ self.S(x)
+
+    def rows_in_u(self, C):
+        """``C [V; 1]`` with ``qdot = V u``, ``V = -K_qdot^{-1} K_u``: the constraint rows in ``u``."""
+        def rows(x):
+            V = -_solve(self.Kq(x), self.Ku(x))
+            Cx = C(x)
+            n = V.shape[-1]
+            return Cx[..., :n] @ V + Cx[..., n:]
+        return rows
+
+    def _split(self, z):
+        z = np.asarray(z)
+        n = z.shape[-1] // 2
+        return z[..., :n], z[..., n:]
+
+    def u_of_qdot(self, z):
+        x, v = self._split(z)
+        return (self.W(x) @ v[..., None])[..., 0]
+
+    def qdot_of_u(self, z):
+        x, v = self._split(z)
+        return -_solve(self.Kq(x), (self.Ku(x) @ v[..., None]))[..., 0]
 
 
 def _parameters(free, constants):
@@ -488,12 +636,13 @@ def _parameters(free, constants):
     return params, values
 
 
-def _fixed_point(point, frame):
-    """A point of ``point``'s position tree with velocity set to zero in ``frame``, or None."""
+def _fixed_point(point, frame, aux0=None):
+    """A point of ``point``'s position tree with velocity set to zero in ``frame`` (the auxiliary speeds at zero), or None."""
     seen, todo = {point}, [point]
     while todo:
         p = todo.pop(0)
-        if p._vel_dict.get(frame, None) == 0:
+        v = p._vel_dict.get(frame, None)
+        if v == 0 or (aux0 and v is not None and all(e == 0 for e in v.to_matrix(frame).xreplace(aux0))):
             return p
         for other in p._pos_dict:
             if other not in seen:
@@ -503,25 +652,56 @@ def _fixed_point(point, frame):
 
 
 def _load_potential(sympy, me, parts, checks, potential):
-    """``(U, W)``: the loads' potential (derived for constant forces, or the given one) and their power."""
-    frame = parts["frame"]
+    """``(U, W)``: the loads' potential (derived for constant forces and springs, or the given one) and their power.
+
+    A ``LinearSpring`` actuator of stiffness ``k``, pathway length ``l`` and equilibrium
+    length ``l0`` has ``U = k (l - l0)^2 / 2``; a ``DuffingSpring`` ``U = k1 d^2/2 + k3 d^4/4``
+    with ``d = l - l0`` (their forces are ``-dU/dl`` along the pathway).  The power of every
+    load and actuator is checked against ``-dU/dt`` (:meth:`_Checks.power_is_minus_dU_dt`).
+    """
+    frame, t = parts["frame"], me.dynamicsymbols._t
     U, W, bad = sympy.S.Zero, sympy.S.Zero, []
+    q = set(parts["q"])
+
+    def power(where, vec):
+        if isinstance(where, me.ReferenceFrame):
+            return vec.dot(where.ang_vel_in(frame))
+        return vec.dot(where.vel(frame))
+
+    aux0 = dict.fromkeys(parts["aux"], sympy.S.Zero)
     for load in parts["loads"]:
         try:
             where, vec = load
         except (TypeError, ValueError):
             raise ValueError(f"model: a load {load!r} is not a (Point or ReferenceFrame, Vector) pair") from None
+        moves = where.ang_vel_in(frame) if isinstance(where, me.ReferenceFrame) else where.vel(frame)
+        if aux0 and all(sympy.simplify(e) == 0 for e in moves.to_matrix(frame).xreplace(aux0)):
+            continue  # moves with the auxiliary speeds only: a constraint force of the auxiliary equations
+        W += power(where, vec)
         if isinstance(where, me.ReferenceFrame):
-            W += vec.dot(where.ang_vel_in(frame)).xreplace(checks.subs_u)
             bad.append(load)
             continue
-        W += vec.dot(where.vel(frame)).xreplace(checks.subs_u)
         F = vec.to_matrix(frame)
-        O = parts["fixed"] or _fixed_point(where, frame)
-        if me.find_dynamicsymbols(F) or F.has(me.dynamicsymbols._t) or O is None:
+        O = parts["fixed"] or _fixed_point(where, frame, aux0)
+        if me.find_dynamicsymbols(F) or F.has(t) or O is None:
             bad.append(load)
             continue
         U -= vec.dot(where.pos_from(O))
+    for act in parts["actuators"]:
+        for where, vec in act.to_loads():
+            W += power(where, vec)
+        Ua = None
+        if isinstance(act, (me.LinearSpring, getattr(me, "DuffingSpring", me.LinearSpring))):
+            d = act.pathway.length - act.equilibrium_length
+            if isinstance(act, me.LinearSpring):
+                Ua = act.stiffness * d**2 / 2
+            else:
+                Ua = act.linear_stiffness * d**2 / 2 + act.nonlinear_stiffness * d**4 / 4
+        if Ua is None or (me.find_dynamicsymbols(Ua) - q) or sympy.sympify(Ua).xreplace(
+                {s: sympy.Dummy() for s in q}).has(t):
+            bad.append(act)
+            continue
+        U += Ua
     if potential is not None:
         if not isinstance(potential, sympy.Basic):
             raise TypeError(f"potential: expected a sympy expression U(q) (of the model's symbols), got "
@@ -529,19 +709,41 @@ def _load_potential(sympy, me, parts, checks, potential):
         return potential, W
     if bad:
         raise NonConservativeLoadError(
-            f"model: liefi cannot derive a potential for the load(s) {[str(b) for b in bad]} (only forces "
-            "constant in the inertial frame at points located from a fixed point, such as gravity); if they "
-            "are conservative pass potential=U(q); dissipative or driving loads are not integrated"
+            f"model: liefi does not take non-conservative loads yet (dissipative, driving or time-dependent "
+            f"loads and actuators, inputs): it cannot derive a potential for the load(s) {[str(b) for b in bad]} "
+            "(it derives one for forces constant in the inertial frame at points located from a fixed point, "
+            "such as gravity, and for LinearSpring and DuffingSpring actuators); if they are conservative pass "
+            "potential=U(q)"
         )
     return U, W
 
 
-class _Checks:
-    """Numerical identities the model must satisfy, evaluated at random states with the given constants."""
+def _warn_ignored_potential_energy(sympy, parts, bodies):
+    """A warning naming the bodies whose ``potential_energy`` the model's equations ignore (KanesMethod)."""
+    import warnings
 
-    def __init__(self, sympy, q, qd, u, subs_u, frame):
-        self.sympy, self.q, self.qd, self.u, self.subs_u, self.frame = sympy, q, qd, u, subs_u, frame
-        self.params, self.values = (), np.zeros(0)
+    named = [str(b) for b in bodies if sympy.sympify(getattr(b, "potential_energy", 0)) != 0]
+    if named:
+        how = ("KanesMethod (the default of System.form_eoms; form_eoms(LagrangesMethod) includes it)"
+               if parts["kind"] == "System" else "KanesMethod")
+        warnings.warn(
+            f"model: the potential_energy of {named} is ignored, as {how} ignores it: Kane's equations take "
+            "forces only from the loads; liefi follows the model (give the force as a load, e.g. gravity, or a "
+            "LinearSpring actuator, to include it)", UserWarning, stacklevel=3)
+
+
+class _Checks:
+    """Numerical identities the model must satisfy, evaluated at random states with the given constants.
+
+    The expressions may hold ``q``, ``qdot`` and the speeds ``u``; at each random ``(q, qdot)``
+    the speeds are ``u = W(q) qdot`` from the model's kinematic map, solved numerically
+    (:class:`_Speeds`), and the auxiliary speeds are zero.
+    """
+
+    def __init__(self, sympy, q, qd, u, frame, aux0=None):
+        self.sympy, self.q, self.qd, self.u, self.frame = sympy, q, qd, u, frame
+        self.aux0 = aux0 or {}
+        self.params, self.values, self.speeds = (), np.zeros(0), None
         self.rng = np.random.default_rng(20261124)
 
     def residual(self, exprs, scale_exprs, what):
@@ -549,20 +751,23 @@ class _Checks:
         sp = self.sympy
         X = [sp.Dummy() for _ in self.q]
         V = [sp.Dummy() for _ in self.qd]
-        plain = lambda e: sp.sympify(e).xreplace(dict(zip(self.qd, V))).xreplace(dict(zip(self.q, X)))  # noqa: E731
-        f = lambdify_checked(sp, X + V + list(self.params), [plain(e) for e in list(exprs) + list(scale_exprs)],
-                             what, dummify=True)
+        Us = [sp.Dummy() for _ in self.u]
+        to = {**dict(zip(self.qd, V)), **dict(zip(self.u, Us))}
+        plain = lambda e: sp.sympify(e).xreplace(self.aux0).xreplace(to).xreplace(dict(zip(self.q, X)))  # noqa: E731
+        f = lambdify_checked(sp, X + V + Us + list(self.params),
+                             [plain(e) for e in list(exprs) + list(scale_exprs)], what, dummify=True)
         worst = 0.0
         for _ in range(4):
             x, v = self.rng.uniform(-1, 1, len(X)), self.rng.normal(size=len(V))
-            vals = np.abs(np.asarray(f(*x, *v, *self.values), complex))
+            us = self.speeds.u_of_qdot(np.concatenate([x, v])) if self.u else np.zeros(0)
+            vals = np.abs(np.asarray(f(*x, *v, *us, *self.values), complex))
             worst = max(worst, float(np.max(vals[: len(exprs)], initial=0.0) / (1.0 + np.sum(vals[len(exprs):]))))
         return worst
 
     def velocities_are_derivatives(self, me, bodies, fixed):
         for body in bodies:
             P = body.masscenter
-            O = fixed or _fixed_point(P, self.frame)
+            O = fixed or _fixed_point(P, self.frame, self.aux0)
             if O is None:
                 continue
             try:
@@ -570,7 +775,7 @@ class _Checks:
             except ValueError as exc:
                 raise ValueError(f"model: the velocity of {P} in {self.frame} is not defined ({exc})") from None
             v_pos = P.pos_from(O).dt(self.frame)
-            a, b = v_model.to_matrix(self.frame).xreplace(self.subs_u), v_pos.to_matrix(self.frame)
+            a, b = v_model.to_matrix(self.frame), v_pos.to_matrix(self.frame)
             err = self.residual(list(a - b), list(a) + list(b), f"model: the velocity of {P}")
             if err > 1e-9:
                 raise MinimalSpeedsError(

@@ -232,11 +232,15 @@ def coordinate_names(sympy, q):
     return tuple(str(s.func) if isinstance(s, sympy.core.function.AppliedUndef) else str(s) for s in q)
 
 
-def lagrangian_data(sympy, L, q, qd, constraints, parameters=()):
+def lagrangian_data(sympy, L, q, qd, constraints, parameters=(), speeds=()):
     """The metric, vector potential, potential and Pfaffian rows of ``L`` as sympy expressions.
 
     ``M = d^2 L / dqd^2``, ``b = dL/dqd (qd = 0)``, ``U = -L(qd = 0)``, ``a_i = d c_i / dqd``,
     in plain symbols ``X`` for ``q`` (and the ``parameters``, which may appear).
+    With ``speeds`` (Kane's ``u``, related to ``qd`` by kinematic equations the caller
+    solves numerically) the velocities are ``w = (qd, u)``: ``M = d^2 L / dw^2`` is
+    ``2n x 2n``, ``b`` and the rows have ``2n`` entries, and ``L`` and the constraints may
+    hold both ``qd`` and ``u``.
     Returns ``(X, M, b, U, rows, q)``; the errors are those of :func:`from_sympy`.
     """
     q = _symbols(sympy, q, "q")
@@ -244,9 +248,10 @@ def lagrangian_data(sympy, L, q, qd, constraints, parameters=()):
     n = len(q)
     if len(qd) != n:
         raise ValueError(f"qd: expected {n} velocities (one per coordinate in q), got {len(qd)}")
+    qd = qd + list(speeds)
     # plain symbols for the coordinates and velocities (dynamicsymbols: velocities first)
     X = [sympy.Dummy(f"x{i}") for i in range(n)]
-    V = [sympy.Dummy(f"v{i}") for i in range(n)]
+    V = [sympy.Dummy(f"v{i}") for i in range(len(qd))]
     to_plain = dict(zip(qd, V))
     to_plain_q = dict(zip(q, X))
 
@@ -287,8 +292,8 @@ def lagrangian_data(sympy, L, q, qd, constraints, parameters=()):
             "quadratic in qd (1/2 qd.M(q) qd), plus terms linear in qd, plus a potential"
         )
     zero = {v: 0 for v in V}
-    M = [[sympy.diff(Lp, V[i], V[j]) for j in range(n)] for i in range(n)]
-    b = [sympy.diff(Lp, V[i]).xreplace(zero) for i in range(n)]
+    M = [[sympy.diff(Lp, V[i], V[j]) for j in range(len(V))] for i in range(len(V))]
+    b = [sympy.diff(Lp, V[i]).xreplace(zero) for i in range(len(V))]
     U = -Lp.xreplace(zero)
 
     if isinstance(constraints, (str, bytes)):
@@ -310,5 +315,5 @@ def lagrangian_data(sympy, L, q, qd, constraints, parameters=()):
                 f"constraints[{k}]: {c} has a term without velocities (affine constraint); liefi "
                 "treats linear homogeneous constraints a(q) . qd = 0"
             )
-        rows.append([sympy.diff(cp, V[j]) for j in range(n)])
+        rows.append([sympy.diff(cp, V[j]) for j in range(len(V))])
     return X, M, b, U, rows, q
