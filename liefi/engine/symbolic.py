@@ -753,11 +753,14 @@ def jacobian(values, variables):
     for k, v in enumerate(variables):
         bits[v.id] = bits.get(v.id, 0) | (1 << k)
     support = _supports(flat, bits)
-    zero = const(0.0)
-    for k, v in enumerate(variables):
-        memo, bit = {}, 1 << k
-        for j, e in enumerate(flat):
-            out[k, j] = derivative(e, v, memo, support, bit) if support[e.id] & bit else zero
+    out.fill(const(0.0))
+    memos = [{} for _ in variables]
+    for j, e in enumerate(flat):
+        m = support[e.id]
+        while m:  # the variables e depends on, lowest first
+            k = (m & -m).bit_length() - 1
+            m &= m - 1
+            out[k, j] = derivative(e, variables[k], memos[k], support, 1 << k)
     return out.reshape((len(variables),) + values.shape)
 
 
