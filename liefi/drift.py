@@ -53,7 +53,7 @@ def drift(fi, y, scales=None, jet=None):
     """
     y = np.asarray(y, float)
     if jet is None:
-        jet = _residuals(fi, y)
+        jet = residuals(fi, y)
     with np.errstate(all="ignore"):
         try:
             cur = drift_scales(fi, y)
@@ -74,11 +74,12 @@ def drift(fi, y, scales=None, jet=None):
     return best, who
 
 
-def _residuals(fi, y):
+def residuals(fi, y):
     """The penalized invariants' names and residuals ``I_j(y) - I_j0`` at ``y``, values only.
 
     The residuals of :meth:`liefi.FeedbackIntegrator.invariant_gradients` (same terms,
-    :meth:`~liefi.FeedbackIntegrator.invariant_terms`) without differentiating the data.
+    :meth:`~liefi.FeedbackIntegrator.invariant_terms`) without differentiating the data.  Returns a
+    namespace with ``names`` and ``residual`` (``(..., m)``), as the jet's.
     """
     _, z = fi.split(y)
     terms = fi.invariant_terms(z, _core.evaluate(fi.system, z, derivatives=False), fi.parameters())
