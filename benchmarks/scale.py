@@ -19,7 +19,8 @@ fresh processes (one first to fill the kernel cache, then ``--repeat`` timed, be
 CPU seconds (``time.process_time``): construction (system and
 :class:`~liefi.FeedbackIntegrator`), trace (the trace and code generation of
 :func:`liefi.engine.kernels.compile_split`), load (the kernel from the warm cache), integrate
-(``imex-rk4``, ``dt`` 1e-3 over ``[0, 1]``) and the peak RSS of the process; then the fitted growth
+(``imex-rk4``, ``dt`` 1e-3 over ``[0, 1]``), the whole first ``fi.run`` (the integration with its
+checks before and after: the stability estimate, the guard's audit) and the peak RSS of the process; then the fitted growth
 exponents ``d log(cost) / d log(N)`` over the measured ``N`` (least squares, ``N >= 4``).
 """
 
@@ -101,7 +102,7 @@ out["y_end"] = sol.y[:, -1].tolist()
 print("RESULT " + json.dumps(out))
 """
 
-COLUMNS = ("construction", "trace", "load", "integrate", "ns_per_step", "rss_mib", "nodes")
+COLUMNS = ("construction", "trace", "load", "integrate", "run", "ns_per_step", "rss_mib", "nodes")
 
 
 def cpu_model():
@@ -187,8 +188,8 @@ def main(argv=None):
         return
     print(f"CPU: {cpu_model()}, {os.cpu_count()} cores, load {os.getloadavg()[0]:.1f}; CPU seconds, best of "
           f"{args.repeat} fresh processes (warm kernel cache)")
-    head = f"{'N':>4} {'states':>6} {'build s':>8} {'trace s':>8} {'load s':>8} {'integ s':>8} {'ns/step':>8} " \
-           f"{'RSS MiB':>8} {'nodes':>8}"
+    head = f"{'N':>4} {'states':>6} {'build s':>8} {'trace s':>8} {'load s':>8} {'integ s':>8} {'run s':>8} " \
+           f"{'ns/step':>8} {'RSS MiB':>8} {'nodes':>8}"
     print(head, flush=True)
     rows = []
     for N in args.n:
@@ -196,10 +197,11 @@ def main(argv=None):
         rows.append(r)
         if r is not None:
             print(f"{N:>4} {6 * N:>6} {r['construction']:>8.3f} {r['trace']:>8.3f} {r['load']:>8.3f} "
-                  f"{r['integrate']:>8.3f} {r['ns_per_step']:>8.0f} {r['rss_mib']:>8.0f} {r['nodes']:>8}",
+                  f"{r['integrate']:>8.3f} {r['run']:>8.3f} {r['ns_per_step']:>8.0f} {r['rss_mib']:>8.0f} {r['nodes']:>8}",
                   flush=True)
     print("growth N^a (N >= 4): " + ", ".join(
-        f"{k} {exponents(args.n, rows, k):.2f}" for k in ("construction", "trace", "integrate", "rss_mib", "nodes")))
+        f"{k} {exponents(args.n, rows, k):.2f}" for k in ("construction", "trace", "integrate", "run", "rss_mib",
+                                                           "nodes")))
 
 
 if __name__ == "__main__":
