@@ -692,12 +692,20 @@ def _d_unary(op, a, da, node):
     raise _Untraceable(f"derivative of {op}")
 
 
-def derivative(expr: Sym, var: Sym, memo: dict) -> Sym:
-    """``d expr / d var`` by forward differentiation of the graph (``memo`` per ``var``)."""
+def derivative(expr: Sym, var: Sym, memo: dict, support=None, bit=0) -> Sym:
+    """``d expr / d var`` by forward differentiation of the graph (``memo`` per ``var``).
+
+    ``support`` (node id -> bitmask of the variables the node depends on, :func:`_supports`) and
+    ``bit`` (``var``'s): a node that does not depend on ``var`` has derivative ``0`` without a walk.
+    """
     stack = [expr]
     while stack:
         node = stack[-1]
         if node.id in memo:
+            stack.pop()
+            continue
+        if support is not None and not support[node.id] & bit:
+            memo[node.id] = const(0.0)
             stack.pop()
             continue
         if node.op == "const" or node.op == "var":
@@ -739,8 +747,45 @@ def jacobian(values, variables):
     values = _to_sym_array(np.asarray(values, dtype=object)) if np.ndim(values) else np.asarray(as_sym(values), dtype=object)
     flat = values.reshape(-1)
     out = np.empty((len(variables), flat.size), dtype=object)
+    # which variables each node depends on: d e / d v is 0 unwalked where e does not depend on v, so the
+    # Jacobian of sparse data (a chain's constraints: each row on its own body) costs its nonzeros
+    bits = {}
     for k, v in enumerate(variables):
-        memo = {}
-        for j, e in enumerate(flat):
-            out[k, j] = derivative(e, v, memo)
+        bits[v.id] = bits.get(v.id, 0) | (1 << k)
+    support = _supports(flat, bits)
+    out.fill(const(0.0))
+    memos = [{} for _ in variables]
+    for j, e in enumerate(flat):
+        m = support[e.id]
+        while m:  # the variables e depends on, lowest first
+            k = (m & -m).bit_length() - 1
+            m &= m - 1
+            out[k, j] = derivative(e, variables[k], memos[k], support, 1 << k)
     return out.reshape((len(variables),) + values.shape)
+
+
+def _supports(exprs, bits):
+    """``{node id: bitmask}`` of the variables (``bits``: variable node id -> its bit) each node of ``exprs``
+    depends on: its own bit, or the union of its arguments'."""
+    support = {}
+    for expr in exprs:
+        stack = [expr]
+        while stack:
+            node = stack[-1]
+            if node.id in support:
+                stack.pop()
+                continue
+            if node.op == "const" or node.op == "var":  # leaves (a variable's args are its name and slot)
+                support[node.id] = bits.get(node.id, 0)
+                stack.pop()
+                continue
+            pending = [a for a in node.args if a.id not in support]
+            if pending:
+                stack.extend(pending)
+                continue
+            stack.pop()
+            m = bits.get(node.id, 0)
+            for a in node.args:
+                m |= support[a.id]
+            support[node.id] = m
+    return support

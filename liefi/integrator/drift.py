@@ -8,6 +8,7 @@ the invariant set.
 from __future__ import annotations
 
 import math
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -23,7 +24,7 @@ def drift_scales(fi, y=None):
     """
     y = fi.y0 if y is None else np.asarray(y, float)
     _, z = fi.split(y)
-    t = _core.evaluate(fi.system, z)
+    t = _core.evaluate(fi.system, z, derivatives=False)  # values only: no Jacobian of the data
     n = fi.system.space.data_dim
     U = np.asarray(fi.system.potential(z[..., :n]), float)
     T = np.abs(t.h - U)
@@ -52,7 +53,7 @@ def drift(fi, y, scales=None, jet=None):
     """
     y = np.asarray(y, float)
     if jet is None:
-        jet = fi.invariant_gradients(y)
+        jet = residuals(fi, y)
     with np.errstate(all="ignore"):
         try:
             cur = drift_scales(fi, y)
@@ -71,6 +72,22 @@ def drift(fi, y, scales=None, jet=None):
         if not v <= best:
             best, who = v, "penalty"
     return best, who
+
+
+def residuals(fi, y):
+    """The penalized invariants' names and residuals ``I_j(y) - I_j0`` at ``y``, values only.
+
+    The residuals of :meth:`liefi.FeedbackIntegrator.invariant_gradients` (same terms,
+    :meth:`~liefi.FeedbackIntegrator.invariant_terms`) without differentiating the data.  Returns a
+    namespace with ``names`` and ``residual`` (``(..., m)``), as the jet's.
+    """
+    _, z = fi.split(y)
+    terms = fi.invariant_terms(z, _core.evaluate(fi.system, z, derivatives=False), fi.parameters())
+    batch = y.shape[:-1]
+    r = np.zeros(batch + (len(terms),))
+    for j, term in enumerate(terms):
+        r[..., j] = np.broadcast_to(term[1], batch)
+    return SimpleNamespace(names=tuple(term[0] for term in terms), residual=r)
 
 
 def first_integral_defect(fi, y, rtol=1e-6):

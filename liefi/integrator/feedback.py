@@ -536,19 +536,22 @@ class FeedbackIntegrator:
         :attr:`parameter_layout`); ``t`` is :func:`liefi.reduction.core.evaluate`
         at ``z`` with the accessor ``data``.  :meth:`field_parts`,
         :meth:`invariant_gradients` and the split schemes' feedback step
-        (:func:`liefi.schemes.split.feedback_step`) all read it.
+        (:func:`liefi.schemes.split.feedback_step`) all read it.  With ``t`` evaluated
+        without derivatives (``evaluate(..., derivatives=False)``) every ``grad I_j`` is
+        ``None``: the residuals of :func:`liefi.drift.drift` need no Jacobian.
         """
         p, lay = params, self.parameter_layout
         out = []
+        values_only = t.dh is None  # evaluate(..., derivatives=False): residuals only, every grad I_j None
         if self.use_constraints:
             kJ = p[..., lay.J]
             for c, i in enumerate(self._J_kept):
-                out.append((f"J_{i + 1}", t.J[..., i], t.dJ[..., i, :], kJ[..., c]))
+                out.append((f"J_{i + 1}", t.J[..., i], None if values_only else t.dJ[..., i, :], kJ[..., c]))
         if self.use_energy:
             E, dE = (t.ht, t.dht) if self.energy == "extended" else (t.h, t.dh)
             out.append(("energy", E - p[..., lay.energy_target], dE, p[..., lay.energy]))
         for u, ik, it in zip(self.user, lay.user, lay.user_target):
-            val, grad = u.value_and_grad(z, data)
+            val, grad = (np.asarray(u.fun(z)), None) if values_only else u.value_and_grad(z, data)
             out.append((u.name, val - p[..., it], grad, p[..., ik]))
         return out
 

@@ -43,6 +43,7 @@ from .stability import (
     estimate,
     first_integral_defect,
     metric_defect,
+    residuals,
     stiffness,
 )
 
@@ -96,7 +97,7 @@ def _audit(fi, ts, Ys, dt, beta, sch, scales, delta0, schedule, max_points=2000,
     who = np.full(len(idx), "", dtype=object)
     with np.errstate(all="ignore"):
         Yl = Y[k0:]
-        jet = fi.invariant_gradients(Yl)
+        jet = residuals(fi, Yl)  # values only: no Jacobian of the data at every saved state
         cur = drift_scales(fi, Y)
         sc = {k: max(scales.get(k, 0.0), cur.get(k, 0.0)) or 1.0 for k in cur}
         rl, wl = rel[k0:], who[k0:]

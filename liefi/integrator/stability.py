@@ -61,7 +61,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._diff import directions_after
-from .drift import drift, drift_scales, first_integral_defect  # noqa: F401 -- part of this module's API
+from .drift import drift, drift_scales, first_integral_defect, residuals  # noqa: F401 -- part of this module's API
 from ..schemes import IntegrationError
 from ..schemes import positive_int as _positive_int  # noqa: F401
 from ..schemes.registry import takes_scheme

@@ -58,7 +58,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import _diff
+from .. import _diff, _sparse
 
 
 class NumpyData:
@@ -204,13 +204,14 @@ def evaluate(system, z, *, data=NUMPY_DATA, derivatives=True) -> Terms:
     if system.constant:
         Eflat, Cinv = system.flat_constraints, system.gram_inverse
     else:
-        Eflat = E @ m
-        Cinv = small_inverse(Eflat @ np.swapaxes(E, -1, -2))
+        Eflat = _sparse.matmul(E, m)  # traced: the nonzero terms only (liefi._sparse), else E @ m
+        Cinv = small_inverse(_sparse.matmul(Eflat, np.swapaxes(E, -1, -2)))
 
-    v = np.einsum("...ij,...j->...i", minv, Pi)  # dh/dP = (P - A)^sharp, the velocity
-    J = np.einsum("...kj,...j->...k", E, Pi)
-    w = np.einsum("...kl,...l->...k", Cinv, J)  # C^{-1} J
-    dht_dP = v - np.einsum("...kj,...k->...j", E, w)
+    # (traced: sums over the nonzero terms only, the same expressions, liefi._sparse)
+    v = _sparse.matvec("...ij,...j->...i", minv, Pi)  # dh/dP = (P - A)^sharp, the velocity
+    J = _sparse.matvec("...ij,...j->...i", E, Pi)
+    w = _sparse.matvec("...ij,...j->...i", Cinv, J)  # C^{-1} J
+    dht_dP = v - _sparse.matvec("...ji,...j->...i", E, w)
     h = 0.5 * np.einsum("...i,...i->...", Pi, v) + U
     ht = h - 0.5 * np.einsum("...k,...k->...", J, w)
     if not derivatives:
@@ -232,15 +233,18 @@ def evaluate(system, z, *, data=NUMPY_DATA, derivatives=True) -> Terms:
             Et = np.swapaxes(E, -1, -2)
             dC = 0.0
             if dE is not None:
-                dJ_dx = dJ_dx + np.einsum("...kij,...j->...ki", dE, Pi)
-                dEm = dE @ m[..., None, :, :]
-                dC = dEm @ Et[..., None, :, :]
+                if is_traced(dE) or is_traced(Pi):  # the same sums over the nonzero terms (liefi._sparse)
+                    dJ_dx = dJ_dx + _sparse.matmul(dE, Pi[..., None, :, None])[..., 0]
+                else:
+                    dJ_dx = dJ_dx + np.einsum("...kij,...j->...ki", dE, Pi)
+                dEm = _sparse.matmul(dE, m[..., None, :, :])
+                dC = _sparse.matmul(dEm, Et[..., None, :, :])
                 dC = dC + np.swapaxes(dC, -1, -2)
             if dm is not None:
-                dC = dC + E[..., None, :, :] @ dm @ Et[..., None, :, :]
-            dht_dx = dh_dx - np.einsum("...ki,...i->...k", dJ_dx, w)
+                dC = dC + _sparse.matmul(_sparse.matmul(E[..., None, :, :], dm), Et[..., None, :, :])
+            dht_dx = dh_dx - _sparse.matvec("...ij,...j->...i", dJ_dx, w)
             if not np.isscalar(dC):
-                dht_dx = dht_dx + 0.5 * np.einsum("...i,...kij,...j->...k", w, dC, w)
+                dht_dx = dht_dx + 0.5 * _sparse.quadratic(w, dC)
 
     dh = np.concatenate([dh_dx, np.broadcast_to(v, batch + (D,))], -1)
     dht = np.concatenate([dht_dx, np.broadcast_to(dht_dP, batch + (D,))], -1)
@@ -261,7 +265,10 @@ def _field(system, z, dH, lam, Eflat):
     n = system.space.data_dim
     f = system.space.hamiltonian_vector_field(z, dH)
     if system.K:
-        force = np.einsum("...k,...kj->...j", lam, Eflat)
+        if is_traced(lam) or is_traced(Eflat):  # the same sums over the nonzero terms (liefi._sparse)
+            force = _sparse.matvec("...ji,...j->...i", Eflat, lam)
+        else:
+            force = np.einsum("...k,...kj->...j", lam, Eflat)
         f = np.concatenate([f[..., :n], f[..., n:] + force], -1)
     return f
 

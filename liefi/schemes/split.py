@@ -71,7 +71,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import _diff
+from .. import _diff, _sparse
 from ..reduction import core as _core
 from .rk import EULER, HEUN, RK4, RK6, RK8, ExplicitRungeKutta
 
@@ -216,7 +216,7 @@ def feedback_step(fi, y, dt, params=None, *, data=_core.NUMPY_DATA):
         kr = np.stack([np.broadcast_to(k * r, batch) for _, r, _, k in terms], -1)
         Az = None if fi.A is None else fi.A[:, fi.nc :]  # the columns that act on the reduced block
         AWt = np.swapaxes(W, -1, -2) if Az is None else np.einsum("ij,...mj->...im", Az, W)  # (..., n or nz, m)
-        WAWt = W @ (AWt if Az is None else AWt[..., fi.nc :, :])
+        WAWt = _sparse.matmul(W, AWt if Az is None else AWt[..., fi.nc :, :])  # traced: nonzero terms only
         M = np.eye(len(terms)) + _per_state(dt, 2) * kk[..., :, None] * WAWt
         with np.errstate(all="ignore"):
             try:
@@ -226,7 +226,7 @@ def feedback_step(fi, y, dt, params=None, *, data=_core.NUMPY_DATA):
                 # matrix here means overflowed entries: non-finite values make the run's check raise
                 # IntegrationError with the time.
                 return np.full(y.shape, np.nan)
-        dz = _per_state(dt, 1) * np.einsum("...im,...m->...i", AWt, mu)
+        dz = _per_state(dt, 1) * _sparse.matvec("...ij,...j->...i", AWt, mu)  # traced: nonzero terms only
         if Az is None:
             delta = np.concatenate([np.zeros(batch + (fi.nc,), dtype=dz.dtype), dz], -1)
         else:

@@ -1,0 +1,97 @@
+"""Tracing grows with the system, not its cube (issue 26): the chain of knife edges of ``benchmarks/scale.py``.
+
+The work of a trace is the number of symbolic operations the tracer performs (every ``+ - * /`` on traced
+scalars first tries constant folding, :func:`liefi.engine.symbolic._folded`): numpy's dense ``@`` on the
+chain's mostly-zero data made it grow like ``N^4`` (``dE @ m`` in :func:`liefi.reduction.core.evaluate`).
+Structural, not a wall-clock time.
+"""
+
+import importlib.util
+import os
+
+import numpy as np
+import pytest
+
+import liefi
+from liefi import _sparse
+from liefi.engine import cache, kernels, symbolic
+
+_PATH = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "benchmarks", "scale.py")
+
+
+@pytest.fixture(scope="module")
+def chain():
+    spec = importlib.util.spec_from_file_location("scale_benchmark", _PATH)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod.chain
+
+
+class _Stop(Exception):
+    pass
+
+
+def _trace_work(chain, N, monkeypatch):
+    """``(operations, characters of generated code)`` of the split kernel's trace of the chain of ``N``."""
+    system, y0 = chain(N)
+    fi = liefi.FeedbackIntegrator(system, y0, invariants=("constraints", "energy"), gains=10.0)
+    count, size = [0], [0]
+    folded = symbolic._folded
+
+    def counted(a, b, ufunc):
+        count[0] += 1
+        return folded(a, b, ufunc)
+
+    def no_load(source, engine="numba"):
+        size[0] = len(source)
+        raise _Stop
+
+    monkeypatch.setattr(symbolic, "_folded", counted)
+    monkeypatch.setattr(cache, "load", no_load)
+    with pytest.raises(_Stop):
+        kernels.compile_split(fi, engine="python")
+    monkeypatch.undo()
+    return count[0], size[0]
+
+
+def test_trace_of_the_chain_grows_subquadratically(chain, monkeypatch):
+    """From ``N = 4`` to ``N = 8`` the tracer's operations and the generated code grow less than 4x
+    (``N^2``); the dense products made the operations grow ~12x."""
+    ops4, code4 = _trace_work(chain, 4, monkeypatch)
+    ops8, code8 = _trace_work(chain, 8, monkeypatch)
+    assert ops8 < 3 * ops4, (ops4, ops8)  # N^1.6 at most
+    assert code8 < 3 * code4, (code4, code8)
+
+
+def test_sparse_products_build_numpy_s_expressions():
+    """:func:`liefi._sparse.matmul` and :func:`~liefi._sparse.quadratic` on traced arrays with exact zeros
+    build the very nodes numpy's dense loops build (hash-consed: the same objects), and on floats they are
+    numpy's operations."""
+    rng = np.random.default_rng(3)
+    A0, B0, w0 = rng.standard_normal((2, 3, 4)), rng.standard_normal((4, 5)), rng.standard_normal(4)
+    A0[A0 < 0.3] = 0.0
+    B0[B0 < 0] = 0.0
+    with liefi.engine.trace.trace() as tr:
+        x = tr.symbols("x", 4)
+        A = np.empty(A0.shape, dtype=object)
+        for idx in np.ndindex(*A0.shape):
+            A[idx] = symbolic.mul(A0[idx], x[idx[-1]]) if A0[idx] else symbolic.const(0.0)
+        B = B0.astype(object)
+        C = np.empty((4, 4, 4), dtype=object)
+        C[...] = symbolic.const(0.0)
+        C[0, 1, 2], C[3, 0, 0] = x[1], symbolic.mul(x[0], x[2])
+        dense, sparse = A @ B, _sparse.matmul(A, B)
+        for idx in np.ndindex(*dense.shape):
+            d = symbolic.as_sym(dense[idx])
+            assert symbolic.as_sym(sparse[idx]) is d or (d.op == "const" and d.value == 0.0
+                                                        and float(sparse[idx]) == 0.0)
+        dq, sq = np.einsum("...i,...kij,...j->...k", x, C, x), _sparse.quadratic(x, C)
+        for k in range(4):
+            d = symbolic.as_sym(dq[k])
+            assert symbolic.as_sym(sq[k]) is d or (d.op == "const" and float(sq[k]) == 0.0)
+    assert np.array_equal(_sparse.matmul(A0, B0), A0 @ B0)
+    C0 = np.zeros((4, 4, 4))
+    C0[0, 1, 2], C0[3, 0, 0] = 1.5, -0.25
+    assert np.array_equal(_sparse.quadratic(w0, C0), np.einsum("...i,...kij,...j->...k", w0, C0, w0))
+    assert np.array_equal(_sparse.matvec("...ji,...j->...i", B0, w0[:4] @ np.ones((4, 4))[:, :4]),
+                          np.einsum("...ji,...j->...i", B0, w0[:4] @ np.ones((4, 4))[:, :4]))
