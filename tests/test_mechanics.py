@@ -25,22 +25,7 @@ TOL = 1e-12
 
 
 # --- the models, written as in the sympy.physics.mechanics docs ------------------------------
-def sleigh_model():
-    """Chaplygin sleigh: blade at P = (x, y), heading theta, mass centre a ahead of the blade."""
-    x, y, theta = me.dynamicsymbols("x y theta")
-    m, I, a = sympy.symbols("m I a")
-    N = me.ReferenceFrame("N")
-    B = N.orientnew("B", "Axis", [theta, N.z])
-    O = me.Point("O")
-    O.set_vel(N, 0)
-    P = O.locatenew("P", x * N.x + y * N.y)
-    P.set_vel(N, P.pos_from(O).dt(N))
-    G = P.locatenew("G", a * B.x)
-    G.set_vel(N, G.pos_from(O).dt(N))
-    sled = me.RigidBody("sled", G, B, m, (me.inertia(B, 0, 0, I), G))
-    L = me.Lagrangian(N, sled)
-    LM = me.LagrangesMethod(L, [x, y, theta], nonhol_coneqs=[P.vel(N).dot(B.y)], frame=N)
-    return LM, (m, I, a)
+from models import sleigh_model  # noqa: E402 -- the sleigh as sympy's docs write it (tests/models.py)
 
 
 def disk_model(minimal=False):

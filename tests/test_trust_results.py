@@ -157,22 +157,9 @@ def test_projecting_a_state_with_nan_names_it():
 
 
 def _sleigh():
-    sp = pytest.importorskip("sympy")
-    me = pytest.importorskip("sympy.physics.mechanics")
-    x, y, theta = me.dynamicsymbols("x y theta")
-    m, I, a = sp.symbols("m I a")
-    N = me.ReferenceFrame("N")
-    B = N.orientnew("B", "Axis", [theta, N.z])
-    O = me.Point("O")
-    O.set_vel(N, 0)
-    P = O.locatenew("P", x * N.x + y * N.y)
-    P.set_vel(N, P.pos_from(O).dt(N))
-    G = P.locatenew("G", a * B.x)
-    G.set_vel(N, G.pos_from(O).dt(N))
-    body = me.RigidBody("body", G, B, m, (me.inertia(B, 0, 0, I), G))
-    blade = [me.dot(P.vel(N), B.y)]
-    L = me.Lagrangian(N, body)
-    return me.LagrangesMethod(L, [x, y, theta], nonhol_coneqs=blade, frame=N), {"m": 1.0, "I": 0.5, "a": 0.3}
+    from models import sleigh_model
+
+    return sleigh_model()[0], {"m": 1.0, "I": 0.5, "a": 0.3}
 
 
 @pytest.mark.parametrize("value, says", [("abc", r"expected a real number \(or one per member\), got 'abc'"),

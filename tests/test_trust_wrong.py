@@ -25,21 +25,9 @@ import liefi
 
 # --- per-member constants: the member axes are explicit --------------------------------------
 def _sleigh(constants):
-    sympy = pytest.importorskip("sympy")
-    me = pytest.importorskip("sympy.physics.mechanics")
-    x, y, theta = me.dynamicsymbols("x y theta")
-    m, I, a = sympy.symbols("m I a")
-    N = me.ReferenceFrame("N")
-    B = N.orientnew("B", "Axis", [theta, N.z])
-    O = me.Point("O")
-    O.set_vel(N, 0)
-    P = O.locatenew("P", x * N.x + y * N.y)
-    P.set_vel(N, P.pos_from(O).dt(N))
-    G = P.locatenew("G", a * B.x)
-    G.set_vel(N, G.pos_from(O).dt(N))
-    sled = me.RigidBody("sled", G, B, m, (me.inertia(B, 0, 0, I), G))
-    LM = me.LagrangesMethod(me.Lagrangian(N, sled), [x, y, theta], nonhol_coneqs=[P.vel(N).dot(B.y)], frame=N)
-    return liefi.from_mechanics(LM, constants)
+    from models import sleigh_model
+
+    return liefi.from_mechanics(sleigh_model()[0], constants)
 
 
 def test_per_member_constants_follow_the_members_not_an_axis_of_equal_length():
