@@ -60,7 +60,6 @@ IVP_MAX_STEPS = 1e6
 #: An adaptive ``scipy:`` run of more evaluations of the field than this is stopped early, from the
 #: projection of its pace (:meth:`liefi.schemes.ivp.ScipyMethod.solve`): minutes of Python calls.
 IVP_MAX_EVALUATIONS = 1e6
-#: A run of more steps than this is refused before it starts (``liefi run`` and ``liefi bench``: ``--max-steps``).
 
 
 def available_memory():
