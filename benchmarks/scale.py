@@ -105,18 +105,6 @@ print("RESULT " + json.dumps(out))
 COLUMNS = ("construction", "trace", "load", "integrate", "run", "ns_per_step", "rss_mib", "nodes")
 
 
-def cpu_model():
-    """The CPU's model name from ``/proc/cpuinfo`` (``"unknown"`` elsewhere)."""
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return "unknown"
-
-
 def measure(N, repeat, timeout):
     """Best of ``repeat`` fresh processes at ``N`` (after one that fills the kernel cache); ``None`` on failure."""
     env = dict(os.environ, PYTHONPATH=ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""))
@@ -186,6 +174,8 @@ def main(argv=None):
     if args.profile is not None:
         profile(args.profile)
         return
+    from _machine import cpu_model  # benchmarks/_machine.py (here: the chain imports from its path alone)
+
     print(f"CPU: {cpu_model()}, {os.cpu_count()} cores, load {os.getloadavg()[0]:.1f}; CPU seconds, best of "
           f"{args.repeat} fresh processes (warm kernel cache)")
     head = f"{'N':>4} {'states':>6} {'build s':>8} {'trace s':>8} {'load s':>8} {'integ s':>8} {'run s':>8} " \

@@ -49,8 +49,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
-import subprocess
 import sys
 import time
 import warnings
@@ -64,6 +62,7 @@ from numba import njit  # noqa: E402
 
 from liefi import gains as _gains  # noqa: E402
 from liefi import scenes  # noqa: E402
+from _machine import cpu_model  # noqa: E402 -- benchmarks/_machine.py
 
 SCHEME = "imex-rk4"
 
@@ -255,17 +254,6 @@ def hand_kernel(name, fi, dt, t_final):
         raise KeyError(name)
     tg, a, c, names = liefi_setting(sc, fi, dt, t_final)
     return make_kernels(X, inv, tg, a, c), names
-
-
-def cpu_model():
-    try:
-        out = subprocess.run(["lscpu"], capture_output=True, text=True, check=True).stdout
-        for line in out.splitlines():
-            if line.startswith("Model name:"):
-                return line.split(":", 1)[1].strip()
-    except (OSError, subprocess.CalledProcessError):
-        pass
-    return platform.processor() or platform.machine()
 
 
 def liefi_run(fi, t_final, dt, save_every, guard):

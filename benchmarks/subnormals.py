@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import sys
 import time
 
@@ -29,18 +28,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 
 from liefi import engine, scenes  # noqa: E402
 from liefi.engine import fpu  # noqa: E402
-
-
-def cpu_model():
-    """The processor's model name (``/proc/cpuinfo``), or ``platform.processor()``."""
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
+from _machine import cpu_model  # noqa: E402 -- benchmarks/_machine.py
 
 
 def main(argv=None):
