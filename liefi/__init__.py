@@ -12,11 +12,13 @@ from . import groups, reduction
 __version__ = "0.1.0"
 from .integrator.feedback import FeedbackIntegrator, Invariant
 from .schemes import SCHEMES, ExplicitRungeKutta, IntegrationError, Solution, integrate
+from .integrator.linearize import Linearization, Symmetry, linearize, steady_motion
 
 #: the public names of the package (its submodules are documented on their own pages)
 __all__ = ["CotangentBundle", "LieGroupPhaseSpace", "PhaseSpace", "TrivialPrincipalBundle", "NonholonomicSystem",
            "from_sympy", "from_mechanics", "groups", "reduction", "FeedbackIntegrator", "Invariant", "SCHEMES",
-           "ExplicitRungeKutta", "IntegrationError", "Solution", "integrate", "plot"]
+           "ExplicitRungeKutta", "IntegrationError", "Solution", "integrate", "linearize", "steady_motion",
+           "Linearization", "Symmetry", "plot"]
 
 
 #: the modules users import by their old flat names (``liefi.gains``, ``import liefi.plot``), and where they live
