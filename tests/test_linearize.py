@@ -1,0 +1,283 @@
+"""Linearization at steady motions (liefi.linearize): exactness, minimal coordinates, trivial modes, and the rolling
+bodies' linear stability against the literature and the scenes' own reference equations.
+
+Run alone: ``python -m pytest -q tests/test_linearize.py`` (the slow oracle runs: ``-m slow``).
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import liefi
+from liefi.groups import SO3
+from liefi.integrator.linearize import candidate_symmetries, field_and_jacobian
+from liefi.systems.rolling import disk, rolling_body, rolling_start
+
+
+# --- helpers ------------------------------------------------------------------------------------------------
+
+def upright_disk(inertia=None, mass=1.0, radius=1.0, g=1.0):
+    """A disk (uniform by default) standing upright: body axis 3 horizontal, ``Gamma = e_2``."""
+    I = mass * radius**2 * np.array([0.25, 0.25, 0.5]) if inertia is None else np.asarray(inertia, float)
+    R = SO3().exp([np.pi / 2, 0.0, 0.0])
+    return rolling_body(mass, I, disk(radius), gravity=g, sample=R), R
+
+
+def disk_sigma2(omega, A, C, m=1.0, a=1.0, g=1.0):
+    """The upright rolling disk's tilt frequency squared (Routh, Advanced Rigid Dynamics, 1905, sec. 244;
+    K. T. McDonald, "The rolling motion of a disk on a horizontal plane", arXiv:physics/0008227, sec. 2.5):
+    ``sigma^2 = [C (C + m a^2) omega^2 - m g a A] / (A (A + m a^2))``, stable iff ``sigma^2 > 0``."""
+    return (C * (C + m * a * a) * omega**2 - m * g * a * A) / (A * (A + m * a * a))
+
+
+def cyclic_attitude(axis):
+    """A rotation whose third row is ``e_axis``: the principal axis ``axis`` points up."""
+    i, j = [(1, 2), (2, 0), (0, 1)][axis]
+    return np.eye(3)[[i, j, axis]]
+
+
+def chaplygin_linear(I, k, w, axis):
+    """The linearization of Chaplygin's equations ``M' = M x Omega``, ``Gamma' = Gamma x Omega``,
+    ``M = (I + k) Omega - k (Omega . Gamma) Gamma`` (``k = m a^2``) at the spin ``Omega = w e_axis``,
+    ``Gamma = e_axis``, derived by hand in ``(dM_i, dM_j, gamma_i, gamma_j)`` (``dM_axis`` is conserved)."""
+    i, j = [(1, 2), (2, 0), (0, 1)][axis]
+    I1, I2, I3 = I[i], I[j], I[axis]
+    A1, A2 = I1 + k, I2 + k
+    return np.array([[0.0, w * (1 - I3 / A2), 0.0, -I3 * k * w * w / A2],
+                     [-w * (1 - I3 / A1), 0.0, I3 * k * w * w / A1, 0.0],
+                     [0.0, -1 / A2, 0.0, w * I2 / A2],
+                     [1 / A1, 0.0, -w * I1 / A1, 0.0]])
+
+
+def same_spectrum(a, b, tol):
+    """Each eigenvalue of ``a`` matched to one of ``b`` (greedy), largest distance below ``tol``."""
+    a, b = list(np.asarray(a)), list(np.asarray(b))
+    assert len(a) == len(b), (a, b)
+    for x in a:
+        k = int(np.argmin([abs(x - y) for y in b]))
+        assert abs(x - b[k]) <= tol * max(1.0, abs(x)), (x, b)
+        b.pop(k)
+
+
+@pytest.fixture(scope="module")
+def rattleback():
+    from liefi.scenes.rattleback import Rattleback
+
+    return Rattleback().system
+
+
+# --- the rolling disk: the upright rolling's criterion -----------------------------------------------------
+
+@pytest.mark.parametrize("omega", [0.3, 0.5, 0.8, 2.0])
+def test_rolling_disk_upright_eigenvalues_are_rouths(omega):
+    """The uniform disk (``A = m a^2 / 4``, ``C = m a^2 / 2``): two nontrivial eigenvalues ``+-sqrt(-sigma^2)``,
+    to 1e-12; the four trivial zeros named (energy, heading, the disk's own axis, the family of steady motions)."""
+    system, R = upright_disk()
+    lin = system.linearize(rolling_start(system, R, [0.0, 0.0, omega]))
+    assert lin.A.shape == (6, 6) and lin.B is None
+    expected = np.sqrt(complex(-disk_sigma2(omega, 0.25, 0.5)))
+    same_spectrum(lin.nontrivial_eigenvalues, [expected, -expected], 1e-12)
+    kinds = sorted(m.kind for m in lin.trivial_modes)
+    assert kinds == ["family", "integral", "symmetry", "symmetry"], lin.trivial_modes
+    names = " ".join(m.name for m in lin.trivial_modes)
+    assert "vertical" in names and "body axis 3" in names and "energy" in names
+    assert lin.rates["rotation about body axis 3"] == pytest.approx(omega, rel=1e-14)
+    assert (lin.spectral_abscissa > 1e-9) == (omega**2 < 1.0 / 3.0)
+
+
+@pytest.mark.parametrize("inertia, critical", [((0.25, 0.25, 0.5), 1.0 / 3.0), ((0.5, 0.5, 1.0), 0.25)])
+def test_rolling_disk_critical_speed_by_root_finding(inertia, critical):
+    """The critical spin ``omega_c^2 = m g a A / (C (C + m a^2))``: ``g / (3a)`` for the uniform disk, ``g / (4a)``
+    for a ring (Greenhill, Encyclopaedia Britannica 11th ed., "Gyroscope": ``V^2 / 2g > a/6`` or ``a/8``), found
+    as the root of the product of the two nontrivial eigenvalues (``= sigma^2``) to 1e-10."""
+    from scipy.optimize import brentq
+
+    system, R = upright_disk(inertia)
+
+    def sigma2(w):
+        ev = system.linearize(rolling_start(system, R, [0.0, 0.0, w])).nontrivial_eigenvalues
+        return float(np.real(np.prod(ev)))
+
+    wc = brentq(sigma2, 0.1, 2.0, xtol=1e-15, rtol=1e-15)
+    assert wc == pytest.approx(np.sqrt(critical), rel=1e-10)
+
+
+def test_kane_rolling_disk_from_mechanics_linearizes_in_q_and_independent_speeds():
+    """sympy's rolling disk (KanesMethod: yaw, lean, spin, contact x, y; u1..u3 independent, u4, u5 dependent):
+    ``MechanicsSystem.linearize(q, u=u_ind)`` in the coordinates ``(q, u1, u2, u3)``, the same criterion."""
+    pytest.importorskip("sympy")
+    import sys
+    import pathlib
+
+    sys.path.insert(0, str(pathlib.Path(__file__).parents[1] / "examples"))
+    from from_mechanics import rolling_disk
+
+    KM, constants = rolling_disk()  # m = 1, r = 0.5, g = 9.81
+    system = liefi.from_mechanics(KM, constants)
+    trans = [s for s in candidate_symmetries(system) if s.name.split()[2] in ("q3", "x", "y")]
+
+    def yaw(z):  # the rotation about the vertical: q1 and the contact point (and its momenta) turn
+        z = np.asarray(z)
+        o = 0.0 * z[..., 0]
+        return np.stack([o + 1, o, o, -z[..., 4], z[..., 3], o, o, o, -z[..., 9], z[..., 8]], -1)
+
+    for w in (1.0, 4.0):
+        lin = system.linearize([0.0] * 5, u=[0.0, w, 0.0], symmetries=trans + [liefi.Symmetry("yaw", yaw)])
+        assert lin.coordinates == ("q1", "q2", "q3", "x", "y", "u1", "u2", "u3")
+        s2 = disk_sigma2(w, 0.25 * 0.25, 0.5 * 0.25, a=0.5, g=9.81)
+        expected = np.sqrt(complex(-s2))
+        same_spectrum(lin.nontrivial_eigenvalues, [expected, -expected], 1e-11)
+        assert len(lin.trivial_modes) == 6
+
+
+def test_sleigh_from_lagrange_model_decays_at_the_textbook_rate():
+    """The Chaplygin sleigh (LagrangesMethod) running straight at speed ``v``: the turning rate obeys
+    ``(I + m a^2) omega' = -m a v omega`` (Bloch, Nonholonomic Mechanics and Control, sec. 1.7), so the one
+    nontrivial eigenvalue is ``-m a v / (I + m a^2)``; the translations and the rotation are trivial modes
+    (the rotation a non-commuting one: ``A a`` lies in the translations' span)."""
+    pytest.importorskip("sympy")
+    from models import sleigh_model
+
+    LM, (m, I, a) = sleigh_model()
+    system = liefi.from_mechanics(LM, {m: 2.0, I: 0.5, a: 0.3})
+    th, v = 0.4, 1.5
+
+    def rotation(z):
+        z = np.asarray(z)
+        o = 0.0 * z[..., 0]
+        return np.stack([-z[..., 1], z[..., 0], o + 1, -z[..., 4], z[..., 3], o], -1)
+
+    q, qdot = [0.1, -0.2, th], [v * np.cos(th), v * np.sin(th), 0.0]
+    lin = system.linearize(q, qdot, symmetries=list(candidate_symmetries(system))[:2]
+                           + [liefi.Symmetry("rotation", rotation)])
+    assert lin.coordinates == ("x", "y", "theta", "x'", "theta'")
+    assert lin.nontrivial_eigenvalues == pytest.approx([-2.0 * 0.3 * v / (0.5 + 2.0 * 0.3**2)], rel=1e-12)
+    # by default only the ignorable x, y are found: the rotation's zero stays among the nontrivial ones
+    plain = system.linearize(q, qdot)
+    assert [m.name.split()[2] for m in plain.trivial_modes if m.kind == "symmetry"] == ["x", "y"]
+    assert np.sort(np.abs(plain.nontrivial_eigenvalues))[0] < 1e-12
+
+
+# --- the rattleback --------------------------------------------------------------------------------------
+
+def test_rattleback_spin_directions(rattleback):
+    """Kane & Levinson's rattleback spinning about the vertical at ``+-5`` rad/s (liefi's axes; ``+5`` is the
+    scene's start, Kane & Levinson's ``-5``).  Without dissipation the model is time-reversible, so the spectrum
+    at ``-omega`` is minus that at ``omega`` (to 1e-10): each direction has a growing mode (Garcia & Hubbard,
+    Proc. R. Soc. A 418 (1988) 165: the spin reverses either way, at very different times).  At ``+5`` it is
+    the pitching mode (the ~107 rad/s one at rest) growing at 2.12/s -- the fast reversal the scene shows;
+    at ``-5`` the rolling mode (~34 rad/s) at 0.20/s, ten times slower: the direction that spins "steadily".
+    Flipping the misalignment (the product of inertia) swaps the directions (Walker 1896)."""
+    plus = rattleback.linearize(rolling_start(rattleback, np.eye(3), [0.0, 0.0, 5.0]))
+    minus = rattleback.linearize(rolling_start(rattleback, np.eye(3), [0.0, 0.0, -5.0]))
+    same_spectrum(minus.nontrivial_eigenvalues, -plus.nontrivial_eigenvalues, 1e-10)
+    assert [m.kind for m in plus.trivial_modes] == ["integral", "symmetry"]
+    top = plus.nontrivial_eigenvalues[0]
+    assert top.real == pytest.approx(2.1207, abs=1e-4) and abs(top.imag) > 100  # pitching grows
+    top = minus.nontrivial_eigenvalues[0]
+    assert top.real == pytest.approx(0.2025, abs=1e-4) and 30 < abs(top.imag) < 40  # rolling grows, slowly
+    assert plus.spectral_abscissa > 10 * minus.spectral_abscissa
+    from liefi.scenes import rattleback as rb
+
+    I = rb.inertia_matrix() * np.array([[1, -1, 1], [-1, 1, 1], [1, 1, 1]])  # the other misalignment
+    mirror = rolling_body(rb.MASS, I, rb.ellipsoid(rb.SEMI_AXES, offset=(0.0, 0.0, -rb.H)), gravity=rb.GRAVITY)
+    flipped = mirror.linearize(rolling_start(mirror, np.eye(3), [0.0, 0.0, -5.0]))
+    assert flipped.spectral_abscissa == pytest.approx(plus.spectral_abscissa, rel=1e-10)
+
+
+def test_the_extended_fields_jacobian_has_the_feedbacks_own_modes(rattleback):
+    """At the rattleback at rest (an equilibrium), ``FeedbackIntegrator.jac`` (14 x 14) has the 6 eigenvalues of
+    ``A`` and 8 more, normal to the constraint set and the attitude's level set, that scale with the gain;
+    ``A`` has exactly the constrained ones, gain-free."""
+    z0 = rolling_start(rattleback, np.eye(3), [0.0, 0.0, 0.0])[11:]
+    lin = rattleback.linearize(z0)
+    assert lin.A.shape == (6, 6)
+    extra = []
+    for gain in (1.0, 10.0):
+        ev = list(np.linalg.eigvals(liefi.FeedbackIntegrator(rattleback, z0, gains=gain, configuration=False).jac(0, z0)))
+        assert len(ev) == 14
+        for x in lin.eigenvalues:  # each constrained eigenvalue is one of the extended field's
+            k = int(np.argmin([abs(x - y) for y in ev]))
+            assert abs(x - ev[k]) < 1e-7 * max(1.0, abs(x))
+            ev.pop(k)
+        extra.append(np.sort(np.real(ev)))
+    assert np.all(extra[0] < -1.0) and np.allclose(extra[1], 10 * extra[0], rtol=1e-6)
+
+
+# --- the Chaplygin ball ----------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("axis", [0, 1, 2])
+def test_chaplygin_ball_spin_about_a_principal_axis(axis):
+    """The Chaplygin ball (``I = (0.3, 0.4, 0.5)``, ``m = a = 1``) spinning at 2 rad/s about a vertical principal
+    axis: liefi's four nontrivial eigenvalues are those of Chaplygin's equations linearized by hand (to 1e-10);
+    the middle axis is unstable (a real pair), the largest and smallest not."""
+    from liefi.scenes.chaplygin_ball import ChaplyginBall
+
+    scene = ChaplyginBall()
+    system = scene.system
+    w = 2.0
+    lin = system.linearize(rolling_start(system, cyclic_attitude(axis), 2.0 * np.eye(3)[axis]))
+    ref = np.linalg.eigvals(chaplygin_linear(scene.inertia, 1.0, w, axis))
+    same_spectrum(lin.nontrivial_eigenvalues, ref, 1e-10)
+    assert (lin.spectral_abscissa > 1e-3) == (axis == 1)
+
+
+# --- exactness, the basis, the trivial modes -------------------------------------------------------------
+
+def test_the_traced_jacobian_is_the_complex_step_one_where_that_is_exact():
+    """Suslov's problem (constant data: a complex step through the constrained field is exact there): the
+    traced ``DX`` agrees with it to 1e-14."""
+    inertia = np.diag([1.0, 2.0, 3.0])
+    e = np.array([0.0, 1.0, 0.0]) @ np.linalg.inv(inertia)
+    suslov = liefi.NonholonomicSystem(liefi.LieGroupPhaseSpace(SO3()), inertia, e[None, :])
+    z = suslov.project(np.array([1.0, 0.3, 0.5]))
+    X, DX = field_and_jacobian(suslov, z)
+    h = 1e-30
+    cs = np.stack([suslov.constrained_vector_field(z + 1j * h * np.eye(3)[k]).imag / h for k in range(3)], -1)
+    assert np.max(np.abs(DX - cs)) <= 1e-14 * np.max(np.abs(cs))
+    assert np.max(np.abs(X - suslov.constrained_vector_field(z))) <= 1e-15
+
+
+def test_basis_and_trivial_modes_are_what_they_claim(rattleback):
+    lin = rattleback.linearize(rolling_start(rattleback, np.eye(3), [0.0, 0.0, 5.0]))
+    z0, T = lin.point, lin.basis
+    G = np.concatenate([liefi.reduction.core.evaluate(rattleback, z0).dJ] +
+                       [c.value_and_grad(z0)[1][None] for c in rattleback.space.casimirs])
+    assert np.max(np.abs(G @ T)) < 1e-13  # tangent to J = 0 and the attitude's level set
+    assert T.shape == (14, 6) and np.linalg.matrix_rank(T) == 6
+    nA = np.linalg.norm(lin.A)
+    for m in lin.trivial_modes:
+        r = m.vector @ lin.A if m.kind == "integral" else lin.A @ m.vector
+        assert np.linalg.norm(r) <= 1e-12 * nA * np.linalg.norm(m.vector), m.name
+    # the eigenvectors are A's
+    assert np.allclose(lin.A @ lin.eigenvectors, lin.eigenvectors * lin.eigenvalues, atol=1e-10 * nA)
+
+
+def test_a_state_that_is_no_steady_motion_is_refused_and_steady_motion_finds_one(rattleback):
+    """The scene's start (tilted 0.5 degrees, spinning) is no steady motion: named, with the residual;
+    ``liefi.steady_motion`` from it converges to a steady spin, which then linearizes."""
+    from liefi.scenes.rattleback import Rattleback
+
+    start = Rattleback().initial_state(None)
+    with pytest.raises(ValueError, match="not a steady motion.*relative residual"):
+        rattleback.linearize(start)
+    z, rates = liefi.steady_motion(rattleback, start)
+    assert abs(rates["rotation about the vertical (heading)"]) > 4.0
+    lin = rattleback.linearize(z)
+    assert lin.residual < 1e-10 and len(lin.nontrivial_eigenvalues) == 4
+
+
+def test_bad_input_is_named(rattleback):
+    with pytest.raises(ValueError, match="state: expected a reduced state of 14"):
+        rattleback.linearize(np.zeros(5))
+    z = rolling_start(rattleback, np.eye(3), [0.0, 0.0, 5.0])[11:]
+    z[12] += 0.1
+    with pytest.raises(ValueError, match="not on the constraint set"):
+        rattleback.linearize(z)
+    z = rolling_start(rattleback, np.eye(3), [0.0, 0.0, 5.0])
+    with pytest.raises(ValueError, match="integrals: 'Gamma_1' is not conserved"):
+        rattleback.linearize(z, integrals=[liefi.Invariant("Gamma_1", lambda y: y[..., 6] * y[..., 4])])
+    with pytest.raises(TypeError, match="symmetries"):
+        rattleback.linearize(z, symmetries=[lambda y: y])
+    with pytest.raises(ValueError, match="qdot, u"):
+        rattleback.linearize(z, u=[1.0])
