@@ -281,3 +281,79 @@ def test_bad_input_is_named(rattleback):
         rattleback.linearize(z, symmetries=[lambda y: y])
     with pytest.raises(ValueError, match="qdot, u"):
         rattleback.linearize(z, u=[1.0])
+
+
+# --- the scenes' oracles: their hand-written equations, run from a perturbed steady motion ---------------
+
+def _perturbed(system, lin, eps, rng=None):
+    """``(R, Omega)`` of ``z_0 + eps d``: ``d`` the real part of the most unstable eigenvector (or, with ``rng``,
+    a random tangent vector), the attitude made orthonormal again and the momenta projected onto ``J = 0``."""
+    if rng is None:
+        k = int(np.argmax(lin.eigenvalues.real))
+        d = np.real(lin.basis @ lin.eigenvectors[:, k])
+    else:
+        d = lin.basis @ rng.standard_normal(lin.basis.shape[1])
+    z = lin.point + eps * d / np.linalg.norm(d)
+    U, _, Vt = np.linalg.svd(z[:9].reshape(3, 3))
+    z[:9] = (U @ Vt).ravel()
+    z = system.project(z)
+    return (U @ Vt), np.linalg.solve(system.metric(z[:9]), z[9:14])[:3]
+
+
+def _envelope_slope(ts, dev, n, fit):
+    """The slope of ``log`` of the running maximum of ``dev`` over windows of ``n`` samples, in ``fit``."""
+    m = len(dev) // n * n
+    env, tc = dev[:m].reshape(-1, n).max(1), ts[:m].reshape(-1, n).mean(1)
+    sel = (tc > fit[0]) & (tc < fit[1])
+    return np.polyfit(tc[sel], np.log(env[sel]), 1)[0]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("omega, t_final", [(5.0, 5.0), (-5.0, 30.0)])
+def test_rattleback_growth_rate_is_the_scene_references(rattleback, omega, t_final):
+    """The scene's reference (the rolling rigid body's equations written by hand, DOP853 at 1e-12) from the
+    steady spin perturbed by 1e-8 along the unstable eigenvector: the tilt's envelope grows at ``Re lambda``
+    (2.1207/s at +5, 0.2025/s at -5), to 1e-3."""
+    from scipy.integrate import solve_ivp
+
+    from liefi.scenes import rattleback as rb
+
+    scene = rb.Rattleback()
+    lin = rattleback.linearize(rolling_start(rattleback, np.eye(3), [0.0, 0.0, omega]))
+    R, W = _perturbed(rattleback, lin, 1e-8)
+    r = rb.ellipsoid(rb.SEMI_AXES, offset=(0.0, 0.0, -rb.H))(R[2])
+    K = (rb.inertia_matrix() + rb.MASS * (r @ r * np.eye(3) - np.outer(r, r))) @ W  # about the contact point
+    sol = solve_ivp(scene.reference_equations(), (0, t_final), np.concatenate([R.ravel(), [0.0, 0.0], K]),
+                    method="DOP853", rtol=1e-12, atol=1e-15, dense_output=True)
+    ts = np.arange(0.0, t_final, 1e-3)
+    Y = sol.sol(ts)
+    slope = _envelope_slope(ts, np.hypot(Y[6], Y[7]), 100 if omega > 0 else 500, (0.5, t_final - 0.5))
+    assert slope == pytest.approx(lin.spectral_abscissa, rel=1e-3)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("axis", [0, 1, 2])
+def test_chaplygin_ball_long_run_of_the_scene_reference(axis):
+    """Chaplygin's equations as the scene writes them by hand (DOP853 at 1e-12) over [0, 60] from the spin about
+    a principal axis perturbed by 1e-8: about the middle axis ``Gamma`` leaves at ``Re lambda = 0.143223`` (to
+    1e-6), about the others it stays within 1e-7 (a random perturbation)."""
+    from scipy.integrate import solve_ivp
+
+    from liefi.scenes.chaplygin_ball import ChaplyginBall, chaplygin_equations
+
+    scene = ChaplyginBall()
+    system = scene.system
+    lin = system.linearize(rolling_start(system, cyclic_attitude(axis), 2.0 * np.eye(3)[axis]))
+    R, W = _perturbed(system, lin, 1e-8, None if axis == 1 else np.random.default_rng(1))
+    G = R[2]
+    M = (np.diag(scene.inertia) + (G @ G * np.eye(3) - np.outer(G, G))) @ W  # m = a = 1
+    y0 = np.concatenate([R.ravel(), [0.0, 0.0], R[0], R[1], R[2], M])
+    sol = solve_ivp(chaplygin_equations(scene.inertia, 1.0, 1.0), (0, 60), y0, method="DOP853", rtol=1e-12,
+                    atol=1e-15, dense_output=True)
+    ts = np.arange(0.0, 60.0, 1e-2)
+    dev = np.linalg.norm(sol.sol(ts)[17:20] - np.eye(3)[axis][:, None], axis=0)
+    if axis == 1:
+        assert _envelope_slope(ts, dev, 100, (5, 59)) == pytest.approx(lin.spectral_abscissa, rel=1e-6)
+        assert lin.spectral_abscissa == pytest.approx(0.143223, abs=1e-6)
+    else:
+        assert dev.max() < 1e-7
