@@ -91,10 +91,10 @@ class TrivialMode:
     """A zero eigenvalue of ``A`` explained by a symmetry or a first integral.
 
     ``kind``: ``"symmetry"`` (``vector``: the right eigenvector ``a = T^+ xi(z_0)``), ``"integral"``
-    (``vector``: the left eigenvector ``dI(z_0) T``) or ``"family"`` (``vector``: ``v`` with ``A v = a``, the
-    generalized eigenvector towards the steady motions at a nearby rate ``c``, kept when no integral's
-    gradient already accounts for it); ``residual``: ``|A v| / (|A| |v|)``, ``|w A| / (|w| |A|)`` or
-    ``|A v - a| / (|A| |v|)``, rounding for an exact mode.
+    (``vector``: the left eigenvector ``dI(z_0) T``) or ``"family"`` (``vector``: ``v`` with ``A v`` in the
+    generators' span, the generalized eigenvector towards the steady motions nearby -- at another rate, another
+    tilt --, kept when no integral's gradient already accounts for it); ``residual``: ``|A v| / (|A| |v|)``,
+    ``|w A| / (|w| |A|)`` or ``|A v mod span S| / (|A| |v|)``, rounding for an exact mode.
     """
 
     name: str
@@ -484,7 +484,7 @@ def linearize(system, state, qdot=None, *, u=None, symmetries=None, integrals=No
         modes.append(TrivialMode(inv.name, "integral", w, res_i))
         W.append(w)
     Wn = _null_space(np.array(W), A.shape[0]) if W else np.eye(A.shape[0])
-    S = _trivial_span(A, nA, Tp, T, syms, gens, Wn, modes)
+    S = _trivial_span(A, nA, Tp, T, syms, gens, Wn, np.array(W).reshape(-1, A.shape[0]), modes)
     lam, vec = np.linalg.eig(A)
     order = np.lexsort((-lam.imag, -lam.real))
     return Linearization(A, None, T, coords, z0, {s.name: float(ck) for s, ck in zip(syms, c)}, lam[order],
@@ -499,13 +499,13 @@ def _off_span(v, S):
     return v - B @ np.linalg.lstsq(B, v, rcond=None)[0]
 
 
-def _trivial_span(A, nA, Tp, T, syms, gens, Wn, modes):
+def _trivial_span(A, nA, Tp, T, syms, gens, Wn, W_rows, modes):
     """The trivial invariant subspace ``S`` (list of vectors inside ``ker W``), its modes appended to ``modes``.
 
     A generator ``a = T^+ xi(z_0)`` joins when ``A a`` lies in the span found so far (``A a = 0`` for a
     symmetry that commutes with the motion's own; in the span of those for a non-commuting one, e.g. the
-    rotation of a straight run); then a chain ``v`` with ``A v = s`` (``s`` in ``S``) joins when it lies in
-    ``ker W`` (a family of steady motions that no integral's gradient accounts for).
+    rotation of a straight run); then every ``v`` with ``A v`` in ``span S`` (the tangent of the family of
+    steady motions through ``z_0``) joins when it lies in ``ker W`` (no integral's gradient accounts for it).
     """
     def in_kerW(v):
         return np.linalg.norm(v - Wn @ (Wn.T @ v)) <= 1e-6 * np.linalg.norm(v)
@@ -526,12 +526,17 @@ def _trivial_span(A, nA, Tp, T, syms, gens, Wn, modes):
                 del pending[k]
                 grown = True
                 break
-    for mode in [m for m in modes if m.kind == "symmetry"]:
-        v = np.linalg.lstsq(A, mode.vector, rcond=None)[0]  # A v = a: the steady motions at a nearby rate
-        r = float(np.linalg.norm(A @ v - mode.vector) / (nA * np.linalg.norm(v)))
-        if r <= SYMMETRY_RTOL and in_kerW(v) and np.linalg.norm(_off_span(v, S)) > 1e-8 * np.linalg.norm(v):
-            modes.append(TrivialMode(f"steady motions at other rates of the {mode.name}", "family", v, r))
-            S.append(v)
+    if S:  # the family: v with A v in span S (a steady motion nearby), in ker W, beyond span S
+        B = _null_space(np.array([v / np.linalg.norm(v) for v in S]), A.shape[0])  # S's orthogonal complement
+        E = _null_space(B.T @ A, A.shape[0], 1e-9)
+        if W_rows.size:
+            E = E @ _null_space(W_rows @ E, E.shape[1], 1e-9)
+        for v in E.T:
+            v = _off_span(v, S)
+            if np.linalg.norm(v) > 1e-6:
+                r = float(np.linalg.norm(_off_span(A @ v, S)) / (nA * np.linalg.norm(v)))
+                modes.append(TrivialMode("the family of steady motions through the state", "family", v, r))
+                S.append(v)
     return S
 
 
