@@ -360,3 +360,17 @@ def test_chaplygin_ball_long_run_of_the_scene_reference(axis):
         assert lin.spectral_abscissa == pytest.approx(0.143223, abs=1e-6)
     else:
         assert dev.max() < 1e-7
+
+
+def test_the_disk_example_finds_rouths_critical_spin():
+    """``examples/linearize_disk.py`` (the docs' figure): the critical spin by root finding is ``sqrt(g / 3a)``."""
+    import importlib.util
+    import pathlib
+
+    path = pathlib.Path(__file__).parents[1] / "examples" / "linearize_disk.py"
+    spec = importlib.util.spec_from_file_location("linearize_disk", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    speeds, ev, wc = mod.main(out=None, speeds=np.array([0.3, 1.0]))
+    assert wc == pytest.approx(np.sqrt(1.0 / 3.0), rel=1e-12)
+    assert np.all(np.abs(ev[0].imag) < 1e-12) and np.all(np.abs(ev[1].real) < 1e-12)
