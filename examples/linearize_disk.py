@@ -11,7 +11,8 @@ Dynamics*, sec. 244); the critical spin is found by root finding on the product 
 the two nontrivial eigenvalues (``= sigma^2``).
 
 Run ``python examples/linearize_disk.py [out.png]``: it prints the critical spin
-against ``sqrt(g / (3a))`` and saves the figure (default ``disk_eigenvalues.png``).
+against ``sqrt(g / (3a))`` and saves the figure (default ``liefi-out/disk_eigenvalues.png``; the docs'
+figure is ``docs/linearize/disk_eigenvalues.png``).
 """
 
 import sys
@@ -23,7 +24,7 @@ from liefi.groups import SO3
 from liefi.rolling import disk, rolling_body, rolling_start
 
 
-def main(out="disk_eigenvalues.png", speeds=np.linspace(0.05, 1.5, 59)):
+def main(out="liefi-out/disk_eigenvalues.png", speeds=np.linspace(0.05, 1.5, 59)):
     """Sweep the spin, find the critical one, draw the eigenvalues; returns ``(speeds, eigenvalues, omega_c)``."""
     m = a = g = 1.0
     system = rolling_body(m, m * a * a * np.array([0.25, 0.25, 0.5]), disk(a), gravity=g,
@@ -55,6 +56,9 @@ def main(out="disk_eigenvalues.png", speeds=np.linspace(0.05, 1.5, 59)):
         ax.set_title("Upright rolling disk: unstable below $\\omega_c$, stable above")
         ax.legend(loc="upper left", fontsize=8)
         fig.tight_layout()
+        import pathlib
+
+        pathlib.Path(out).parent.mkdir(parents=True, exist_ok=True)
         fig.savefig(out, dpi=110)
         plt.close(fig)
         print(f"saved {out}")

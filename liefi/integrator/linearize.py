@@ -60,14 +60,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .. import _diff
-from ..engine import cache as _cache
-from ..engine.codegen import function_source
 from ..groups import SO3
-from ..engine.trace import TRACED_DATA, NotCompilable, jacobian, trace, traced_call
 from ..reduction import core as _core
 from ..systems.invariant import Invariant
 from ..systems.mechanics import MechanicsSystem
-from ..systems.rolling import ATTITUDE_NAMES
 from ..systems.system import NonholonomicSystem
 
 #: relative residual of ``X(z_0) - sum c_k xi_k(z_0)`` up to which ``z_0`` is a steady motion
@@ -166,6 +162,10 @@ def field_and_jacobian(system, z):
 
     The generated function is kept per system (and per its constants' ``data_key``).
     """
+    from ..engine import cache as _cache  # the engine on first use (``import liefi`` stays light)
+    from ..engine.codegen import function_source
+    from ..engine.trace import TRACED_DATA, NotCompilable, jacobian, trace, traced_call
+
     key = getattr(system, "data_key", None)
     table = _JACOBIANS.setdefault(system, {})
     if key not in table:
@@ -195,6 +195,8 @@ def field_and_jacobian(system, z):
 
 
 def _is_rolling(system):
+    from ..systems.rolling import ATTITUDE_NAMES
+
     return tuple(system.state_names[:9]) == ATTITUDE_NAMES and system.space.D == 5 and system.space.data_dim == 9
 
 
