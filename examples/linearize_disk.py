@@ -7,8 +7,8 @@ A uniform thin disk (``m = a = g = 1``) is built from its data by
 zeros (the energy, the heading, the disk's own axis, the family of steady motions)
 and two nontrivial eigenvalues ``+-sqrt(-sigma^2)``.  The upright rolling is stable
 for ``omega^2 > m g a A / (C (C + m a^2)) = g / (3a)`` (Routh, *Advanced Rigid
-Dynamics*, sec. 244); the critical spin is found by root finding on the product of
-the two nontrivial eigenvalues (``= sigma^2``).
+Dynamics*, sec. 244); the critical spin is found by root finding on
+``-trace(A^2) / 2 = sigma^2`` (the trivial modes are zeros, the pair is ``+-lambda``).
 
 Run ``python examples/linearize_disk.py [out.png]``: it prints the critical spin
 against ``sqrt(g / (3a))`` and saves the figure (default ``liefi-out/disk_eigenvalues.png``; the docs'
@@ -35,7 +35,11 @@ def main(out="liefi-out/disk_eigenvalues.png", speeds=np.linspace(0.05, 1.5, 59)
         return system.linearize(rolling_start(system, R, [0.0, 0.0, w])).nontrivial_eigenvalues
 
     ev = np.array([np.sort_complex(eigenvalues(w)) for w in speeds])
-    wc = brentq(lambda w: float(np.real(np.prod(eigenvalues(w)))), 0.1, 1.5, xtol=1e-15, rtol=1e-15)
+    def sigma2(w):  # the trivial modes are zeros, so trace(A^2) = 2 lambda^2 = -2 sigma^2 (no eigensolver)
+        A = system.linearize(rolling_start(system, R, [0.0, 0.0, w])).A
+        return -0.5 * float(np.trace(A @ A))
+
+    wc = brentq(sigma2, 0.1, 1.5, xtol=1e-15, rtol=1e-15)
     print(f"critical spin {wc:.15f}; Routh's sqrt(g / (3a)) = {np.sqrt(g / (3 * a)):.15f}; "
           f"relative difference {abs(wc / np.sqrt(g / (3 * a)) - 1):.1e}")
     if out:

@@ -118,10 +118,14 @@ class Linearization:
     rates : dict
         ``{symmetry name: c_k}``: ``X(z_0) = sum c_k xi_k(z_0)`` (a spin, a rolling rate, a speed).
     eigenvalues, eigenvectors : ndarray
-        Of ``A`` (columns), by decreasing real part.
+        Of ``A`` (columns, in the minimal coordinates; ``basis @ eigenvectors`` in ``z``), by decreasing
+        real part.
     trivial_modes : tuple of TrivialMode
     nontrivial_eigenvalues : ndarray
         The eigenvalues with the trivial modes' zeros removed (module docstring), by decreasing real part.
+        At a bifurcation (an eigenvalue crossing zero, e.g. a disk at its critical spin) the crossing mode is
+        a tangent of a family of steady motions too: within rounding of the crossing it is counted as
+        trivial (``"family"``) and drops out of this list.
     residual : float
         ``|X(z_0) - sum c_k xi_k(z_0)| / |X(z_0)|`` (0 at an equilibrium).
     """
@@ -528,17 +532,20 @@ def _trivial_span(A, nA, Tp, T, syms, gens, Wn, W_rows, modes):
                 del pending[k]
                 grown = True
                 break
-    if S:  # the family: v with A v in span S (a steady motion nearby), in ker W, beyond span S
+    grown = bool(S)
+    while grown:  # the family: v with A v in span S (a steady motion nearby), in ker W, beyond span S
+        grown = False
         B = _null_space(np.array([v / np.linalg.norm(v) for v in S]), A.shape[0])  # S's orthogonal complement
-        E = _null_space(B.T @ A, A.shape[0], 1e-9)
+        E = _null_space(B.T @ A, A.shape[0], 1e-12)
         if W_rows.size:
-            E = E @ _null_space(W_rows @ E, E.shape[1], 1e-9)
+            E = E @ _null_space(W_rows @ E, E.shape[1], 1e-12)
         for v in E.T:
             v = _off_span(v, S)
             if np.linalg.norm(v) > 1e-6:
                 r = float(np.linalg.norm(_off_span(A @ v, S)) / (nA * np.linalg.norm(v)))
                 modes.append(TrivialMode("the family of steady motions through the state", "family", v, r))
                 S.append(v)
+                grown = True
     return S
 
 
