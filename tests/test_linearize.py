@@ -212,6 +212,37 @@ def test_the_extended_fields_jacobian_has_the_feedbacks_own_modes(rattleback):
     assert np.all(extra[0] < -1.0) and np.allclose(extra[1], 10 * extra[0], rtol=1e-6)
 
 
+def test_the_feedback_moves_the_energy_mode_off_zero():
+    """The sleigh from data running straight (x, y ignorable, so the extended field's Jacobian is the co-moving
+    one): ``A`` (5 x 5) has -m a v / (I + m a^2) and four zeros; ``FeedbackIntegrator.jac`` (6 x 6) has that
+    eigenvalue, only three zeros, the constraint's mode and the energy's, both proportional to the gain: the
+    energy penalty turns the energy's zero (along the constraint set) into a decay."""
+    m, I, a, theta, v = 2.0, 0.5, 0.3, 0.4, 1.5
+
+    def metric(q):
+        s, c = np.sin(q[..., 2]), np.cos(q[..., 2])
+        o, one = 0 * s, 1 + 0 * s
+        return np.stack([np.stack([m * one, o, -m * a * s], -1), np.stack([o, m * one, m * a * c], -1),
+                         np.stack([-m * a * s, m * a * c, (I + m * a * a) * one], -1)], -2)
+
+    sleigh = liefi.NonholonomicSystem.from_velocity_constraints(
+        liefi.CotangentBundle(3, names=("x", "y", "theta")), metric,
+        lambda q: np.stack([-np.sin(q[..., 2]), np.cos(q[..., 2]), 0 * q[..., 2]], -1))
+    q = np.array([0.0, 0.0, theta])
+    z0 = np.concatenate([q, metric(q) @ [v * np.cos(theta), v * np.sin(theta), 0.0]])
+    lin = sleigh.linearize(z0)
+    rate = -m * a * v / (I + m * a * a)
+    assert lin.nontrivial_eigenvalues == pytest.approx([rate], rel=1e-13)
+    assert np.sum(np.abs(lin.eigenvalues) < 1e-6) == 4
+    gain_modes = []
+    for gain in (1.0, 10.0):
+        ev = np.linalg.eigvals(liefi.FeedbackIntegrator(sleigh, z0, gains=gain).jac(0, z0))
+        assert len(ev) == 6 and np.sum(np.abs(ev) < 1e-9) == 3
+        assert np.min(np.abs(ev - rate)) < 1e-10
+        gain_modes.append(np.sort(ev[(np.abs(ev) > 1e-9) & (np.abs(ev - rate) > 1e-9)].real))
+    assert len(gain_modes[0]) == 2 and np.allclose(gain_modes[1], 10 * gain_modes[0], rtol=1e-9)
+
+
 # --- the Chaplygin ball ----------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("axis", [0, 1, 2])

@@ -598,11 +598,11 @@ def steady_motion(system, guess, *, symmetries=None, tol=1e-13, max_iter=50):
 
 
 def _system_linearize(self, state, qdot=None, *, u=None, symmetries=None, integrals=None, basis=None):
-    """The linearized constrained dynamics at a steady motion: :func:`liefi.linearize` ``(self, ...)``.
+    """The linearized constrained dynamics at a steady motion: :func:`~liefi.integrator.linearize.linearize` ``(self, ...)``.
 
     ``system.linearize(z)`` (a reduced state, with or without the configuration), or for a system from
     :func:`liefi.from_mechanics` ``system.linearize(q, qdot)`` / ``system.linearize(q, u=u)`` as its
-    :meth:`state` takes them.
+    ``state`` takes them.
     """
     return linearize(self, state, qdot, u=u, symmetries=symmetries, integrals=integrals, basis=basis)
 
