@@ -458,10 +458,6 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
     if status:
         sol.status, sol.success, sol.message = status, status >= 0, message
     sol.integrator = user_fi
-    if sensitivities:  # d y / d (y0, parameters) at the saved states (liefi.integrator.sensitivity)
-        from .sensitivity import attach
-
-        attach(sol, run_fi, sch, y0, dt, n_steps, grid[:k], sensitivities)
     if tracker:
         sol.t_events, sol.y_events = tracker.results()
     if dense_output or t_eval is not None:
@@ -476,6 +472,10 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
         if last is not None and hasattr(last, attr):
             setattr(sol, attr, getattr(last, attr))
     sol.backend = getattr(sol, "backend", runner.state["backend"])
+    if sensitivities:  # d y / d (y0, parameters) at the saved states (liefi.integrator.sensitivity)
+        from .sensitivity import attach
+
+        attach(sol, run_fi, sch, y0, dt, n_steps, grid[:k], sensitivities)
     sol.stability = policy.report
     sol.dropped = list(run_fi.dropped)
     sol.plan = pl

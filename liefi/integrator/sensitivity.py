@@ -54,10 +54,16 @@ along the run: pass ``adaptive=False``) and a ``ValueError`` says so.
 
 from __future__ import annotations
 
+import contextvars
+import time
+
 import numpy as np
 
 #: the replay's states must match the run's saved ones to this (relative to each state's size)
 REPLAY_RTOL = 1e-8
+
+#: while a tangent kernel is traced: the direction symbols ``d`` (one per input of the traced function)
+_DIRECTIONS = contextvars.ContextVar("liefi_tangent_directions", default=None)
 
 
 def parameter_names(system):
@@ -156,6 +162,62 @@ def _jacobian_rows(out_expr, inputs):
     return np.concatenate([f, J.reshape(-1)])
 
 
+def _jvp_source(name, f, inputs, args):
+    """Source of ``name(*args, d, out, dout)``: ``out = f`` and ``dout[:, j]`` its derivative along ``d[:, j]``.
+
+    Forward differentiation of the graph with the inputs seeded by the direction symbols
+    (``d[q]`` for ``inputs[q]``): the tangent of every node is written once, inside a loop over
+    the ``k`` columns of ``d``; the primal nodes are computed once, before it.
+    """
+    from ..engine.codegen import _literal
+    from ..engine.symbolic import _BINARY, _UNARY, as_sym, derivative
+
+    f = [as_sym(o) for o in np.asarray(f, dtype=object).reshape(-1)]
+    tr_d = _DIRECTIONS.get()
+    memo = {x.id: tr_d[q] for q, x in enumerate(inputs)}
+    T = [derivative(e, None, memo) for e in f]
+    seen, stack = {}, f + T
+    while stack:
+        node = stack.pop()
+        if node.id in seen or node.op == "const":
+            continue
+        seen[node.id] = node
+        if node.op != "var":
+            stack.extend(node.args)
+    ref, moving, head, body = {}, set(), [], []
+    for node in sorted(seen.values(), key=lambda s: s.id):
+        if node.op == "var":
+            nm, i = node.args
+            if nm == "d":
+                ref[node.id] = f"d[{i}, j]"
+                moving.add(node.id)
+            else:
+                ref[node.id] = f"{nm}[{i}]"
+            continue
+        a = [_literal(x.value) if x.op == "const" else ref[x.id] for x in node.args]
+        if node.op == "pow" and node.args[1].op == "const":
+            expr = f"({a[0]} ** {_literal(node.args[1].value)})"
+        elif node.op in _BINARY:
+            expr = _BINARY[node.op].format(*a)
+        else:
+            expr = _UNARY[node.op].format(*a)
+        if any(x.id in moving for x in node.args):
+            moving.add(node.id)
+            body.append(f"        t{node.id} = {expr}")
+        else:
+            head.append(f"    t{node.id} = {expr}")
+        ref[node.id] = f"t{node.id}"
+
+    def val(o):
+        return _literal(o.value) if o.op == "const" else ref[o.id]
+
+    lines = [f"def {name}({', '.join(args)}, d, out, dout):"] + head
+    lines += [f"    out[{i}] = {val(o)}" for i, o in enumerate(f)]
+    lines += ["    for j in range(d.shape[1]):"] + body
+    lines += [f"        dout[{i}, j] = {val(o)}" for i, o in enumerate(T)]
+    return "\n".join(lines) + "\n"
+
+
 def tangent_kernel(fi, sch, *, engine="python"):
     """The generated Jacobians of one step of ``fi`` with scheme ``sch`` (module docstring).
 
@@ -177,19 +239,97 @@ def tangent_kernel(fi, sch, *, engine="python"):
     def make(tr):
         y, p, c = tr.symbols("y", n), tr.symbols("p", size), tr.symbols("c", P)
         field = fi.unforced_vector_field if split else fi.vector_field
+        inputs = [*y, *p, *c]
+        token = _DIRECTIONS.set(tr.symbols("d", len(inputs)))
+        try:
+            with _SwappedConstants(fi.system, c):
+                f = traced_call("the field", field, y, p, data=TRACED_DATA)
+                src = NJIT + function_source("fj", _jacobian_rows(f, inputs), ("y", "p", "c", "out"))
+                src += "\n\n" + NJIT + _jvp_source("fjvp", f, inputs, ("y", "p", "c"))
+                if split:
+                    h = tr.symbols("hh", 1)[0]
+                    g = traced_call("the feedback step", feedback_step, fi, y, h, p, data=TRACED_DATA)
+                    src += "\n\n" + NJIT + function_source("gj", _jacobian_rows(g, inputs),
+                                                           ("y", "p", "c", "hh", "out"))
+                    src += "\n\n" + NJIT + _jvp_source("gjvp", g, inputs, ("y", "p", "c", "hh"))
+        finally:
+            _DIRECTIONS.reset(token)
         with _SwappedConstants(fi.system, c):
-            f = traced_call("the field", field, y, p, data=TRACED_DATA)
-            src = NJIT + function_source("fj", _jacobian_rows(f, [*y, *p, *c]), ("y", "p", "c", "out"))
-            if split:
-                h = tr.symbols("hh", 1)[0]
-                g = traced_call("the feedback step", feedback_step, fi, y, h, p, data=TRACED_DATA)
-                src += "\n\n" + NJIT + function_source("gj", _jacobian_rows(g, [*y, *p, *c]),
-                                                       ("y", "p", "c", "hh", "out"))
             p0 = traced_call("the invariants' targets", _targets, fi, y, p, TRACED_DATA)
             src += "\n\n" + NJIT + function_source("ptargets", _jacobian_rows(p0, [*y, *c]), ("y", "p", "c", "out"))
-        return src, size, "tangent", 0
+        if not split:  # the loop calls gjvp on the split schemes only
+            src += "\n\n" + NJIT + "def gjvp(y, p, c, hh, d, out, dout):\n    return\n"
+        return src + "\n\n" + _LOOP, size, "tangent", 0
 
     return _field_kernel(fi, "tangent-split" if split else "tangent", engine, make)
+
+
+#: The compiled loop of :func:`tangents` (``engine="numba"``): the arithmetic of :func:`_step`, in loops.
+_LOOP = """
+@njit(cache=CACHE, error_model='numpy')
+def tangent_run(y0, S0, p, c, PC, dt, n_steps, A, b, split, saved, Y, St, fbuf, gbuf):
+    n = y0.size
+    k = S0.shape[1]
+    s_ = b.size
+    m = PC.shape[0]
+    y = y0.copy()
+    ks = np.empty((s_, n))
+    kS = np.empty((s_, n, k))
+    yi = np.empty(n)
+    d = np.empty((n + m, k))  # the stage's direction: (S_i; the tangents of p and c)
+    d[n:, :] = PC
+    fo = np.empty(n)
+    hh = np.empty(1)
+    hh[0] = dt
+    S = d[:n, :]  # a view: the tangents of y live in d's first rows
+    S[:, :] = S0
+    Sy = np.empty((n, k))
+    j = 0
+    if saved.size and saved[0] == 0:
+        Y[:, 0] = y
+        St[:, :, 0] = S
+        j = 1
+    for step in range(1, n_steps + 1):
+        Sy[:, :] = S
+        for i in range(s_):
+            for r in range(n):
+                acc = y[r]
+                for l in range(i):
+                    a = A[i, l]
+                    if a != 0.0:
+                        acc += (dt * a) * ks[l, r]
+                yi[r] = acc
+                for col in range(k):
+                    acc = Sy[r, col]
+                    for l in range(i):
+                        a = A[i, l]
+                        if a != 0.0:
+                            acc += (dt * a) * kS[l, r, col]
+                    S[r, col] = acc
+            fjvp(yi, p, c, d, fo, kS[i])
+            ks[i, :] = fo
+        for r in range(n):
+            acc = y[r]
+            for i in range(s_):
+                if b[i] != 0.0:
+                    acc = acc + (dt * b[i]) * ks[i, r]
+            y[r] = acc
+            for col in range(k):
+                acc = Sy[r, col]
+                for i in range(s_):
+                    if b[i] != 0.0:
+                        acc = acc + (dt * b[i]) * kS[i, r, col]
+                S[r, col] = acc
+        if split:
+            gjvp(y, p, c, hh, d, fo, Sy)
+            y[:] = fo
+            S[:, :] = Sy
+        if j < saved.size and saved[j] == step:
+            Y[:, j] = y
+            St[:, :, j] = S
+            j += 1
+    return j
+"""
 
 
 def _step(mod, sch, y, S, p, c, Wt, Ct, dt, bufs):
@@ -250,6 +390,60 @@ def directions(fi, y0, names):
     return labels, np.array(rows_v, float).reshape(k, n), np.array(rows_c, float).reshape(k, P)
 
 
+def tangents(fi, sch, y0, dt, n_steps, saved_steps, V, C=None, *, engine="python"):
+    """Directional derivatives (JVPs) of a run: the tangents of ``k`` directions of ``(y0, theta)``.
+
+    ``V`` ``(k, n)``: the directions of the start; ``C`` ``(k, P)``: those of the system's
+    constants (default 0).  Returns ``(states, S)``: the replayed states ``(n, n_t)`` at
+    ``saved_steps`` and ``S`` ``(k, n, n_t)``, ``S[j] = d y / d s`` along direction ``j``.
+    ``engine="numba"`` runs the compiled loop (:func:`tangent_kernel`'s ``tangent_run``).
+    """
+    y0 = np.ascontiguousarray(y0, dtype=float)
+    n = fi.n
+    c = np.ascontiguousarray(_constants(fi.system), dtype=float)
+    P = c.size
+    V = np.asarray(V, float).reshape(-1, n)
+    k = V.shape[0]
+    C = np.zeros((k, P)) if C is None else np.asarray(C, float).reshape(k, P)
+    p = np.ascontiguousarray(fi.parameters(), dtype=float)
+    size = p.size
+    mod = tangent_kernel(fi, sch, engine=engine).kernel.module
+    # the start's parameter vector and its tangents: the targets taken at y0 follow it
+    buf = np.empty(size + size * (n + P))
+    mod.ptargets(y0, p, c, buf)
+    p_at, Jp = buf[:size], buf[size:].reshape(size, n + P)
+    follow = (np.abs(p_at - p) <= 1e-14 * np.maximum(1.0, np.abs(p)))
+    Wt = (Jp[:, :n] @ V.T + Jp[:, n:] @ C.T) * follow[:, None]  # (size, k)
+    saved_steps = np.ascontiguousarray(saved_steps, dtype=np.int64)
+    n_t = saved_steps.size
+    Y = np.empty((n, n_t))
+    St = np.empty((n, k, n_t))
+    S0 = np.ascontiguousarray(V.T)
+    m = n + size + P
+    if engine == "numba":
+        tab = sch.explicit if sch.kind == "split" else sch
+        A = np.zeros((tab.stages, tab.stages))
+        for i, row in enumerate(tab.A):
+            A[i, : len(row)] = row
+        PC = np.ascontiguousarray(np.concatenate([Wt, C.T], 0))
+        with np.errstate(all="ignore"):
+            mod.tangent_run(y0, S0, p, c, PC, float(dt), int(n_steps), A, np.array(tab.b, float),
+                            sch.kind == "split", saved_steps, Y, St, np.empty(n + n * m), np.empty(n + n * m))
+        return Y, np.moveaxis(St, 1, 0)
+    bufs = (np.empty(n + n * m), np.empty(n + n * m))
+    y, S = y0.copy(), S0.copy()
+    j = 0
+    if n_t and saved_steps[0] == 0:
+        Y[:, 0], St[..., 0], j = y, S, 1
+    with np.errstate(all="ignore"):
+        for s in range(1, int(n_steps) + 1):
+            y, S = _step(mod, sch, y, S, p, c, Wt, C.T, float(dt), bufs)
+            if j < n_t and saved_steps[j] == s:
+                Y[:, j], St[..., j] = y, S
+                j += 1
+    return Y, np.moveaxis(St, 1, 0)  # (k, n, n_t)
+
+
 def propagate(fi, sch, y0, dt, n_steps, saved_steps, names, *, engine="python"):
     """Replay the run of ``fi`` (scheme ``sch``, step ``dt``) from ``y0`` with its tangents.
 
@@ -262,35 +456,8 @@ def propagate(fi, sch, y0, dt, n_steps, saved_steps, names, *, engine="python"):
     y0 = np.asarray(y0, float)
     n = fi.n
     labels, V, CW = directions(fi, y0, names)
-    k = len(labels)
-    c = _constants(fi.system)
-    P = c.size
-    p = np.ascontiguousarray(fi.parameters(), dtype=float)
-    size = p.size
-    mod = tangent_kernel(fi, sch, engine=engine).kernel.module
-    # the start's parameter vector and its tangents: the targets taken at y0 follow it
-    buf = np.empty(size + size * (n + P))
-    mod.ptargets(y0, p, c, buf)
-    p_at, Jp = buf[:size], buf[size:].reshape(size, n + P)
-    follow = (np.abs(p_at - p) <= 1e-14 * np.maximum(1.0, np.abs(p)))
-    Wt = (Jp[:, :n] @ V.T + Jp[:, n:] @ CW.T) * follow[:, None]  # (size, k)
-    Ct = CW.T  # (P, k)
-    bufs = (np.empty(n + n * (n + size + P)), np.empty(n + n * (n + size + P)))
-    saved_steps = np.asarray(saved_steps, int)
-    n_t = saved_steps.size
-    Y = np.empty((n, n_t))
-    St = np.empty((n, k, n_t))
-    y, S = y0.copy(), V.T.copy()
-    j = 0
-    if n_t and saved_steps[0] == 0:
-        Y[:, 0], St[..., 0], j = y, S, 1
-    with np.errstate(all="ignore"):
-        for s in range(1, int(n_steps) + 1):
-            y, S = _step(mod, sch, y, S, p, c, Wt, Ct, float(dt), bufs)
-            if j < n_t and saved_steps[j] == s:
-                Y[:, j], St[..., j] = y, S
-                j += 1
-    S = np.moveaxis(St, 1, 0)  # (k, n, n_t)
+    Y, S = tangents(fi, sch, y0, dt, n_steps, saved_steps, V, CW, engine=engine)
+    n_t = Y.shape[-1]
     result = {}
     for i, (nm, col) in enumerate(labels):
         if col is None:
@@ -300,13 +467,20 @@ def propagate(fi, sch, y0, dt, n_steps, saved_steps, names, *, engine="python"):
     return Y, result
 
 
-def attach(sol, fi, sch, y0, dt, n_steps, saved_steps, names, *, engine="python"):
+def attach(sol, fi, sch, y0, dt, n_steps, saved_steps, names, *, engine=None):
     """Set ``sol.sensitivities`` (``{name: array}``) for the run ``sol`` of ``fi``: the one call of the run loop.
 
     ``fi`` is the integrator that ran (its gains, its dropped invariants), ``sch`` its scheme,
     ``saved_steps`` the step of each saved state.  The replay's states must agree with
     ``sol.y`` (:data:`REPLAY_RTOL`); a failed run (``errors="return"``) gets ``None``.
+    ``engine``: the tangents' loop, default compiled (``"numba"``) when the run was, else
+    ``"python"`` (the generated Jacobians as plain Python, stepped with numpy).  The CPU
+    seconds of the tangents (compile included) are ``sol.sensitivity_cpu_seconds``.
     """
+    if engine is None:
+        from ..engine import cache as _cache
+
+        engine = "numba" if getattr(sol, "backend", "numpy") != "numpy" and _cache.available() else "python"
     names = check(fi, names, y0=y0)
     if not names:
         return sol
@@ -317,7 +491,9 @@ def attach(sol, fi, sch, y0, dt, n_steps, saved_steps, names, *, engine="python"
     if np.any(saved_steps < 0):
         raise ValueError("sensitivities: the run ended with a step shortened to reach t_final (dt does not divide the "
                          "span); take a dt that divides it")
+    start = time.process_time()
     Y, sens = propagate(fi, sch, y0, dt, n_steps, saved_steps, names, engine=engine)
+    sol.sensitivity_cpu_seconds = time.process_time() - start
     ref = np.asarray(sol.y, float)
     scale = np.maximum(1.0, np.max(np.abs(ref), axis=-1, keepdims=True))
     err = float(np.max(np.abs(Y - ref) / scale, initial=0.0))
