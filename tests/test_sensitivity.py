@@ -187,3 +187,19 @@ def test_unknown_names_and_uncovered_options_are_refused():
         fi.run(0.1, dt=0.03, scheme="rk4", backend="numpy", sensitivities=("y0",))
     with pytest.raises(TypeError, match="sequence of names"):
         fi.run(0.1, dt=0.01, scheme="rk4", backend="numpy", sensitivities=3)
+
+
+# --- the compiled path -------------------------------------------------------------------------------
+
+
+@pytest.mark.slow  # the numba compile of the tangent kernel: a minute or two
+def test_compiled_tangents_agree_with_the_numpy_path(sleigh):
+    pytest.importorskip("numba")
+    y0 = np.array([0.0, 0.0, 0.1, 0.3, 0.2, 0.5])
+    fi = liefi.FeedbackIntegrator(sleigh, y0, configuration=False)
+    kw = dict(dt=0.01, scheme="imex-rk4", sensitivities=("y0", "m"))
+    a = fi.run(0.2, backend="numpy", **kw)
+    b = fi.run(0.2, backend="numba", **kw)
+    assert b.backend != "numpy"
+    for name in ("y0", "m"):
+        assert rel(b.sensitivities[name], a.sensitivities[name]) < 1e-12, name

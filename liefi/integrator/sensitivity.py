@@ -292,34 +292,25 @@ def tangent_run(y0, S0, p, c, PC, dt, n_steps, A, b, split, saved, Y, St, fbuf, 
     for step in range(1, n_steps + 1):
         Sy[:, :] = S
         for i in range(s_):
-            for r in range(n):
-                acc = y[r]
-                for l in range(i):
-                    a = A[i, l]
-                    if a != 0.0:
-                        acc += (dt * a) * ks[l, r]
-                yi[r] = acc
-                for col in range(k):
-                    acc = Sy[r, col]
-                    for l in range(i):
-                        a = A[i, l]
-                        if a != 0.0:
-                            acc += (dt * a) * kS[l, r, col]
-                    S[r, col] = acc
+            yi[:] = y
+            S[:, :] = Sy
+            for l in range(i):  # in the order of the numpy step: Y_i = y + (dt a_i0) k_0 + (dt a_i1) k_1 ...
+                a = dt * A[i, l]
+                if a != 0.0:
+                    for r in range(n):
+                        yi[r] += a * ks[l, r]
+                        for col in range(k):
+                            S[r, col] += a * kS[l, r, col]
             fjvp(yi, p, c, d, fo, kS[i])
             ks[i, :] = fo
-        for r in range(n):
-            acc = y[r]
-            for i in range(s_):
-                if b[i] != 0.0:
-                    acc = acc + (dt * b[i]) * ks[i, r]
-            y[r] = acc
-            for col in range(k):
-                acc = Sy[r, col]
-                for i in range(s_):
-                    if b[i] != 0.0:
-                        acc = acc + (dt * b[i]) * kS[i, r, col]
-                S[r, col] = acc
+        S[:, :] = Sy
+        for i in range(s_):
+            w = dt * b[i]
+            if w != 0.0:
+                for r in range(n):
+                    y[r] += w * ks[i, r]
+                    for col in range(k):
+                        S[r, col] += w * kS[i, r, col]
         if split:
             gjvp(y, p, c, hh, d, fo, Sy)
             y[:] = fo
