@@ -56,15 +56,21 @@ def _invariants(fi):
 # --- Suslov: complex step of the whole run ----------------------------------------------------------
 
 
-def _suslov_complex_run(fr, sch, y0c, T, dt):
-    """The numpy step map of ``sch`` on ``fr`` from a complex start, with the targets taken there."""
-    p = fr.parameters().astype(complex)
+def _suslov_complex_run(fr, sch, y0c, T, dt, report):
+    """The numpy step map of ``sch`` on ``fr`` from a complex start, with the targets taken there and the
+    gains of ``report`` (an adaptive run's updates from their steps on)."""
     lay = fr.parameter_layout
     g, z = fr.split(y0c)
     t = _core.evaluate(fr.system, z, derivatives=False)
-    p[lay.energy_target] = t.ht if fr.energy == "extended" else t.h
+    steps = [0] + [int(round(tt / dt)) for tt in report.gain_times]
+    ps = []
+    for gains in [report.gains] + list(report.gain_history):
+        p = fr.parameters(gains=gains).astype(complex)
+        p[lay.energy_target] = t.ht if fr.energy == "extended" else t.h
+        ps.append(p)
     y, out = y0c, [y0c]
-    for _ in range(int(round(T / dt))):
+    for s in range(int(round(T / dt))):
+        p = ps[max(i for i, a in enumerate(steps) if a <= s)]
         if sch.kind == "split":
             y = feedback_step(fr, sch.explicit.step(lambda q: fr.unforced_vector_field(q, p), y, dt), dt, p)
         else:
@@ -73,21 +79,24 @@ def _suslov_complex_run(fr, sch, y0c, T, dt):
     return np.stack(out, -1)
 
 
-@pytest.mark.parametrize("scheme,gains", [("imex-rk4", "auto"), ("rk4", 50.0)])
+@pytest.mark.parametrize("scheme,gains", [("imex-rk4", "auto"), ("rk4", 50.0), ("euler", "auto")])
 def test_suslov_y0_matches_complex_step_of_the_whole_run(scheme, gains):
+    """``euler`` with ``gains="auto"`` adapts its gains along the run: they are held as numbers from each update on."""
     fi = get_scene("suslov").integrator(gains=gains, configuration=True)
-    T, dt = 0.2, 0.01
-    sol = fi.run(T, dt=dt, scheme=scheme, backend="numpy", adaptive=False, sensitivities=("y0",))
+    T, dt = (0.2, 0.01) if scheme != "euler" else (2.0, 0.01)
+    sol = fi.run(T, dt=dt, scheme=scheme, backend="numpy", sensitivities=("y0",))
+    assert (len(sol.stability.gain_times) > 0) == (scheme == "euler")
     S = sol.sensitivities["y0"]
     assert S.shape == (fi.n, fi.n, sol.t.size)
     fr = liefi.FeedbackIntegrator(fi.system, fi.y0, gains=sol.stability.gains, configuration=True)
     if sol.dropped:  # the invariants the run left out of V (kept exactly by the scheme)
         fr = fr.without({d["name"]: d["reason"] for d in sol.dropped})
     sch = registry.get(scheme)
-    assert np.allclose(_suslov_complex_run(fr, sch, fi.y0.astype(complex), T, dt).real, sol.y, rtol=0, atol=1e-14)
+    run = _suslov_complex_run(fr, sch, fi.y0.astype(complex), T, dt, sol.stability)
+    assert np.allclose(run.real, sol.y, rtol=0, atol=1e-14)
     h = 1e-30
     for j in range(fi.n):
-        ref = _suslov_complex_run(fr, sch, fi.y0 + 1j * h * np.eye(fi.n)[j], T, dt).imag / h
+        ref = _suslov_complex_run(fr, sch, fi.y0 + 1j * h * np.eye(fi.n)[j], T, dt, sol.stability).imag / h
         assert rel(S[:, j], ref) < RTOL, j
 
 

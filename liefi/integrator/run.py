@@ -475,7 +475,7 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
     if sensitivities:  # d y / d (y0, parameters) at the saved states (liefi.integrator.sensitivity)
         from .sensitivity import attach
 
-        attach(sol, run_fi, sch, y0, dt, n_steps, grid[:k], sensitivities)
+        attach(sol, run_fi, sch, y0, dt, n_steps, grid[:k], sensitivities, report=policy.report, t0=t_start)
     sol.stability = policy.report
     sol.dropped = list(run_fi.dropped)
     sol.plan = pl

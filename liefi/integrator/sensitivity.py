@@ -381,13 +381,15 @@ def directions(fi, y0, names):
     return labels, np.array(rows_v, float).reshape(k, n), np.array(rows_c, float).reshape(k, P)
 
 
-def tangents(fi, sch, y0, dt, n_steps, saved_steps, V, C=None, *, engine="python"):
+def tangents(fi, sch, y0, dt, n_steps, saved_steps, V, C=None, *, engine="python", schedule=None):
     """Directional derivatives (JVPs) of a run: the tangents of ``k`` directions of ``(y0, theta)``.
 
     ``V`` ``(k, n)``: the directions of the start; ``C`` ``(k, P)``: those of the system's
     constants (default 0).  Returns ``(states, S)``: the replayed states ``(n, n_t)`` at
     ``saved_steps`` and ``S`` ``(k, n, n_t)``, ``S[j] = d y / d s`` along direction ``j``.
     ``engine="numba"`` runs the compiled loop (:func:`tangent_kernel`'s ``tangent_run``).
+    ``schedule``: ``[(step, p), ...]``, the parameter vector in effect from each step on (the
+    gains an adaptive run changed along the way, held as numbers); default ``fi.parameters()``.
     """
     y0 = np.ascontiguousarray(y0, dtype=float)
     n = fi.n
@@ -396,21 +398,44 @@ def tangents(fi, sch, y0, dt, n_steps, saved_steps, V, C=None, *, engine="python
     V = np.asarray(V, float).reshape(-1, n)
     k = V.shape[0]
     C = np.zeros((k, P)) if C is None else np.asarray(C, float).reshape(k, P)
-    p = np.ascontiguousarray(fi.parameters(), dtype=float)
+    if schedule is None:
+        schedule = [(0, fi.parameters())]
+    schedule = [(int(a), np.ascontiguousarray(q, dtype=float)) for a, q in schedule]
+    p = schedule[0][1]
     size = p.size
     mod = tangent_kernel(fi, sch, engine=engine).kernel.module
-    # the start's parameter vector and its tangents: the targets taken at y0 follow it
+    # the start's parameter vector and its tangents: the targets taken at y0 follow it (the gains
+    # are held, so their rows of the Jacobian are zero and every segment of the schedule shares them)
     buf = np.empty(size + size * (n + P))
     mod.ptargets(y0, p, c, buf)
     p_at, Jp = buf[:size], buf[size:].reshape(size, n + P)
     follow = (np.abs(p_at - p) <= 1e-14 * np.maximum(1.0, np.abs(p)))
     Wt = (Jp[:, :n] @ V.T + Jp[:, n:] @ C.T) * follow[:, None]  # (size, k)
-    saved_steps = np.ascontiguousarray(saved_steps, dtype=np.int64)
-    n_t = saved_steps.size
-    Y = np.empty((n, n_t))
-    St = np.empty((n, k, n_t))
-    S0 = np.ascontiguousarray(V.T)
-    m = n + size + P
+    saved_steps = np.asarray(saved_steps, dtype=np.int64)
+    Y = np.empty((n, saved_steps.size))
+    St = np.empty((n, k, saved_steps.size))
+    at0 = saved_steps == 0
+    Y[:, at0], St[..., at0] = y0[:, None], V.T[..., None]
+    y, S = y0, np.ascontiguousarray(V.T)
+    for i, (a, q) in enumerate(schedule):
+        b = schedule[i + 1][0] if i + 1 < len(schedule) else int(n_steps)
+        if b <= a:
+            continue
+        inside = (saved_steps > a) & (saved_steps <= b)
+        want = np.union1d(saved_steps[inside] - a, [b - a]).astype(np.int64)
+        Ys, Ss = _segment(mod, sch, y, S, q, c, Wt, C, float(dt), b - a, want, engine)
+        pick = np.isin(want, saved_steps[inside] - a)  # the segment's end is computed, saved only if asked
+        Y[:, inside], St[..., inside] = Ys[:, pick], Ss[..., pick]
+        y, S = np.ascontiguousarray(Ys[:, -1]), np.ascontiguousarray(Ss[..., -1])
+    return Y, np.moveaxis(St, 1, 0)  # (k, n, n_t)
+
+
+def _segment(mod, sch, y0, S0, p, c, Wt, C, dt, n_steps, saved, engine):
+    """``n_steps`` steps from ``(y0, S0)`` with the parameters ``p``: states and tangents at ``saved`` (from 1)."""
+    n, k = S0.shape
+    m = n + p.size + c.size
+    Y = np.empty((n, saved.size))
+    St = np.empty((n, k, saved.size))
     if engine == "numba":
         tab = sch.explicit if sch.kind == "split" else sch
         A = np.zeros((tab.stages, tab.stages))
@@ -418,24 +443,22 @@ def tangents(fi, sch, y0, dt, n_steps, saved_steps, V, C=None, *, engine="python
             A[i, : len(row)] = row
         PC = np.ascontiguousarray(np.concatenate([Wt, C.T], 0))
         with np.errstate(all="ignore"):
-            mod.tangent_run(y0, S0, p, c, PC, float(dt), int(n_steps), A, np.array(tab.b, float),
-                            sch.kind == "split", saved_steps, Y, St, np.empty(n + n * m), np.empty(n + n * m))
-        return Y, np.moveaxis(St, 1, 0)
+            mod.tangent_run(y0, S0, p, c, PC, dt, int(n_steps), A, np.array(tab.b, float), sch.kind == "split",
+                            saved, Y, St, np.empty(n + n * m), np.empty(n + n * m))
+        return Y, St
     bufs = (np.empty(n + n * m), np.empty(n + n * m))
     y, S = y0.copy(), S0.copy()
     j = 0
-    if n_t and saved_steps[0] == 0:
-        Y[:, 0], St[..., 0], j = y, S, 1
     with np.errstate(all="ignore"):
         for s in range(1, int(n_steps) + 1):
-            y, S = _step(mod, sch, y, S, p, c, Wt, C.T, float(dt), bufs)
-            if j < n_t and saved_steps[j] == s:
+            y, S = _step(mod, sch, y, S, p, c, Wt, C.T, dt, bufs)
+            if j < saved.size and saved[j] == s:
                 Y[:, j], St[..., j] = y, S
                 j += 1
-    return Y, np.moveaxis(St, 1, 0)  # (k, n, n_t)
+    return Y, St
 
 
-def propagate(fi, sch, y0, dt, n_steps, saved_steps, names, *, engine="python"):
+def propagate(fi, sch, y0, dt, n_steps, saved_steps, names, *, engine="python", schedule=None):
     """Replay the run of ``fi`` (scheme ``sch``, step ``dt``) from ``y0`` with its tangents.
 
     Returns ``(states, tangents)``: the replayed states ``(n, n_t)`` at ``saved_steps``
@@ -443,11 +466,12 @@ def propagate(fi, sch, y0, dt, n_steps, saved_steps, names, *, engine="python"):
     (``(n, n, n_t)`` for ``"y0"``, ``(n, n_t)`` for a parameter).  The targets equal to
     the invariants' values at ``y0`` (taken at the start) move with it (module docstring);
     others (``FeedbackIntegrator(targets=...)``, or a run from another start) are held.
+    ``schedule`` as in :func:`tangents`.
     """
     y0 = np.asarray(y0, float)
     n = fi.n
     labels, V, CW = directions(fi, y0, names)
-    Y, S = tangents(fi, sch, y0, dt, n_steps, saved_steps, V, CW, engine=engine)
+    Y, S = tangents(fi, sch, y0, dt, n_steps, saved_steps, V, CW, engine=engine, schedule=schedule)
     n_t = Y.shape[-1]
     result = {}
     for i, (nm, col) in enumerate(labels):
@@ -458,12 +482,15 @@ def propagate(fi, sch, y0, dt, n_steps, saved_steps, names, *, engine="python"):
     return Y, result
 
 
-def attach(sol, fi, sch, y0, dt, n_steps, saved_steps, names, *, engine=None):
+def attach(sol, fi, sch, y0, dt, n_steps, saved_steps, names, *, report=None, t0=0.0, engine=None):
     """Set ``sol.sensitivities`` (``{name: array}``) for the run ``sol`` of ``fi``: the one call of the run loop.
 
     ``fi`` is the integrator that ran (its gains, its dropped invariants), ``sch`` its scheme,
     ``saved_steps`` the step of each saved state.  The replay's states must agree with
     ``sol.y`` (:data:`REPLAY_RTOL`); a failed run (``errors="return"``) gets ``None``.
+    ``report`` (the policy's :class:`~liefi.integrator.guard.RunReport`) gives the gains of the run
+    and their updates (``gain_times``, ``gain_history``: an adaptive run), held as numbers from
+    the step of each update on (``t0`` the run's start).
     ``engine``: the tangents' loop, default compiled (``"numba"``) when the run was, else
     ``"python"`` (the generated Jacobians as plain Python, stepped with numpy).  The CPU
     seconds of the tangents (compile included) are ``sol.sensitivity_cpu_seconds``.
@@ -483,14 +510,20 @@ def attach(sol, fi, sch, y0, dt, n_steps, saved_steps, names, *, engine=None):
         raise ValueError("sensitivities: the run ended with a step shortened to reach t_final (dt does not divide the "
                          "span); take a dt that divides it")
     start = time.process_time()
-    Y, sens = propagate(fi, sch, y0, dt, n_steps, saved_steps, names, engine=engine)
+    schedule = None
+    if report is not None and report.gains:
+        schedule = [(0, fi.parameters(gains=report.gains))]
+        for t, g in zip(report.gain_times, report.gain_history):
+            schedule.append((int(round((t - t0) / dt)), fi.parameters(gains=g)))
+    Y, sens = propagate(fi, sch, y0, dt, n_steps, saved_steps, names, engine=engine, schedule=schedule)
     sol.sensitivity_cpu_seconds = time.process_time() - start
     ref = np.asarray(sol.y, float)
     scale = np.maximum(1.0, np.max(np.abs(ref), axis=-1, keepdims=True))
     err = float(np.max(np.abs(Y - ref) / scale, initial=0.0))
     if not err <= REPLAY_RTOL:
         raise ValueError(
-            f"sensitivities: the replay of the run's steps differs from the saved states by {err:.3g} (relative); the "
-            "run changed its gains along the way (adaptive gains): pass adaptive=False for a run with sensitivities")
+            f"sensitivities: the replay of the run's steps differs from the saved states by {err:.3g} (relative): the "
+            "run changed something along the way that the replay does not see; please report it, and meanwhile pass "
+            "adaptive=False")
     sol.sensitivities = sens
     return sol
