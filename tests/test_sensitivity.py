@@ -196,6 +196,8 @@ def test_unknown_names_and_uncovered_options_are_refused():
         fi.run(0.1, dt=0.03, scheme="rk4", backend="numpy", sensitivities=("y0",))
     with pytest.raises(TypeError, match="sequence of names"):
         fi.run(0.1, dt=0.01, scheme="rk4", backend="numpy", sensitivities=3)
+    with pytest.raises(ValueError, match="one trajectory only"):
+        fi.run(0.1, dt=0.01, scheme="rk4", backend="numpy", y0=np.stack([fi.y0, fi.y0]), sensitivities="y0")
 
 
 # --- the compiled path -------------------------------------------------------------------------------

@@ -515,7 +515,13 @@ def attach(sol, fi, sch, y0, dt, n_steps, saved_steps, names, *, report=None, t0
         schedule = [(0, fi.parameters(gains=report.gains))]
         for t, g in zip(report.gain_times, report.gain_history):
             schedule.append((int(round((t - t0) / dt)), fi.parameters(gains=g)))
-    Y, sens = propagate(fi, sch, y0, dt, n_steps, saved_steps, names, engine=engine, schedule=schedule)
+    from ..engine.trace import NotCompilable
+
+    try:
+        Y, sens = propagate(fi, sch, y0, dt, n_steps, saved_steps, names, engine=engine, schedule=schedule)
+    except NotCompilable as exc:
+        raise ValueError(f"sensitivities: liefi differentiates the run's step through its trace, and this system's "
+                         f"step cannot be traced: {exc}") from None
     sol.sensitivity_cpu_seconds = time.process_time() - start
     ref = np.asarray(sol.y, float)
     scale = np.maximum(1.0, np.max(np.abs(ref), axis=-1, keepdims=True))
