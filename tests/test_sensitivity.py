@@ -214,3 +214,17 @@ def test_compiled_tangents_agree_with_the_numpy_path(sleigh):
     assert b.backend != "numpy"
     for name in ("y0", "m"):
         assert rel(b.sensitivities[name], a.sensitivities[name]) < 1e-12, name
+
+
+def test_one_tangent_kernel_serves_every_value_of_the_constants(sleigh):
+    from liefi.integrator.sensitivity import tangent_kernel
+
+    y0 = np.array([0.0, 0.0, 0.1, 0.3, 0.2, 0.5])
+    base = dict(sleigh.constants_dict())
+    first = tangent_kernel(liefi.FeedbackIntegrator(sleigh, y0, configuration=False), registry.get("imex-rk4"))
+    sleigh.constants = {"m": 2.0}
+    try:
+        again = tangent_kernel(liefi.FeedbackIntegrator(sleigh, y0, configuration=False), registry.get("imex-rk4"))
+    finally:
+        sleigh.constants = base
+    assert again is first

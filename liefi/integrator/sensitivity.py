@@ -56,11 +56,15 @@ from __future__ import annotations
 
 import contextvars
 import time
+import weakref
 
 import numpy as np
 
 #: the replay's states must match the run's saved ones to this (relative to each state's size)
 REPLAY_RTOL = 1e-8
+
+#: the tangent kernels built in this process: (system id, integrator layout, engine) -> (weak system, kernel)
+_KERNELS: dict = {}
 
 #: while a tangent kernel is traced: the direction symbols ``d`` (one per input of the traced function)
 _DIRECTIONS = contextvars.ContextVar("liefi_tangent_directions", default=None)
@@ -226,10 +230,12 @@ def tangent_kernel(fi, sch, *, engine="python"):
     ``gj(y, p, c, hh, out)``: the feedback step :func:`~liefi.schemes.split.feedback_step`
     and its Jacobian in ``(y, p, c)``; and ``ptargets(y, p, c, out)``: the parameter vector
     with its targets at the start ``y`` and its Jacobian in ``(y, c)``.  Each is traced on
-    fresh symbols, so the data's derivatives inside are differentiated exactly.
+    fresh symbols, so the data's derivatives inside are differentiated exactly.  The constants are
+    inputs, so one kernel serves every value of them (a fit changes them at every iteration): it is
+    kept per system and integrator layout, not per value as the compiled field is (which folds them in).
     """
     from ..engine.codegen import NJIT, function_source
-    from ..engine.kernels import _field_kernel
+    from ..engine.kernels import _engine, _fi_key, _field_kernel
     from ..engine.trace import TRACED_DATA, traced_call
     from ..schemes.split import feedback_step
 
@@ -261,7 +267,14 @@ def tangent_kernel(fi, sch, *, engine="python"):
             src += "\n\n" + NJIT + "def gjvp(y, p, c, hh, d, out, dout):\n    return\n"
         return src + "\n\n" + _LOOP, size, "tangent", 0
 
-    return _field_kernel(fi, "tangent-split" if split else "tangent", engine, make)
+    kind = "tangent-split" if split else "tangent"
+    key = (id(fi.system),) + _fi_key(fi, kind) + (_engine(engine),)
+    got = _KERNELS.get(key)
+    if got is not None and got[0]() is fi.system:
+        return got[1]
+    made = _field_kernel(fi, kind, engine, make)
+    _KERNELS[key] = (weakref.ref(fi.system), made)
+    return made
 
 
 #: The compiled loop of :func:`tangents` (``engine="numba"``): the arithmetic of :func:`_step`, in loops.
