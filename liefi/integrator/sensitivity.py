@@ -402,8 +402,15 @@ def tangents(fi, sch, y0, dt, n_steps, saved_steps, V, C=None, *, engine="python
     ``saved_steps`` and ``S`` ``(k, n, n_t)``, ``S[j] = d y / d s`` along direction ``j``.
     ``engine="numba"`` runs the compiled loop (:func:`tangent_kernel`'s ``tangent_run``).
     ``schedule``: ``[(step, p), ...]``, the parameter vector in effect from each step on (the
-    gains an adaptive run changed along the way, held as numbers); default ``fi.parameters()``.
+    gains an adaptive run changed along the way, held as numbers); default ``fi.parameters()``:
+    ``fi`` steps with its own gains, so give it those of the run (``sol.stability.gains``,
+    :meth:`~liefi.FeedbackIntegrator.with_gains`), not the unit-rate gains ``gains="auto"`` starts from.
+    ``sch``: a scheme of the registry or its name (``"imex-rk4"``).
     """
+    if isinstance(sch, str):
+        from ..schemes import registry
+
+        sch = registry.get(sch)
     y0 = np.ascontiguousarray(y0, dtype=float)
     n = fi.n
     c = np.ascontiguousarray(_constants(fi.system), dtype=float)
