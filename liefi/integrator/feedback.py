@@ -653,7 +653,7 @@ class FeedbackIntegrator:
     def run(self, t_span=None, *more, dt=None, scheme=None, t_eval=None, events=None, dense_output=False, y0=None,
             save_every=None, check_every=1, backend=None, check_stability=True, adaptive=None, monitor_every=None,
             progress=None, drop_exact=True, errors="raise", rtol=None, atol=None, max_step=None, method=None,
-            **unknown):
+            sensitivities=None, **unknown):
         """Integrate from ``y0`` (default: the one given at construction) over ``t_span``, as ``solve_ivp``.
 
         The loop is :func:`liefi.run.run_feedback`.  The default method is the best one
@@ -726,6 +726,12 @@ class FeedbackIntegrator:
             component's size).
         max_step : float, optional
             As ``solve_ivp``'s: the largest step for a step chosen for the tolerance.
+        sensitivities : sequence of str, optional
+            Names to differentiate the saved states by: ``"y0"`` (``solution.sensitivities["y0"]``
+            of shape ``(n, n, n_t)``, rows ``y``, columns ``y0``) and the system's parameters
+            (the constants of :func:`liefi.mechanics.from_mechanics`; shape ``(n, n_t)``).  The
+            exact derivatives of the numbers returned, by the tangents of the scheme's own
+            steps with ``dt`` and the gains held (:mod:`liefi.integrator.sensitivity`).
 
         Returns
         -------
@@ -743,10 +749,15 @@ class FeedbackIntegrator:
         scheme = method_scheme(method, scheme)
         if t_span is None:
             raise TypeError("run: missing t_span, the final time or (t0, t_final); e.g. fi.run(10.0, dt=1e-3)")
+        if sensitivities is not None:
+            from .sensitivity import check
+
+            sensitivities = check(self, sensitivities, t_eval=t_eval, events=events, dense_output=dense_output,
+                                  y0=self.y0 if y0 is None else y0)
         with compile_notice():  # a long first compile is announced on stderr
             return run_feedback(
                 self, t_span, dt=dt, scheme=scheme, t_eval=t_eval, events=events, dense_output=dense_output,
                 errors=errors, y0=y0, save_every=save_every, check_every=check_every, backend=backend,
                 check_stability=check_stability, adaptive=adaptive, monitor_every=monitor_every, progress=progress,
-                drop_exact=drop_exact, rtol=rtol, atol=atol, max_step=max_step,
+                drop_exact=drop_exact, rtol=rtol, atol=atol, max_step=max_step, sensitivities=sensitivities,
             )

@@ -269,7 +269,7 @@ def method_scheme(method, scheme):
 def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, dense_output=False, errors="raise",
                  y0=None, save_every=None, check_every=1, backend=None, check_stability=True, adaptive=None,
                  monitor_every=None, progress=None, max_saved_bytes=None, drop_exact=True, rtol=None, atol=None,
-                 stacklevel=3, resolution_limit=None, max_step=None) -> Solution:
+                 stacklevel=3, resolution_limit=None, max_step=None, sensitivities=None) -> Solution:
     """Integrate the feedback integrator ``fi`` over ``t_span`` with a fixed step (module docstring).
 
     The parameters are those of :meth:`liefi.FeedbackIntegrator.run`;
@@ -292,6 +292,8 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
     the call (:meth:`liefi.scenes.Scene.run`; default :data:`liefi.stability.RESOLUTION_LIMIT`).
     ``max_step``: as ``solve_ivp``'s, the largest step: a step chosen for the tolerance is shortened to
     ``(t_final - t0) / ceil((t_final - t0) / max_step)``; a given ``dt`` above it is refused.
+    ``sensitivities``: names (``"y0"``, the system's parameters) whose derivatives of the saved states
+    ``solution.sensitivities`` holds (:mod:`liefi.integrator.sensitivity`).
 
     Returns the :class:`~liefi.schemes.Solution` with ``method`` (which method
     ran and why: :func:`liefi.tolerance.describe`), ``stability`` (the
@@ -470,6 +472,10 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
         if last is not None and hasattr(last, attr):
             setattr(sol, attr, getattr(last, attr))
     sol.backend = getattr(sol, "backend", runner.state["backend"])
+    if sensitivities:  # d y / d (y0, parameters) at the saved states (liefi.integrator.sensitivity)
+        from .sensitivity import attach
+
+        attach(sol, run_fi, sch, y0, dt, n_steps, grid[:k], sensitivities, report=policy.report, t0=t_start)
     sol.stability = policy.report
     sol.dropped = list(run_fi.dropped)
     sol.plan = pl

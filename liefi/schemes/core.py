@@ -82,6 +82,9 @@ class Solution:
     integrator : FeedbackIntegrator or None
         The integrator that made the run, when known: :meth:`to_xarray` and
         :mod:`liefi.plot` read the invariants from it.
+    sensitivities : dict or None
+        With ``run(..., sensitivities=names)``: ``{name: d y / d name}`` at the saved
+        states (:mod:`liefi.integrator.sensitivity`).
     """
 
     t: np.ndarray
@@ -99,6 +102,7 @@ class Solution:
     y_events: list = None
     sol: object = None
     integrator: object = field(default=None, repr=False, compare=False)
+    sensitivities: dict = field(default=None, repr=False, compare=False)
 
     @property
     def nfev(self):
