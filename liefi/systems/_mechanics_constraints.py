@@ -119,3 +119,43 @@ def holonomic_data(sympy, hol, q, X, A, K, speeds, kw, bind):
         A = select_rows(A, independent_rows(Aq, df, n, generic_points(n)), K)
     kw["holonomic"], kw["holonomic_derivative"] = f, df
     return A, kw
+
+
+def regularized_metric(metric, A, kw):
+    r"""The model's metric, or ``m + c a^T a`` where ``m`` is singular (coordinates without mass).
+
+    A model in more coordinates than degrees of freedom may give some of them no kinetic
+    energy (a massless contact point with its own coordinates, its mass centre with
+    others).  Its metric ``m(q)`` is then singular on the ambient space, though positive on
+    the velocities the constraints allow.  With the constraint rows ``a`` (``df`` and the
+    kept velocity constraints, in ``qdot``), ``T' = T + c |a qdot|^2 / 2`` equals ``T`` on
+    the constraint set, and the constrained motion is the same: the Euler--Lagrange terms
+    of the added energy are ``c a^T d/dt(a qdot) + c (d/dt a^T - d_q(a qdot)^T)(a qdot)``,
+    zero where ``a qdot = 0`` along the motion (the first is along the rows, a constraint
+    force).  ``c`` is the metric's largest eigenvalue over the largest ``|a_i|^2`` at the
+    sample point (a constant: the units of the metric).  ``m`` regular: returned as is.
+    """
+    x0 = np.asarray(kw["sample"], float)
+    m0 = np.asarray(metric(x0), float)
+    eig = np.linalg.eigvalsh(m0)
+    if eig.min() > 1e-9 * max(eig.max(), 1e-300):
+        return metric
+    df = kw["holonomic_derivative"]
+
+    def rows(x):
+        d = np.swapaxes(np.asarray(df(x)), -1, -2)
+        return d if A is None else np.concatenate([d, np.asarray(A(x))], -2)
+
+    R = np.asarray(rows(x0), float)
+    c = eig.max() / np.max(np.sum(R * R, -1))
+
+    def regular(x):
+        a = rows(x)
+        return metric(x) + c * (np.swapaxes(a, -1, -2) @ a)
+
+    eig2 = np.linalg.eigvalsh(np.asarray(regular(x0), float))
+    if eig2.min() <= 1e-9 * eig2.max():
+        raise ValueError("model: the kinetic energy is zero along velocities that the constraints allow (a "
+                         "coordinate without mass that no constraint ties to a massive one); give it mass or "
+                         "eliminate it")
+    return regular

@@ -428,6 +428,8 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
         mech["u_of_qdot"], mech["qdot_of_u"] = speeds.u_of_qdot, speeds.qdot_of_u
         mech["speed_constraints"] = None if A is None else speeds.rows_in_u(A)
         metric, vp, A = speeds.metric(metric), speeds.covector(vp), speeds.rows(A)
+    if hol:  # a metric singular on the ambient space (coordinates without mass): made regular off C
+        metric = _mc.regularized_metric(metric, A, kw)
     space = CotangentBundle(n, names=coordinate_names(sympy, q) if names is None else names)
     if not rows:
         return MechanicsSystem(space, metric, None, pot, vector_potential=vp, mechanics=mech, **kw)
