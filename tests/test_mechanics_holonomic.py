@@ -127,6 +127,40 @@ def four_bar():
 
 
 
+
+def four_bar_gravity():
+    """The four-bar as the tutorial continues: auxiliary speeds and noncontributing forces at the closing joint,
+    velocity constraints overwritten with them, and gravity (KanesMethod forms the equations with the auxiliary
+    speeds at zero; the noncontributing forces do no work)."""
+    from sympy import symbols
+    from sympy.physics.mechanics import dynamicsymbols, Force
+    case = four_bar()
+    system = case["model"]
+    N = system.frame
+    link1, link4 = system.bodies[0], system.bodies[3]
+    l1, l2, l3, l4, rho = sorted(case["constants"], key=str)
+    start_point = link1.masscenter.locatenew('start_point', -l1/2*link1.x)
+    end_point = link4.masscenter.locatenew('end_point', l4/2*link4.x)
+    uaux1, uaux2 = dynamicsymbols('uaux1:3')
+    end_point_aux = end_point.locatenew('end_point_aux', 0)
+    end_point_aux.set_vel(N, end_point.vel(N) + uaux1*N.x + uaux2*N.y)
+    system.velocity_constraints = [
+       end_point_aux.vel(N).dot(N.x), end_point_aux.vel(N).dot(N.y)]
+    faux1, faux2 = dynamicsymbols('faux1:3')
+    end_point_forces = end_point.locatenew('end_point_forces', 0)
+    end_point_forces.set_vel(N, uaux1*N.x + uaux2*N.y)
+    noncontributing_forces = [Force(end_point_forces, faux1*N.x + faux2*N.y)]
+    system.add_loads(*noncontributing_forces)
+    system.u_aux = [uaux1, uaux2]
+    g = symbols('g')
+    system.apply_uniform_gravity(-g*N.y)
+    system.validate_system()
+    start = time.perf_counter()
+    eoms = system.form_eoms()
+    case.update(eom_seconds=time.perf_counter() - start, aux=[uaux1, uaux2],
+                vel=list(system.velocity_constraints), constants={**case["constants"], g: 9.81})
+    return case
+
 def sleigh_parts():
     """A Chaplygin sleigh whose mass centre C has its own coordinates (x_c, y_c): two configuration constraints
     tie C to the contact point P, one velocity constraint (no sideways slip at P)."""
@@ -212,6 +246,8 @@ def reference(case, q0, v_ind0):
     """
     model, c = case["model"], case["constants"]
     t = me.dynamicsymbols._t
+    aux = case.get("aux", [])  # sympy's equations hold with the auxiliary speeds (and their rates) at zero
+    c = {**c, **dict.fromkeys([a.diff(t) for a in aux] + list(aux), 0)}
     if isinstance(model, me.System):
         model = model.eom_method
     if isinstance(model, me.LagrangesMethod):
@@ -279,7 +315,7 @@ def declared(case):
     t = me.dynamicsymbols._t
     q = list(model.q)
     qd = [s.diff(t) for s in q]
-    vel = sympy.Matrix(case["vel"])
+    vel = sympy.Matrix(case["vel"]).xreplace(dict.fromkeys(case.get("aux", []), 0))
     if case.get("u"):  # speeds in terms of qdot (the kinematic differential equations)
         vel = vel.xreplace(sympy.solve(case["kde"], case["u"]))
     F = _lam([q], case["hol"], c)
@@ -344,6 +380,16 @@ def test_four_bar_linkage():
     assert_case(out)
 
 
+@pytest.mark.slow
+def test_four_bar_linkage_with_gravity_and_auxiliary_speeds():
+    case = four_bar_gravity()
+    a = 1.5 * np.pi - 0.3  # hanging, 0.3 from the bottom: far from the collinear (singular) configurations
+    q0 = on_constraints(case, [a, np.pi - a, a], fixed=[0])
+    system, out = check_case(case, q0, [0.3], **RUN)
+    assert system.holonomic.H == 2 and system.K == 2
+    assert_case(out)
+
+
 def test_four_bar_linkage_builds_with_both_loop_constraints():
     """The four-bar as sympy's docs write it builds in one call: two loop-closure values f in V, two rows df (the
     System's velocity constraints, their derivatives, are not counted twice); the field at a start on the
@@ -381,6 +427,8 @@ if __name__ == "__main__":  # the table of the closing note: python tests/test_m
             ("Kane pendulum (CRAMER)", lambda: kane_pendulum("CRAMER"), [0.3, 0.6], [0], [0.8]),
             ("Lagrange pendulum", lagrange_pendulum, [0.6, 0.3], [1], [0.8]),
             ("four-bar linkage", four_bar, [np.pi / 2 + 0.2, np.pi / 2 - 0.2, np.pi / 2 + 0.2], [0], [0.3]),
+            ("four-bar + gravity, aux speeds", four_bar_gravity,
+             [1.5 * np.pi - 0.3, 0.3 - 0.5 * np.pi, 1.5 * np.pi - 0.3], [0], [0.3]),
             ("sleigh, Lagrange hol + nonhol", lagrange_sleigh, SLEIGH_Q, [0, 1, 2], [0.5, 0.4]),
             ("sleigh, System hol + nonhol", system_sleigh, SLEIGH_Q, [0, 1, 2], [0.5, 0.4])]
     print("| model | sympy eom s | from_mechanics s | max err vs sympy | max abs f | max vel. constraint | energy drift |")
