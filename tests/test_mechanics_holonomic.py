@@ -422,6 +422,35 @@ def test_system_sleigh_holonomic_and_nonholonomic():
     assert_case(out)
 
 
+
+def test_rows_that_are_derivatives_only_somewhere_are_named():
+    from liefi.systems._mechanics_constraints import ConstraintRowsError, independent_rows
+
+    df = lambda x: np.stack([2 * x[..., 0], 2 * x[..., 1]], -1)[..., None]  # noqa: E731 -- f = x^2 + y^2 - l^2
+    same = lambda x: np.stack([x[..., 0], x[..., 1]], -1)[..., None, :]  # noqa: E731 -- df/2: dropped
+    other = lambda x: np.stack([-x[..., 1], x[..., 0]], -1)[..., None, :]  # noqa: E731 -- independent: kept
+    pts = np.array([[0.5, 0.2], [-0.3, 0.9], [0.7, -0.4]])
+    assert independent_rows(same, df, 2, pts) == []
+    assert independent_rows(other, df, 2, pts) == [0]
+    mixed = lambda x: np.stack([x[..., 0], x[..., 1] * (x[..., 0] > 0)], -1)[..., None, :]  # noqa: E731
+    with pytest.raises(ConstraintRowsError, match="velocity constraint 1 is a combination"):
+        independent_rows(mixed, df, 2, pts)
+
+
+def test_a_free_massless_coordinate_is_named():
+    """A coordinate with no mass that no constraint ties to a massive one: the kinetic energy is degenerate on C."""
+    from sympy.physics.mechanics import dynamicsymbols, ReferenceFrame, Point, Particle, Lagrangian, LagrangesMethod
+    q1, q2, s = dynamicsymbols('q1 q2 s')
+    N = ReferenceFrame('N')
+    O = Point('O')
+    O.set_vel(N, 0)
+    P = O.locatenew('P', q1*N.x + q2*N.y)
+    P.set_vel(N, P.pos_from(O).dt(N))
+    LM = LagrangesMethod(Lagrangian(N, Particle('p', P, 1)), [q1, q2, s], hol_coneqs=[q1**2 + q2**2 - 1], frame=N)
+    LM.form_lagranges_equations()
+    with pytest.raises(ValueError, match="kinetic energy is zero along velocities that the constraints allow"):
+        liefi.from_mechanics(LM)
+
 if __name__ == "__main__":  # the table of the closing note: python tests/test_mechanics_holonomic.py
     rows = [("Kane pendulum (LU)", kane_pendulum, [0.3, 0.6], [0], [0.8]),
             ("Kane pendulum (CRAMER)", lambda: kane_pendulum("CRAMER"), [0.3, 0.6], [0], [0.8]),

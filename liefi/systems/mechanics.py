@@ -304,8 +304,10 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
           loads at points moving with them only (reactions) do no work.  Kane's equations take
           forces only from the loads: a body's ``potential_energy`` is ignored, with a warning.
         * ``System``: its bodies, loads, actuators (``LinearSpring``/``DuffingSpring`` potential
-          ``k (l - l0)^2 / 2`` ...), kinematic differential equations and nonholonomic
-          constraints; ``potential_energy`` counts if it was formed with ``LagrangesMethod``.
+          ``k (l - l0)^2 / 2`` ...), kinematic differential equations and velocity constraints;
+          ``potential_energy`` counts if it was formed with ``LagrangesMethod``.
+        * Configuration constraints (Kane's, Lagrange's ``hol_coneqs``, a System's) become the
+          ``holonomic=`` datum, dependent coordinates kept (:mod:`~liefi.systems._mechanics_constraints`).
     constants : dict, optional
         ``{symbol or name: value}`` for every symbolic parameter of the model (PyDy's
         ``constants``); they become :attr:`MechanicsSystem.constants`, changeable without a
@@ -340,8 +342,9 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
         kinematics; liefi needs the contact point's coordinates among ``q`` and the rolling
         condition as velocity constraints (``u_dependent`` / ``velocity_constraints``).
     ValueError
-        For holonomic constraints, dependent coordinates, missing constants and every error of
-        :func:`liefi.from_sympy` (a ``T`` not quadratic, nonlinear constraints ...).
+        For missing constants and every error of :func:`liefi.from_sympy` (a ``T`` not quadratic,
+        nonlinear constraints ...); ``ConstraintRowsError`` (a ``ValueError``) for velocity constraints
+        that are derivatives of the configuration constraints at some configurations only.
 
     References
     ----------
@@ -422,16 +425,14 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
     if hol:  # the values f -> holonomic=, the velocity constraints less the derivatives of f
         A, kw = _mc.holonomic_data(sympy, hol, parts["q"], X, A, len(rows), speeds if u else None, kw,
                                    lambda e, shape, what: _bound(sympy, X, params, e, shape, holder, what))
-        rows = rows if A is not None else []
     mech = dict(constants=holder, q=q, u=u, qdot_of_u=None, u_of_qdot=None, speed_constraints=None)
     if u:  # the data in qdot: u = W(q) qdot, (qdot, u) = S qdot with S = [1; W]
         mech["u_of_qdot"], mech["qdot_of_u"] = speeds.u_of_qdot, speeds.qdot_of_u
         mech["speed_constraints"] = None if A is None else speeds.rows_in_u(A)
         metric, vp, A = speeds.metric(metric), speeds.covector(vp), speeds.rows(A)
-    if hol:  # a metric singular on the ambient space (coordinates without mass): made regular off C
-        metric = _mc.regularized_metric(metric, A, kw)
+    metric = _mc.regularized_metric(metric, A, kw) if hol else metric  # singular on the ambient space: regular off C
     space = CotangentBundle(n, names=coordinate_names(sympy, q) if names is None else names)
-    if not rows:
+    if A is None:
         return MechanicsSystem(space, metric, None, pot, vector_potential=vp, mechanics=mech, **kw)
     return MechanicsSystem.from_velocity_constraints(
         space, metric, A, pot, scaling=scaling, vector_potential=vp, mechanics=mech, **kw
