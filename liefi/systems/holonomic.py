@@ -214,7 +214,11 @@ def stability_margin(system, z, gains):
     r"""``min_j (k_{J_j} \lambda_{\min}(G) - N_j)`` at the state ``z`` (module docstring): positive = locally stable.
 
     ``gains``: ``{name: k}`` of the feedback integrator (``fi.gains``); ``G`` is the Gram
-    matrix of the gradients of the penalized ``J``, ``f`` and the energy.
+    matrix of the gradients of the penalized ``J``, ``f`` and the energy.  E.g. a pendulum
+    in Cartesian coordinates (``m = 1.3``, ``l = 0.7``, at rest): the automatic gains of
+    ``imex-rk8`` at ``dt = 0.089`` (``k_J = 95``, ``k_f = 37``) give a margin of 71; with
+    ``k_J = 1e-3``, ``k_f = 10`` it is -1.2, the frozen-time linearization of ``X - grad V``
+    has the eigenvalue ``+0.73`` and ``V`` stalls at 2e-16 instead of decaying.
     """
     hol = system.holonomic
     if hol is None:
