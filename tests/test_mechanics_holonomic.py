@@ -161,6 +161,31 @@ def four_bar_gravity():
                 vel=list(system.velocity_constraints), constants={**case["constants"], g: 9.81})
     return case
 
+
+def disc_on_incline():
+    """sympy/physics/mechanics/tests/test_lagrange.py::test_disc_on_an_incline_plane (hol_coneqs linear in q)."""
+    from sympy import symbols, pi, sin
+    from sympy.physics.mechanics import dynamicsymbols, ReferenceFrame, Point, RigidBody, Lagrangian, LagrangesMethod
+    y, theta = dynamicsymbols('y theta')
+    yd, thetad = dynamicsymbols('y theta', 1)
+    m, g, R, l, alpha = symbols('m g R l alpha')
+    N = ReferenceFrame('N')
+    A = N.orientnew('A', 'Axis', [pi/2 - alpha, N.z])
+    B = A.orientnew('B', 'Axis', [-theta, A.z])
+    Do = Point('Do')
+    Do.set_vel(N, yd * A.x)
+    I = m * R**2/2 * B.z | B.z
+    D = RigidBody('D', Do, B, m, (I, Do))
+    D.potential_energy = m * g * (l - y) * sin(alpha)
+    L = Lagrangian(N, D)
+    q = [y, theta]
+    hol_coneqs = [y - R * theta]
+    LM = LagrangesMethod(L, q, hol_coneqs=hol_coneqs)
+    start = time.perf_counter()
+    LM.form_lagranges_equations()
+    return dict(model=LM, eom_seconds=time.perf_counter() - start, hol=hol_coneqs, vel=list(LM.coneqs), q_dep=[theta],
+                constants={m: 2.0, g: 9.81, R: 0.3, l: 5.0, alpha: 0.4})
+
 def sleigh_parts():
     """A Chaplygin sleigh whose mass centre C has its own coordinates (x_c, y_c): two configuration constraints
     tie C to the contact point P, one velocity constraint (no sideways slip at P)."""
@@ -403,6 +428,13 @@ def test_four_bar_linkage_builds_with_both_loop_constraints():
     assert np.max(np.abs(fi.invariant_gradients(fi.y0).residual)) < 1e-13
 
 
+def test_disc_on_an_incline_plane():
+    case = disc_on_incline()
+    system, out = check_case(case, np.array([0.3, 1.0]), [0.2], **RUN)  # y = R theta at the start
+    assert system.holonomic.H == 1 and system.K == 1
+    assert_case(out)
+
+
 SLEIGH_Q = [0.1, -0.2, 0.3, 0.0, 0.0]  # (x, y, theta, x_c, y_c): x_c, y_c from f = 0
 
 
@@ -458,6 +490,7 @@ if __name__ == "__main__":  # the table of the closing note: python tests/test_m
             ("four-bar linkage", four_bar, [np.pi / 2 + 0.2, np.pi / 2 - 0.2, np.pi / 2 + 0.2], [0], [0.3]),
             ("four-bar + gravity, aux speeds", four_bar_gravity,
              [1.5 * np.pi - 0.3, 0.3 - 0.5 * np.pi, 1.5 * np.pi - 0.3], [0], [0.3]),
+            ("disc on an incline (sympy's test_lagrange)", disc_on_incline, [0.3, 1.0], [0], [0.2]),
             ("sleigh, Lagrange hol + nonhol", lagrange_sleigh, SLEIGH_Q, [0, 1, 2], [0.5, 0.4]),
             ("sleigh, System hol + nonhol", system_sleigh, SLEIGH_Q, [0, 1, 2], [0.5, 0.4])]
     print("| model | sympy eom s | from_mechanics s | max err vs sympy | max abs f | max vel. constraint | energy drift |")
