@@ -84,7 +84,9 @@ class NonholonomicSystem:
         gains for which the feedback is locally exponentially stable, are in
         :mod:`liefi.systems.holonomic`.
     holonomic_derivative : callable, optional
-        ``df(x)``, shape ``(..., n, H)``; by default by complex step.
+        ``df(x)``, shape ``(..., n, H)``.  Without it ``df`` is taken by complex step and
+        its own derivative (read by the extended field through the rows) by differences,
+        to about 1e-10, on the numpy path only; with it both are exact and the field compiles.
     start_check : callable, optional
         ``start_check(y0, configuration)``: called by :class:`~liefi.FeedbackIntegrator`
         with its start (``(g, z)``, or ``z`` when ``configuration`` is False; any
