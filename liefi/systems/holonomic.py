@@ -62,7 +62,8 @@ the other residuals.  :func:`stability_margin` evaluates the condition.
 References
 ----------
 Chang, D. E., Perlmutter, M. & Vankerschaver, J., "Feedback integrators for
-mechanical systems with holonomic constraints", *Sensors* 22 (2022) 6487.
+mechanical systems with holonomic constraints", *Sensors* 22(17) (2022) 6487,
+doi:10.3390/s22176487 (the Dirac formula on the ambient space; a spherical pendulum).
 """
 
 from __future__ import annotations
