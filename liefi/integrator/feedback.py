@@ -106,7 +106,8 @@ class FeedbackIntegrator:
         trajectory is the one it has when run alone.  A system with a
         ``start_check`` (a rolling body's) refuses a start that is no state of it.
     invariants : sequence, optional
-        Which invariants ``V`` penalizes: ``"constraints"`` (every ``J_i``, target 0),
+        Which invariants ``V`` penalizes: ``"constraints"`` (every ``J_i``, and the values
+        ``f_j`` of holonomic constraints, :mod:`liefi.systems.holonomic`; target 0),
         ``"energy"`` (``h~`` or ``h`` by ``energy=``), and :class:`Invariant` objects.
         Default ``("constraints", "energy")`` followed by the Casimirs the phase
         space carries (``system.space.casimirs``: the six attitude Casimirs of a
@@ -210,8 +211,9 @@ class FeedbackIntegrator:
         self.use_energy = False
         self.user = []
         for inv in invariants:
-            if inv == "constraints":
+            if inv == "constraints":  # the J_i, and the values f_j of holonomic constraints
                 self.use_constraints = system.K > 0
+                self.user.extend(getattr(system, "holonomic_invariants", ()))
             elif inv == "energy":
                 self.use_energy = True
             elif isinstance(inv, Invariant):
@@ -270,7 +272,7 @@ class FeedbackIntegrator:
         # --- targets ---------------------------------------------------------------
         names = self.invariant_names
         vals = self.invariant_values(y0)
-        constraint_names = {f"J_{i + 1}" for i in range(system.K)}
+        constraint_names = {f"J_{i + 1}" for i in range(system.K)} | {u.name for u in system.holonomic_invariants}
         # every member of an ensemble keeps its own value (a float for one trajectory)
         self.targets = {
             k: 0.0 if k in constraint_names else per_member(v, self.batch, f"the value of {k!r} at y0")

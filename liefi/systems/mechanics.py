@@ -36,6 +36,7 @@ from __future__ import annotations
 import numpy as np
 
 from .sympy_input import _sympy, coordinate_names, lagrangian_data, lambdify_checked
+from . import _mechanics_constraints as _mc
 from .system import NonholonomicSystem
 
 __all__ = ["from_mechanics", "MechanicsSystem", "NonConservativeLoadError", "MinimalSpeedsError"]
@@ -303,8 +304,10 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
           loads at points moving with them only (reactions) do no work.  Kane's equations take
           forces only from the loads: a body's ``potential_energy`` is ignored, with a warning.
         * ``System``: its bodies, loads, actuators (``LinearSpring``/``DuffingSpring`` potential
-          ``k (l - l0)^2 / 2`` ...), kinematic differential equations and nonholonomic
-          constraints; ``potential_energy`` counts if it was formed with ``LagrangesMethod``.
+          ``k (l - l0)^2 / 2`` ...), kinematic differential equations and velocity constraints;
+          ``potential_energy`` counts if it was formed with ``LagrangesMethod``.
+        * Configuration constraints (Kane's, Lagrange's ``hol_coneqs``, a System's) become the
+          ``holonomic=`` datum, dependent coordinates kept (:mod:`~liefi.systems._mechanics_constraints`).
     constants : dict, optional
         ``{symbol or name: value}`` for every symbolic parameter of the model (PyDy's
         ``constants``); they become :attr:`MechanicsSystem.constants`, changeable without a
@@ -339,8 +342,9 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
         kinematics; liefi needs the contact point's coordinates among ``q`` and the rolling
         condition as velocity constraints (``u_dependent`` / ``velocity_constraints``).
     ValueError
-        For holonomic constraints, dependent coordinates, missing constants and every error of
-        :func:`liefi.from_sympy` (a ``T`` not quadratic, nonlinear constraints ...).
+        For missing constants and every error of :func:`liefi.from_sympy` (a ``T`` not quadratic,
+        nonlinear constraints ...); ``ConstraintRowsError`` (a ``ValueError``) for velocity constraints
+        that are derivatives of the configuration constraints at some configurations only.
 
     References
     ----------
@@ -377,6 +381,7 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
             _warn_ignored_potential_energy(sympy, parts, bodies)
     L = sympy.sympify(L).xreplace(aux0)
     constraints = [sympy.sympify(c).xreplace(aux0) for c in parts["constraints"]]
+    hol = [sympy.sympify(c).xreplace(aux0) for c in parts["holonomic"]]  # f(q) = 0 (liefi.systems.holonomic)
 
     # the parameters: the model's free symbols, in the order of `constants` first
     t = me.dynamicsymbols._t
@@ -385,7 +390,7 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
     if u and parts["L"] is None:
         H, c_w, T0 = _kinetic_form(sympy, me, frame, bodies, list(qd) + list(u), aux0)
         L = L + T0
-    for e in [L, *constraints, *(list(Kq) + list(Ku) if u else []), *(list(H) + list(c_w) if H is not None else [])]:
+    for e in [L, *constraints, *hol, *(list(Kq) + list(Ku) if u else []), *(list(H) + list(c_w) if H is not None else [])]:
         free |= e.free_symbols
     free.discard(t)
     checks = _Checks(sympy, q, qd, u, frame, aux0)
@@ -417,13 +422,17 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
     vp = None if all(e == 0 for e in b) else _bound(sympy, X, params, b, (w,), holder, "vector potential")
     A = None if not rows else _bound(sympy, X, params, [e for row in rows for e in row], (len(rows), w), holder,
                                      "constraints")
+    if hol:  # the values f -> holonomic=, the velocity constraints less the derivatives of f
+        A, kw = _mc.holonomic_data(sympy, hol, parts["q"], X, A, len(rows), speeds if u else None, kw,
+                                   lambda e, shape, what: _bound(sympy, X, params, e, shape, holder, what))
     mech = dict(constants=holder, q=q, u=u, qdot_of_u=None, u_of_qdot=None, speed_constraints=None)
     if u:  # the data in qdot: u = W(q) qdot, (qdot, u) = S qdot with S = [1; W]
         mech["u_of_qdot"], mech["qdot_of_u"] = speeds.u_of_qdot, speeds.qdot_of_u
         mech["speed_constraints"] = None if A is None else speeds.rows_in_u(A)
         metric, vp, A = speeds.metric(metric), speeds.covector(vp), speeds.rows(A)
+    metric = _mc.regularized_metric(metric, A, kw) if hol else metric  # singular on the ambient space: regular off C
     space = CotangentBundle(n, names=coordinate_names(sympy, q) if names is None else names)
-    if not rows:
+    if A is None:
         return MechanicsSystem(space, metric, None, pot, vector_potential=vp, mechanics=mech, **kw)
     return MechanicsSystem.from_velocity_constraints(
         space, metric, A, pot, scaling=scaling, vector_potential=vp, mechanics=mech, **kw
@@ -435,17 +444,13 @@ def _parts(sympy, me, model):
     t = me.dynamicsymbols._t
     kind = type(model).__name__
     if isinstance(model, me.LagrangesMethod):
-        if len(model._hol_coneqs):
-            raise ValueError("model: the LagrangesMethod has holonomic constraints (hol_coneqs); liefi integrates "
-                             "in independent coordinates: eliminate them (choose coordinates that satisfy them)")
+        hol = list(model._hol_coneqs)  # sympy puts their time derivatives first in coneqs
         q = list(model.q)
         return dict(kind=kind, q=q, qd=[s.diff(t) for s in q], u=[], kd=None, L=model._L[0], frame=model.inertial,
                     bodies=list(model._bodies or []), loads=list(model._forcelist or []), fixed=None,
-                    constraints=list(model.coneqs), aux=[], actuators=[], potential_energy=True)
+                    constraints=list(model.coneqs)[len(hol):], aux=[], actuators=[], potential_energy=True,
+                    holonomic=hol)
     if isinstance(model, me.KanesMethod):
-        if len(model._qdep):
-            raise ValueError("model: the KanesMethod has dependent coordinates (configuration constraints); liefi "
-                             "needs independent coordinates q")
         if model._qdot_u_map is None:
             raise ValueError("model: the KanesMethod has no kinematic differential equations (kd_eqs)")
         q, u = list(model.q), list(model.u)
@@ -459,11 +464,9 @@ def _parts(sympy, me, model):
             cons = list(model._k_nh * model.u + model._f_nh)
         return dict(kind=kind, q=q, qd=[s.diff(t) for s in q], u=u, kd=kd, L=None, frame=model._inertial,
                     bodies=list(model._bodylist or []), loads=list(model._forcelist or []), fixed=None, constraints=cons,
-                    aux=list(model._uaux), actuators=[], potential_energy=False)
+                    aux=list(model._uaux), actuators=[], potential_energy=False, holonomic=list(model._f_h))
     if isinstance(model, me.System):
-        if len(model.holonomic_constraints) or len(model.q_dep):
-            raise ValueError("model: the System has holonomic constraints or dependent coordinates; liefi needs "
-                             "independent coordinates q")
+        hol = list(model.holonomic_constraints)  # their derivatives are among velocity_constraints
         q, u = list(model.q), list(model.u)
         u = [] if u == [s.diff(t) for s in q] else u  # joints given u = q': the velocities themselves
         if u and len(model.kdes) != len(q):
@@ -472,8 +475,8 @@ def _parts(sympy, me, model):
         lagrange = isinstance(model.eom_method, me.LagrangesMethod) or not u
         return dict(kind=kind, q=q, qd=[s.diff(t) for s in q], u=u, kd=list(model.kdes), L=None, frame=model.frame,
                     bodies=list(model.bodies), loads=list(model.loads), fixed=model.fixed_point,
-                    constraints=list(model.nonholonomic_constraints), aux=list(model.u_aux),
-                    actuators=list(model.actuators), potential_energy=lagrange)
+                    constraints=list(model.velocity_constraints if hol else model.nonholonomic_constraints),
+                    aux=list(model.u_aux), actuators=list(model.actuators), potential_energy=lagrange, holonomic=hol)
     if isinstance(model, (sympy.Basic, sympy.MatrixBase)):
         raise TypeError("model: a sympy expression; for a Lagrangian use liefi.from_sympy(L, q, qd, constraints), "
                         "or wrap it: liefi.from_mechanics(LagrangesMethod(L, q, nonhol_coneqs=...))")

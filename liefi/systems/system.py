@@ -75,6 +75,18 @@ class NonholonomicSystem:
     check : bool
         Check the data at ``sample`` (symmetry, positive definiteness,
         independence, complex-step safety).  Default True.
+    holonomic : callable, optional
+        ``f(x)`` (``(..., n) -> (..., H)``, batch-first, accepting complex input): holonomic
+        constraints ``f(x) = 0`` on the shape variables.  Their differentials join the
+        constraint rows (``df_j . x' = 0``, unit-scaled, after the rows of ``constraints``:
+        ``J_{K-H+1} ... J_K``) and their values join ``V`` (invariants ``f_1 ... f_H``,
+        target 0).  The dependent coordinates stay in the state; the maths, and the
+        gains for which the feedback is locally exponentially stable, are in
+        :mod:`liefi.systems.holonomic`.
+    holonomic_derivative : callable, optional
+        ``df(x)``, shape ``(..., n, H)``.  Without it ``df`` is taken by complex step and
+        its own derivative (read by the extended field through the rows) by differences,
+        to about 1e-10, on the numpy path only; with it both are exact and the field compiles.
     start_check : callable, optional
         ``start_check(y0, configuration)``: called by :class:`~liefi.FeedbackIntegrator`
         with its start (``(g, z)``, or ``z`` when ``configuration`` is False; any
@@ -114,6 +126,8 @@ class NonholonomicSystem:
         orthonormalize: bool = False,
         check: bool = True,
         start_check=None,
+        holonomic=None,
+        holonomic_derivative=None,
     ):
         if not isinstance(space, PhaseSpace):
             raise TypeError(f"space: expected a liefi PhaseSpace, got {space!r}")
@@ -123,7 +137,7 @@ class NonholonomicSystem:
             metric_derivative=metric_derivative, constraints_derivative=constraints_derivative,
             potential_gradient=potential_gradient, vector_potential=vector_potential,
             vector_potential_derivative=vector_potential_derivative, sample=sample, orthonormalize=orthonormalize,
-            check=check, start_check=start_check,
+            check=check, start_check=start_check, holonomic=holonomic, holonomic_derivative=holonomic_derivative,
         )
         if start_check is not None and not callable(start_check):
             raise TypeError(f"start_check: expected a function start_check(y0, configuration), got {start_check!r}")
@@ -182,6 +196,10 @@ class NonholonomicSystem:
                 constraints = lambda x: np.asarray(one(x))[..., None, :]  # noqa: E731
                 probe = probe[None, :]
             K = probe.shape[-2]
+        #: the holonomic constraints f(x) = 0 (:class:`liefi.systems.holonomic.HolonomicData`) or None
+        self.holonomic = None
+        if holonomic is not None or holonomic_derivative is not None:
+            constraints, K = self._with_holonomic(holonomic, holonomic_derivative, constraints, metric, K, sample)
         self.K = K
         self.orthonormalized = bool(orthonormalize)
         if orthonormalize and K:
@@ -221,7 +239,42 @@ class NonholonomicSystem:
             self.gram_inverse = _gram_inverse(C)
         if check:
             space.group.check()  # the group's differentiated methods (liefi.groups.LieGroup.check)
+            if self.holonomic is not None:  # first: dependent differentials are named as such
+                self.holonomic.check(np.zeros(n) if sample is None else sample)
             self.check(np.zeros(n) if sample is None else sample)
+
+    def _with_holonomic(self, f, df, constraints, metric, K, sample):
+        """The constraint rows with the rows of ``df`` appended (:mod:`liefi.systems.holonomic`)."""
+        from .holonomic import HolonomicData
+
+        sp = self.space
+        if f is None:
+            raise ValueError("holonomic_derivative: given without holonomic (the values f(x))")
+        if self._arguments["constraints_derivative"] is not None:
+            raise ValueError("constraints_derivative: not supported with holonomic= (the rows of df are appended "
+                             "to the constraints and differentiated with them); leave it out")
+        if sp.k or sp.data_dim == 0:
+            raise ValueError("holonomic: constraints f(x) = 0 on the shape variables x need a space with shape "
+                             "variables and no advected vector (CotangentBundle(n) or TrivialPrincipalBundle(G, n))")
+        hol = HolonomicData(f, df, sp.n, sp.D, sample)
+        rows = hol.rows(metric)
+        user = constraints
+
+        def combined(x):
+            e = rows(x)
+            if K == 0:
+                return e
+            u = user(x) if callable(user) else np.broadcast_to(user, e.shape[:-2] + user.shape)
+            return np.concatenate([np.asarray(u), e], -2)
+
+        combined.liefi_data_point = True
+        self.holonomic = hol
+        return combined, K + hol.H
+
+    @property
+    def holonomic_invariants(self):
+        """``(Invariant("f_1", ...), ...)``: the holonomic values, which ``V`` penalizes with the ``J_i`` (target 0)."""
+        return () if self.holonomic is None else self.holonomic.invariants()
 
     # --- constraints as people write them ----------------------------------
     @classmethod
