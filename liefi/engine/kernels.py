@@ -305,8 +305,9 @@ def prepare_feedback(fi, scheme, y0, backend):
     """The :class:`CompiledField` of ``fi`` for ``scheme``, its loop compiled (or loaded); ``None`` to use numpy.
 
     The first half of :func:`run_feedback` (same warnings, once per system and
-    reason): :func:`liefi.run.run_feedback` calls it before its progress starts,
-    so that the bar counts steps, not the compile.
+    reason): :func:`liefi.integrator.run.run_feedback` calls it before its progress starts,
+    so that the bar counts steps, not the compile.  ``scheme`` is the scheme object the run
+    loop resolved (an explicit tableau or a split scheme), never a name: it is not looked up here.
     """
     if backend not in ("numba", "auto"):
         raise ValueError(f"backend: expected 'numpy', 'numba' or 'auto', got {backend!r}")
@@ -314,10 +315,8 @@ def prepare_feedback(fi, scheme, y0, backend):
         _say(f"liefi: numba is not available ({_cache.NUMBA_ERROR}); running the numpy path. "
              "Install it with `pip install liefi[fast]`.", "nonumba")
         return None
-    from ..schemes import get_scheme
-
     try:
-        sch = get_scheme(scheme)
+        sch = scheme
         cf = compile_split(fi) if getattr(sch, "kind", None) == "split" else compile_feedback(fi)
         cf.warmup(sch, batch=np.ndim(fi.y0 if y0 is None else y0) > 1)
     except NotCompilable as exc:
@@ -340,16 +339,15 @@ def run_feedback(fi, dt, n_steps, scheme, y0, save_every, check_every, backend):
     ``None``.  (A read-only, unsafe or full cache directory is not one: the kernel
     is then compiled in memory, :mod:`liefi.engine.cache`.)  Errors
     of the run itself (:class:`~liefi.schemes.IntegrationError`) propagate.
+    ``scheme``: the run loop's scheme object, as :func:`prepare_feedback`'s.
 
     The returned :class:`~liefi.schemes.Solution` has ``cpu_seconds`` of the loop
     alone and ``overhead_seconds``: the one-off cost of tracing, loading and
     compiling the kernel, paid by the first run in the process that needs it.
     """
-    from ..schemes import get_scheme
-
     y0 = fi.y0 if y0 is None else y0
     cf = prepare_feedback(fi, scheme, y0, backend)
     if cf is None:
         return None
-    return cf.run(y0, fi.parameters(), dt, n_steps, get_scheme(scheme), save_every=save_every,
+    return cf.run(y0, fi.parameters(), dt, n_steps, scheme, save_every=save_every,
                   check_every=check_every, names=fi.names)

@@ -45,8 +45,8 @@ import numpy as np
 
 from .._data import as_state
 from .._progress import Progress, stderr_is_terminal
-from ..schemes import IntegrationError, Solution, integrate, positive_int
-from ..schemes.core import step_grid
+from ..schemes import IntegrationError, Solution, positive_int
+from ..schemes.core import step_grid, step_loop
 from ..schemes import registry as _registry
 from ..schemes import split as _split
 from .tolerance import MAX_RUN_STEPS  # a run of more steps is refused before it starts (``--max-steps``)
@@ -144,7 +144,7 @@ def _want_progress(progress, expected):
 def _fixed_step_scheme(scheme):
     if isinstance(scheme, _split.BoundSplitStep):
         return scheme.scheme
-    sch = _registry.get(scheme)
+    sch = scheme if _registry.is_scheme_object(scheme) else _registry.get(scheme)
     if getattr(sch, "kind", None) not in ("explicit", "split"):
         raise ValueError(
             f"scheme: {sch.name!r} is not a fixed-step scheme of a feedback integrator; choose one of "
@@ -168,10 +168,10 @@ def _segment_runner(sch, dt, backend, names, t_start=0.0):
     def run(fi_cur, y, n, s0, save_every, check_every, out=None):
         t0 = t_start + s0 * dt
         if state["backend"] != "numpy":
-            from ..engine import run_feedback
+            from ..engine import run_feedback as run_compiled
 
             try:
-                sol = run_feedback(fi_cur, dt, n, sch, y, save_every, check_every, state["backend"])
+                sol = run_compiled(fi_cur, dt, n, sch, y, save_every, check_every, state["backend"])
             except IntegrationError as exc:  # times relative to the segment
                 raise IntegrationError(str(exc), t0 + exc.t, s0 + exc.step, exc.y, exc.components,
                                        getattr(exc, "what", "")) from None
@@ -181,7 +181,7 @@ def _segment_runner(sch, dt, backend, names, t_start=0.0):
             state["backend"] = "numpy"
         stepper = sch.bind(fi_cur) if split else sch
         try:
-            return integrate(fi_cur.vector_field, y, dt, n, stepper, t0=t0, save_every=save_every,
+            return step_loop(fi_cur.vector_field, y, dt, n, stepper, t0=t0, save_every=save_every,
                              names=names, check_every=check_every, out=out)
         except IntegrationError as exc:  # t absolute, step relative
             raise IntegrationError(str(exc), exc.t, s0 + exc.step, exc.y, exc.components,
@@ -314,7 +314,10 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
         raise ValueError(f"errors: expected 'raise' or 'return', got {errors!r}")
     if y0 is not None:  # before the step is chosen from it (a complex or string y0 named, not cast)
         y0 = as_state(y0, "y0", fi.names)
-    scheme_given, dt_given = scheme is not None, dt is not None
+    # the scheme, resolved once, here: every module below gets the object, none looks it up by name
+    scheme_given = scheme is not None
+    sch = _fixed_step_scheme(scheme if scheme_given else _tol.DEFAULT_SCHEME)
+    dt_given = dt is not None
     t_final, h_last, last_note = t_end, 0.0, None
     if dt_given and _finite_positive(dt):  # a dt that does not divide the span: the last step shortened
         n_full, h_last = step_grid(float(dt), t_end - t_start)
@@ -325,7 +328,6 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
             t_end = t_start + n_full * float(dt)  # the grid's end; a partial step goes on to t_final
             last_note = (f"dt does not divide the span: {n_full} step{'s' if n_full > 1 else ''} of dt, then a "
                          f"last step shortened to {h_last:.6g} to end at t_final")
-    sch = _fixed_step_scheme(scheme if scheme_given else _tol.DEFAULT_SCHEME)
     backend = _tol.default_backend() if backend is None else backend
     # the one policy of the run: its step, its gains and their checks
     policy = Policy(sch, backend=backend, check_stability=check_stability, adaptive=adaptive,
