@@ -10,7 +10,7 @@ more:
 * :func:`compile_constrained` -- :func:`liefi.reduction.core.full_vector_field`
   (or :func:`~liefi.reduction.core.field_terms`) with ``kind="constrained"``,
   plus the residuals of the invariant set for a projection after every step;
-* :func:`compile_dla` -- :meth:`liefi.dla.DLAIntegrator.update`.
+* :func:`compile_dla` -- :meth:`liefi.schemes.dla_integrator.DLAIntegrator.update`.
 
 A user datum, invariant or group method that cannot be traced raises
 :class:`~liefi.engine.trace.NotCompilable` naming it; :func:`run_feedback`
@@ -55,7 +55,7 @@ def _fi_key(fi, kind):
 def _cached(system, key, engine, build):
     """The kernel of ``(system, key, engine)``: from this process's table, or ``build()`` and keep it
     (weakly per system; the generated module itself is shared by the hash of its text).  A system whose
-    data can change in place (the constants of :class:`liefi.mechanics.MechanicsSystem`) names its current
+    data can change in place (the constants of :class:`liefi.systems.mechanics.MechanicsSystem`) names its current
     data by ``data_key``, which is part of the key."""
     full = (id(system), getattr(system, "data_key", None)) + key + (engine,)
     with _cache._LOCK:
@@ -246,7 +246,7 @@ def compile_constrained(fi, *, projection=False, engine=None):
 
 
 def dla_applies(system):
-    """Whether :mod:`liefi.dla` applies: a system on ``T*R^n`` (no group) with a constant metric
+    """Whether :mod:`liefi.schemes.dla_integrator` applies: a system on ``T*R^n`` (no group) with a constant metric
     and no vector potential."""
     return (
         system.space.d == 0 and system.metric.constant and system.space.n > 0
@@ -255,8 +255,8 @@ def dla_applies(system):
 
 
 def compile_dla(system, *, engine=None):
-    """The DLA scheme of :mod:`liefi.dla` compiled for ``system``: the trace of
-    :meth:`~liefi.dla.DLAIntegrator.update` of :meth:`~liefi.dla.DLAIntegrator.from_system`."""
+    """The DLA scheme of :mod:`liefi.schemes.dla_integrator` compiled for ``system``: the trace of
+    :meth:`~liefi.schemes.dla_integrator.DLAIntegrator.update` of :meth:`~liefi.schemes.dla_integrator.DLAIntegrator.from_system`."""
     from ..schemes.dla_integrator import DLAIntegrator
 
     if not dla_applies(system):

@@ -354,7 +354,7 @@ class CompiledDLA(_Overhead):
 
     def run(self, q0, q1, h, n_steps, *, save_every=1, t0=0.0):
         """``(t, q, p, cpu_seconds, updates)`` with ``q, p`` of shape ``(n, n_saved)`` and
-        ``p_k = M (q_k - q_{k-1}) / h`` (``p_0 = M (q_1 - q_0)/h``), as :meth:`liefi.dla.DLAIntegrator.run`."""
+        ``p_k = M (q_k - q_{k-1}) / h`` (``p_0 = M (q_1 - q_0)/h``), as :meth:`liefi.schemes.dla_integrator.DLAIntegrator.run`."""
         from ..schemes.dla_integrator import DLANonFiniteError
 
         n_steps, save_every = int(n_steps), max(1, int(save_every))

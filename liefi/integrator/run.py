@@ -6,12 +6,12 @@ scheme of the registry (:mod:`liefi.schemes.registry`), it
 1. validates the arguments once (the policy's step, :func:`liefi.schemes.steps_for`); a given
    ``dt`` that does not divide the span runs whole steps and then one last step shortened to
    end at ``t_final`` (:func:`liefi.schemes.core.step_grid`, a partial step of
-   :mod:`liefi.dense`), reported in ``solution.method`` (``"last_step"``, and in ``"why"``);
+   :mod:`liefi.integrator.dense`), reported in ``solution.method`` (``"last_step"``, and in ``"why"``);
 2. plans the run (:class:`RunPlan`): the number of steps, the memory of the
    saved output -- refused when it would not fit in memory, and capped by
    default (``save_every=None`` keeps at most :data:`DEFAULT_SAVE_BYTES`) --
    and the expected time, from the measured cost of one step;
-3. asks the run's one policy (:class:`liefi.policy.Policy`) for the step (given,
+3. asks the run's one policy (:class:`liefi.integrator.policy.Policy`) for the step (given,
    or chosen for a tolerance), the starting gains and the pre-run checks, then
    runs in segments on the chosen backend (numpy, or the compiled engine
    :func:`liefi.engine.run_feedback`), asking the policy once per segment for
@@ -26,7 +26,7 @@ scheme of the registry (:mod:`liefi.schemes.registry`), it
    ``(t0, t_final)``), watching ``events`` after every segment (a terminal one
    ends the run), with ``t_eval``, ``dense_output`` and the events' states
    given by partial steps of the run's scheme from the last step before them
-   (:mod:`liefi.dense`: the steps' order, and the invariants kept as at the steps).  :func:`positional_span` reads
+   (:mod:`liefi.integrator.dense`: the steps' order, and the invariants kept as at the steps).  :func:`positional_span` reads
    ``run(t0, t_final)`` as a span and refuses the retired ``run(dt, t_final, scheme)``.
 
 :func:`check_ivp` is the guard of the adaptive ``scipy:METHOD`` path and
@@ -277,25 +277,25 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
     memory the saved output may use (default: :data:`DEFAULT_SAVE_BYTES` with
     ``save_every=None``, half the available memory with an explicit stride).
     ``drop_exact`` (default True): leave out of ``V`` the invariants the scheme
-    keeps exactly (:func:`liefi.gains.exact_drops`); ``solution.dropped`` lists them
+    keeps exactly (:func:`liefi.integrator.gains.exact_drops`); ``solution.dropped`` lists them
     (``{"name", "reason"}``).  ``t_eval``, ``events`` and ``dense_output`` as
-    ``solve_ivp``'s, by partial steps of the scheme (:mod:`liefi.dense`).
+    ``solve_ivp``'s, by partial steps of the scheme (:mod:`liefi.integrator.dense`).
     ``errors``: ``"raise"`` (default) or ``"return"``: a failed run returns the
     states up to the failure with ``success=False``, ``status=-1``.
-    ``scheme=None``: :data:`liefi.tolerance.DEFAULT_SCHEME`; ``backend=None``:
+    ``scheme=None``: :data:`liefi.integrator.tolerance.DEFAULT_SCHEME`; ``backend=None``:
     compiled when numba is installed, else numpy; ``dt=None``: the step of
-    :func:`liefi.tolerance.choose_step` for ``rtol`` (default
-    :data:`liefi.tolerance.DEFAULT_RTOL`) and ``atol``; a given ``dt`` that does not divide the span
+    :func:`liefi.integrator.tolerance.choose_step` for ``rtol`` (default
+    :data:`liefi.integrator.tolerance.DEFAULT_RTOL`) and ``atol``; a given ``dt`` that does not divide the span
     ends with one shortened step (``solution.method["last_step"]``; a ``dt`` longer than the span
     becomes one step of the span).  ``resolution_limit``: the largest ``dt``
     times the fastest rate the guard accepts without a warning, for a step chosen for a tolerance before
-    the call (:meth:`liefi.scenes.Scene.run`; default :data:`liefi.stability.RESOLUTION_LIMIT`).
+    the call (:meth:`liefi.scenes.Scene.run`; default :data:`liefi.integrator.stability.RESOLUTION_LIMIT`).
     ``max_step``: as ``solve_ivp``'s, the largest step: a step chosen for the tolerance is shortened to
     ``(t_final - t0) / ceil((t_final - t0) / max_step)``; a given ``dt`` above it is refused.
 
     Returns the :class:`~liefi.schemes.Solution` with ``method`` (which method
-    ran and why: :func:`liefi.tolerance.describe`), ``stability`` (the
-    policy's :class:`~liefi.guard.RunReport`), ``plan`` (:class:`RunPlan`),
+    ran and why: :func:`liefi.integrator.tolerance.describe`), ``stability`` (the
+    policy's :class:`~liefi.integrator.guard.RunReport`), ``plan`` (:class:`RunPlan`),
     ``cpu_seconds`` (integration) and ``overhead_seconds``.
     """
     from . import dense as _dense
@@ -503,7 +503,7 @@ def _last_step_failure(policy, run_fi, sch, y, y_bad, names, t_end, t_final, n_s
 
 
 def _stop_at_event(hit, k_prev, ts, out, grid):
-    """End the saved output at a terminal event ``hit = (t, y, j)`` (:meth:`liefi.dense.EventTracker.advance`).
+    """End the saved output at a terminal event ``hit = (t, y, j)`` (:meth:`liefi.integrator.dense.EventTracker.advance`).
 
     The states up to the ``j``-th new one (at ``k_prev + j``) are kept; the
     event's state is saved after them unless it is that saved state.  Returns
@@ -554,7 +554,7 @@ def check_ivp(fi, scheme, t_final, *, max_steps=IVP_MAX_STEPS):
     real stability bound of its tableau), so it needs at least
     ``t_final lambda_max / beta`` steps; past ``max_steps`` it is refused with
     the advice to use ``scipy:LSODA`` or ``scipy:BDF``.  ``lambda_max`` is the
-    Gram estimate of :func:`liefi.stability.stiffness` at the start (``O(1)``).
+    Gram estimate of :func:`liefi.integrator.stability.stiffness` at the start (``O(1)``).
     """
     from .stability import stiffness
 
@@ -577,10 +577,10 @@ def check_result_drift(fi, t, Y, names, scheme, dt, *, limit=None):
     """The drift guard of a run made outside the loop (e.g. DLA): refuse garbage returned as a result.
 
     ``Y`` is ``(len(names), n_t)``.  When the largest relative drift of the
-    integrator's invariants (:func:`liefi.stability.drift`, relative to their
+    integrator's invariants (:func:`liefi.integrator.stability.drift`, relative to their
     scale at the start) passes ``limit`` (default
-    :data:`liefi.stability.GUARD_DRIFT` x 100, i.e. O(1): the run lost every
-    invariant) a :class:`~liefi.stability.StabilityError` says when.
+    :data:`liefi.integrator.stability.GUARD_DRIFT` x 100, i.e. O(1): the run lost every
+    invariant) a :class:`~liefi.integrator.stability.StabilityError` says when.
     """
     from .stability import GUARD_DRIFT, StabilityError, drift, drift_scales
 

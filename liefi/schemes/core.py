@@ -78,10 +78,10 @@ class Solution:
         where it occurred (as ``solve_ivp``).
     sol : DenseOutput or None
         With ``dense_output=True``: ``sol(t)`` the state at any ``t`` in the
-        run's interval (:class:`liefi.dense.DenseOutput`).
+        run's interval (:class:`liefi.integrator.dense.DenseOutput`).
     integrator : FeedbackIntegrator or None
         The integrator that made the run, when known: :meth:`to_xarray` and
-        :mod:`liefi.plot` read the invariants from it.
+        :mod:`liefi.results.plot` read the invariants from it.
     """
 
     t: np.ndarray

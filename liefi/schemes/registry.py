@@ -12,7 +12,7 @@ Every scheme is an object with
   ``scipy:METHOD``: one adaptive ``solve_ivp`` call).
 
 Users of the table: ``liefi run --scheme`` (choices and help),
-:meth:`liefi.scenes.Scene.run`, :mod:`liefi.run`, :mod:`liefi.stability`,
+:meth:`liefi.scenes.Scene.run`, :mod:`liefi.integrator.run`, :mod:`liefi.integrator.stability`,
 the compiled engine (the explicit tableaux) and ``liefi bench``.
 """
 
