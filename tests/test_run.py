@@ -267,8 +267,9 @@ def test_modules_of_the_run_machinery_stay_under_800_lines():
 
 
 @pytest.mark.parametrize("kw", [{}, {"dt": 0.01}, {"dt": 0.01, "scheme": "rk4"}, {"dt": 0.01, "scheme": "rk4", "adaptive": True},
+                                {"dt": 0.01, "method": "RK4"},
                                 {"t_span": 4.0, "scheme": "rk4", "rtol": 1e-9, "dense_output": True, "t_eval": [0.5, 3.9]}],
-                         ids=["rtol-order-chosen", "dt", "rk4", "rk4-adaptive", "rtol-checked-guard-dense"])
+                         ids=["rtol-order-chosen", "dt", "rk4", "rk4-adaptive", "method", "rtol-checked-guard-dense"])
 def test_the_run_loop_looks_its_scheme_up_by_name_once(suslov, kw, monkeypatch):
     """The run loop resolves the scheme once and hands the object down: no module below it -- policy,
     tolerance (the order chosen for a tolerance, the runs of its global check), gains, guard, stability, dense
@@ -298,4 +299,4 @@ def test_the_run_loop_looks_its_scheme_up_by_name_once(suslov, kw, monkeypatch):
     if "rtol" in kw:  # the tolerance's global check ran (its runs are runs of the same scheme object)
         assert sol.method["why"].count("checked by two short runs"), sol.method["why"]
         assert sol.t.tolist() == kw["t_eval"] and sol.sol is not None and sol.stability is not None
-    assert calls == [("liefi.integrator.run", kw.get("scheme", "imex-rk4"))], calls
+    assert calls == [("liefi.integrator.run", kw.get("method", kw.get("scheme", "imex-rk4")))], calls

@@ -236,7 +236,8 @@ def positional_span(t_span, more, *, scheme=None):
 
 
 def method_scheme(method, scheme):
-    """The ``scheme`` of ``run(method=...)``, ``solve_ivp``'s name for it: a liefi scheme, or a clear refusal.
+    """The ``scheme`` of ``run(method=...)``, ``solve_ivp``'s name for it: a liefi scheme (the object), or a clear
+    refusal.
 
     ``method`` names a fixed-step scheme of :mod:`liefi.schemes` (``"rk4"``,
     ``"imex-rk8"``, case-insensitive); one of ``solve_ivp``'s adaptive methods
@@ -252,7 +253,7 @@ def method_scheme(method, scheme):
     except ValueError:
         sch = None
     if sch is not None and sch.kind in ("explicit", "split"):
-        return sch.name
+        return sch  # the object: the run loop does not look it up again
     try:
         ivp = _registry.get(f"scipy:{method}", kind="scipy")
     except ValueError:
