@@ -87,8 +87,8 @@ def _segment(s0, n_steps, N, save_every):
 class Policy:
     """The step and the gains of one fixed-step run of a feedback integrator, and their checks (module docstring).
 
-    Parameters as :func:`liefi.integrator.run.run_feedback`.  ``scheme`` is a registry
-    scheme (explicit or split); ``beta`` its real stability bound.
+    Parameters as :func:`liefi.integrator.run.run_feedback`.  ``scheme`` is the scheme object the run loop
+    resolved (explicit or split; never a name); ``beta`` its real stability bound.
     """
 
     def __init__(self, scheme, *, backend, check_stability=True, adaptive=None, stacklevel=3, choose_order=False,

@@ -3,7 +3,10 @@
 One job: given a :class:`~liefi.FeedbackIntegrator`, a step, a horizon and a
 scheme of the registry (:mod:`liefi.schemes.registry`), it
 
-1. validates the arguments once (the policy's step, :func:`liefi.schemes.steps_for`); a given
+1. resolves the scheme once, first, into its object (:mod:`liefi.schemes.registry`: the one look-up by name of
+   the run; the policy, the step for a tolerance, the gains, the guard, the dense output, the numpy loop
+   :func:`liefi.schemes.core.step_loop` and the compiled engine all get the object), and validates the
+   arguments once (the policy's step, :func:`liefi.schemes.steps_for`); a given
    ``dt`` that does not divide the span runs whole steps and then one last step shortened to
    end at ``t_final`` (:func:`liefi.schemes.core.step_grid`, a partial step of
    :mod:`liefi.integrator.dense`), reported in ``solution.method`` (``"last_step"``, and in ``"why"``);
@@ -168,10 +171,10 @@ def _segment_runner(sch, dt, backend, names, t_start=0.0):
     def run(fi_cur, y, n, s0, save_every, check_every, out=None):
         t0 = t_start + s0 * dt
         if state["backend"] != "numpy":
-            from ..engine import run_feedback as run_compiled
+            from ..engine import kernels
 
             try:
-                sol = run_compiled(fi_cur, dt, n, sch, y, save_every, check_every, state["backend"])
+                sol = kernels.run_feedback(fi_cur, dt, n, sch, y, save_every, check_every, state["backend"])
             except IntegrationError as exc:  # times relative to the segment
                 raise IntegrationError(str(exc), t0 + exc.t, s0 + exc.step, exc.y, exc.components,
                                        getattr(exc, "what", "")) from None
