@@ -32,7 +32,7 @@ STEP = 1e-30
 #: function being differentiated index *states* (the axis it appends before the last, one
 #: direction ``e_k`` per slot, does not).  ``None`` outside a derivative.  A datum whose
 #: values differ between the members of an ensemble (per-member constants,
-#: :mod:`liefi.mechanics`) reads it to align its members with the states, never the
+#: :mod:`liefi.systems.mechanics`) reads it to align its members with the states, never the
 #: direction axis, whatever the lengths.
 STATE_AXES = contextvars.ContextVar("liefi_state_axes", default=None)
 

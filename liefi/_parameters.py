@@ -1,6 +1,6 @@
 """The user's gains and targets, parsed and checked: one parser for the API's ``gains=`` and the CLI's ``--gains``.
 
-Part of :mod:`liefi.feedback` (which re-exports every function here).  A gain
+Part of :mod:`liefi.integrator.feedback` (which re-exports every function here).  A gain
 or a target is a number, or for an ensemble one number per member (an array of
 the ensemble's shape ``y0.shape[:-1]``, :func:`per_member`).
 """

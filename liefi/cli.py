@@ -15,7 +15,7 @@
 
 ``liefi run`` runs one scene with liefi's best method unless told otherwise
 (a split scheme, ``imex-rk4``, ``imex-rk6`` or ``imex-rk8``, gains ``auto``, the
-order and step chosen for ``--rtol``, default 1e-6: :mod:`liefi.tolerance`;
+order and step chosen for ``--rtol``, default 1e-6: :mod:`liefi.integrator.tolerance`;
 ``imex-rk4`` with ``--dt``; ``--paper``: the paper's scheme, gains and step) and
 reports its error against the exact (or numerical reference) solution, the
 drift of every invariant and its CPU time; ``--json`` prints one JSON object,
@@ -240,7 +240,7 @@ def plot_path(path, scene, variant=None, *, suffix=""):
     or the folder of ``DIR/FILE.png``) is created, with its parents, as ``liefi bench``
     and ``liefi reproduce`` create theirs.  Raises
     :class:`UsageError` (naming ``out``) when the file cannot be written or its
-    suffix is not a format matplotlib writes (:func:`liefi.plotting.check_format`), and an
+    suffix is not a format matplotlib writes (:func:`liefi.results.scene_figures.check_format`), and an
     ``ImportError`` with the install hint when matplotlib is missing.
     """
     import os
@@ -289,7 +289,7 @@ MAX_STEPS = MAX_RUN_STEPS
 
 def check_steps(scene, args):
     """Refuse, before any work, a run of more than ``--max-steps`` steps (default :data:`MAX_STEPS`):
-    :func:`liefi.run.check_step_count`, the check ``liefi bench`` makes too."""
+    :func:`liefi.integrator.run.check_step_count`, the check ``liefi bench`` makes too."""
     dt = scene.dt if args.dt is None else args.dt
     T = scene.t_final if args.t_final is None else args.t_final
     try:
@@ -302,8 +302,8 @@ def check_steps(scene, args):
 def run_settings(scene, args):
     """``(scheme, gains_text, dt, rtol, atol, why)`` of ``liefi run``: the best method unless ``--paper``.
 
-    Default: :data:`liefi.tolerance.DEFAULT_SCHEME` with ``gains auto`` at the
-    step chosen for ``--rtol`` (default :data:`liefi.tolerance.DEFAULT_RTOL`);
+    Default: :data:`liefi.integrator.tolerance.DEFAULT_SCHEME` with ``gains auto`` at the
+    step chosen for ``--rtol`` (default :data:`liefi.integrator.tolerance.DEFAULT_RTOL`);
     ``--paper``: the scene's paper settings (scheme, gains, dt).  What is given
     explicitly is kept either way.
     """

@@ -67,7 +67,7 @@ class PhaseSpace:
     casimirs : sequence of Invariant, optional
         Casimir functions of the space's bracket that its users should hold
         (e.g. the six ``<rho_i, rho_j>`` of a rolling body's advected attitude,
-        :data:`liefi.rolling.ATTITUDE_CASIMIRS`): first integrals of every field
+        :data:`liefi.systems.rolling.ATTITUDE_CASIMIRS`): first integrals of every field
         on the space, which :class:`~liefi.FeedbackIntegrator` penalizes by
         default.  Default none.
     """

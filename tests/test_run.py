@@ -266,22 +266,37 @@ def test_modules_of_the_run_machinery_stay_under_800_lines():
 # --- one resolution of the scheme per run (issue 24) ----------------------------------------------
 
 
-@pytest.mark.parametrize("kw", [{}, {"dt": 0.01}, {"dt": 0.01, "scheme": "rk4"}, {"dt": 0.01, "scheme": "rk4", "adaptive": True}],
-                         ids=["rtol-order-chosen", "dt", "rk4", "rk4-adaptive"])
+@pytest.mark.parametrize("kw", [{}, {"dt": 0.01}, {"dt": 0.01, "scheme": "rk4"}, {"dt": 0.01, "scheme": "rk4", "adaptive": True},
+                                {"dt": 0.01, "method": "RK4"},
+                                {"t_span": 4.0, "scheme": "rk4", "rtol": 1e-9, "dense_output": True, "t_eval": [0.5, 3.9]}],
+                         ids=["rtol-order-chosen", "dt", "rk4", "rk4-adaptive", "method", "rtol-checked-guard-dense"])
 def test_the_run_loop_looks_its_scheme_up_by_name_once(suslov, kw, monkeypatch):
-    """The run loop resolves the scheme once and hands the object down: policy, tolerance, gains, guard and
-    stability never look it up by name again (the order chosen for a tolerance included)."""
+    """The run loop resolves the scheme once and hands the object down: no module below it -- policy,
+    tolerance (the order chosen for a tolerance, the runs of its global check), gains, guard, stability, dense
+    output, the numpy loop, the compiled engine -- enters the registry again, by name or with the object."""
+    import sys
+
+    from liefi import schemes
     from liefi.schemes import registry
 
-    get, by_name = registry.get, []
+    get, get_scheme, calls = registry.get, schemes.get_scheme, []
 
     def counted(name, kind=None):
-        if isinstance(name, str):
-            by_name.append(name)
+        calls.append((sys._getframe(1).f_globals["__name__"], name if isinstance(name, str) else "an object"))
         return get(name, kind)
 
+    def counted_scheme(scheme):
+        calls.append((sys._getframe(1).f_globals["__name__"], "get_scheme"))
+        return get_scheme(scheme)
+
     fi = suslov.integrator(gains="auto")
+    kw = dict(kw)
+    t_span = kw.pop("t_span", 0.5)
     monkeypatch.setattr(registry, "get", counted)
-    sol = fi.run(0.5, backend="numpy", **kw)
+    monkeypatch.setattr(schemes, "get_scheme", counted_scheme)
+    sol = fi.run(t_span, backend="numpy", **kw)
     assert sol.success
-    assert by_name == [kw.get("scheme", "imex-rk4")], by_name
+    if "rtol" in kw:  # the tolerance's global check ran (its runs are runs of the same scheme object)
+        assert sol.method["why"].count("checked by two short runs"), sol.method["why"]
+        assert sol.t.tolist() == kw["t_eval"] and sol.sol is not None and sol.stability is not None
+    assert calls == [("liefi.integrator.run", kw.get("method", kw.get("scheme", "imex-rk4")))], calls

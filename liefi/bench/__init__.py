@@ -2,7 +2,7 @@
 
 * :mod:`~liefi.bench.core`: the tasks, one run (:func:`run_task`), its errors and
   drifts (:func:`measure`), the sweep (:func:`work_precision`, every run
-  appended to a :class:`~liefi.sweep.ResultStore` as it finishes), the CSV and
+  appended to a :class:`~liefi.results.sweep.ResultStore` as it finishes), the CSV and
   the timings (best of :data:`REPEATS`);
 * :mod:`~liefi.bench.verdict`: the verdict (:func:`summarize`: per criterion --
   drift only, and accurate: error and drift -- the cheapest run, the cheapest

@@ -204,7 +204,7 @@ def _arguments(args):
 
 
 def _check_steps(sc, tasks, args):
-    """Refuse, before any work, runs longer than ``--max-steps``: :func:`liefi.run.check_step_count`,
+    """Refuse, before any work, runs longer than ``--max-steps``: :func:`liefi.integrator.run.check_step_count`,
     the check ``liefi run`` makes (on the grid's smallest step; the long horizon on the scene's
     step, where the feedback integrator's long run is made -- its peers run at matched cost)."""
     from ..integrator.run import check_step_count
@@ -289,7 +289,7 @@ def run_from_args(args, log=None):
     ------
     OSError
         The output folder is in use by another bench (:func:`lock_folder`) or
-        cannot be written; or a :class:`~liefi.sweep.StoreError`: the store is
+        cannot be written; or a :class:`~liefi.results.sweep.StoreError`: the store is
         damaged or another program's, or could not be written during the runs
         (disk full) -- then after printing the summary of what finished and
         rewriting ``summary.json`` where possible.

@@ -8,9 +8,9 @@ tolerances ``rtol`` (each run from the scene's start to ``t_final``):
                     ``euler``, ``heun``, ``rk4``, with the scene's gains and with each fixed
                     gain k of :data:`FI_GAINS` on every invariant (column ``gain``)
 ``FI-tuned``        the feedback integrator with fixed gains matched to ``dt`` and the scheme
-                    (:func:`liefi.gains.auto_gains`: ``dt lambda_max(Hess V)`` at the
+                    (:func:`liefi.integrator.gains.auto_gains`: ``dt lambda_max(Hess V)`` at the
                     scheme's optimal rate along a pilot run), same schemes
-``FI-accurate``     the feedback integrator with the gains of :func:`liefi.gains.accurate_gains`
+``FI-accurate``     the feedback integrator with the gains of :func:`liefi.integrator.gains.accurate_gains`
                     (least drift bound for the scheme, ``dt`` and ``t_final``; zero on the
                     invariants the scheme keeps exactly); a run whose gains vanish on an
                     invariant the scheme does not keep is the no-feedback method, and is
@@ -31,7 +31,7 @@ tolerances ``rtol`` (each run from the scene's start to ``t_final``):
                     what DifferentialEquations.jl's ``ManifoldProjection`` does
 ``projection-1``    the same with exactly one Newton step per step and no convergence check:
                     the projection peer closest to a split feedback step at large gains
-``DLA``             the discrete Lagrange--d'Alembert scheme of :mod:`liefi.dla`, where it
+``DLA``             the discrete Lagrange--d'Alembert scheme of :mod:`liefi.schemes.dla_integrator`, where it
                     applies (systems on ``T*R^n`` with a constant metric)
 ==================  =======================================================================
 
@@ -70,7 +70,7 @@ How the runs are made comparable
   residual/Jacobian evaluations are counted in ``projection_evaluations``.
 * Drifts are measured at the saved points (``n_save`` per run, uniform in time).
 
-Tasks are plain dicts run by :func:`run_task` through :func:`liefi.sweep.run_sweep`,
+Tasks are plain dicts run by :func:`run_task` through :func:`liefi.results.sweep.run_sweep`,
 so any executor (processes, a Dask cluster) can run the grid; every run is
 measured as it arrives and appended to ``results.sqlite`` in the output folder
 (a rerun resumes), and a run that raises or whose worker dies is a row with
@@ -274,7 +274,7 @@ IVP_EVALS_SCALE, STIFF_FACTOR, RTOL_SETUP_SECONDS, TUNE_SECONDS = 5.0, 30.0, 1.0
 def expected_seconds(task):
     """``(kind, seconds)``: the kind of a task (``"method scheme"``) and a prior of its seconds.
 
-    The time left of a sweep is weighted by it (:func:`liefi.sweep.run_sweep`,
+    The time left of a sweep is weighted by it (:func:`liefi.results.sweep.run_sweep`,
     ``expected``): a fixed-step run costs ``repeats x T/dt x`` its evaluations a
     step; a tolerance run ``K T rtol^{-1/p}`` evaluations of order ``p``
     (:data:`STIFF_FACTOR` more for an explicit ``solve_ivp`` method on the
@@ -366,7 +366,7 @@ def run_task(task):
                                message=f"accurate gains are zero on {zero or list(g)}: that is the no-feedback method")
                     return out
                 fi = fi.with_gains(g)
-                if kept:  # left out of V, as a default run does (liefi.run.exact_drops)
+                if kept:  # left out of V, as a default run does (liefi.integrator.gains.exact_drops)
                     fi = fi.without({k: "kept exactly by the scheme" for k in kept})
                 cf = compile_fi(fi)
                 p, proj = _engine.parameters(fi), None
@@ -489,7 +489,7 @@ _ROW_KEYS = ("scene", "variant", "method", "scheme", "dt", "rtol", "gain", "t_fi
 
 
 def error_row(task, err):
-    """The CSV row of a task that raised or whose worker died (a :class:`~liefi.sweep.TaskError`)."""
+    """The CSV row of a task that raised or whose worker died (a :class:`~liefi.results.sweep.TaskError`)."""
     row = {k: task.get(k) for k in _ROW_KEYS}
     row.update(status="error", message=str(err)[:300], cpu_seconds=math.nan, compile_seconds=0.0,
                rhs_evaluations=0, projection_evaluations=0, steps=0, max_error=math.nan, max_drift=math.nan)
@@ -560,11 +560,11 @@ def work_precision(scene, t_final=None, out_dir=None, executor=None, *, variant=
         Horizon of every run (default: the scene's ``t_final``); finite and > 0.
     out_dir : str, optional
         Where to write the CSV and PNGs, and the results store ``results.sqlite``
-        (:class:`~liefi.sweep.ResultStore`) that every run is appended to as it
+        (:class:`~liefi.results.sweep.ResultStore`) that every run is appended to as it
         finishes; a rerun into the same ``out_dir`` skips the runs already there.
         Nothing is written without it.
     executor : concurrent.futures.Executor, optional
-        Runs the grid (default: serially in this process); see :mod:`liefi.sweep`.
+        Runs the grid (default: serially in this process); see :mod:`liefi.results.sweep`.
     variant, dts, rtols, methods, configuration, n_save, quick, schemes, ivp_methods, gains, fi_rtols
         The grid: see :func:`build_tasks` and :func:`default_grid`.
     repeats : int
@@ -589,10 +589,10 @@ def work_precision(scene, t_final=None, out_dir=None, executor=None, *, variant=
 
     Raises
     ------
-    liefi.sweep.SweepInterrupted
+    liefi.results.sweep.SweepInterrupted
         On Ctrl-C (or SIGTERM), after the CSV of the runs finished so far is
         written (``exc.rows``: exactly the runs of the grid in the store).
-    liefi.sweep.StoreError
+    liefi.results.sweep.StoreError
         When the store cannot be written (disk full) or read (damaged), with
         ``exc.rows`` and the CSV as for an interrupt.
     """

@@ -39,7 +39,7 @@ def _series(rows):
 
 
 def _legends(rows):
-    """The grouped legends of a work-precision figure (:func:`liefi.plotting.legend_columns`): the
+    """The grouped legends of a work-precision figure (:func:`liefi.results.scene_figures.legend_columns`): the
     method families by colour with the FI gains by lightness below them, the schemes by marker
     and line -- one entry per family, scheme and gain, not one per series."""
     from matplotlib.lines import Line2D

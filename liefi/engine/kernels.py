@@ -10,7 +10,7 @@ more:
 * :func:`compile_constrained` -- :func:`liefi.reduction.core.full_vector_field`
   (or :func:`~liefi.reduction.core.field_terms`) with ``kind="constrained"``,
   plus the residuals of the invariant set for a projection after every step;
-* :func:`compile_dla` -- :meth:`liefi.dla.DLAIntegrator.update`.
+* :func:`compile_dla` -- :meth:`liefi.schemes.dla_integrator.DLAIntegrator.update`.
 
 A user datum, invariant or group method that cannot be traced raises
 :class:`~liefi.engine.trace.NotCompilable` naming it; :func:`run_feedback`
@@ -55,7 +55,7 @@ def _fi_key(fi, kind):
 def _cached(system, key, engine, build):
     """The kernel of ``(system, key, engine)``: from this process's table, or ``build()`` and keep it
     (weakly per system; the generated module itself is shared by the hash of its text).  A system whose
-    data can change in place (the constants of :class:`liefi.mechanics.MechanicsSystem`) names its current
+    data can change in place (the constants of :class:`liefi.systems.mechanics.MechanicsSystem`) names its current
     data by ``data_key``, which is part of the key."""
     full = (id(system), getattr(system, "data_key", None)) + key + (engine,)
     with _cache._LOCK:
@@ -246,7 +246,7 @@ def compile_constrained(fi, *, projection=False, engine=None):
 
 
 def dla_applies(system):
-    """Whether :mod:`liefi.dla` applies: a system on ``T*R^n`` (no group) with a constant metric
+    """Whether :mod:`liefi.schemes.dla_integrator` applies: a system on ``T*R^n`` (no group) with a constant metric
     and no vector potential."""
     return (
         system.space.d == 0 and system.metric.constant and system.space.n > 0
@@ -255,8 +255,8 @@ def dla_applies(system):
 
 
 def compile_dla(system, *, engine=None):
-    """The DLA scheme of :mod:`liefi.dla` compiled for ``system``: the trace of
-    :meth:`~liefi.dla.DLAIntegrator.update` of :meth:`~liefi.dla.DLAIntegrator.from_system`."""
+    """The DLA scheme of :mod:`liefi.schemes.dla_integrator` compiled for ``system``: the trace of
+    :meth:`~liefi.schemes.dla_integrator.DLAIntegrator.update` of :meth:`~liefi.schemes.dla_integrator.DLAIntegrator.from_system`."""
     from ..schemes.dla_integrator import DLAIntegrator
 
     if not dla_applies(system):
@@ -305,8 +305,9 @@ def prepare_feedback(fi, scheme, y0, backend):
     """The :class:`CompiledField` of ``fi`` for ``scheme``, its loop compiled (or loaded); ``None`` to use numpy.
 
     The first half of :func:`run_feedback` (same warnings, once per system and
-    reason): :func:`liefi.run.run_feedback` calls it before its progress starts,
-    so that the bar counts steps, not the compile.
+    reason): :func:`liefi.integrator.run.run_feedback` calls it before its progress starts,
+    so that the bar counts steps, not the compile.  ``scheme`` is the scheme object the run
+    loop resolved (an explicit tableau or a split scheme), never a name: it is not looked up here.
     """
     if backend not in ("numba", "auto"):
         raise ValueError(f"backend: expected 'numpy', 'numba' or 'auto', got {backend!r}")
@@ -314,10 +315,8 @@ def prepare_feedback(fi, scheme, y0, backend):
         _say(f"liefi: numba is not available ({_cache.NUMBA_ERROR}); running the numpy path. "
              "Install it with `pip install liefi[fast]`.", "nonumba")
         return None
-    from ..schemes import get_scheme
-
     try:
-        sch = get_scheme(scheme)
+        sch = scheme
         cf = compile_split(fi) if getattr(sch, "kind", None) == "split" else compile_feedback(fi)
         cf.warmup(sch, batch=np.ndim(fi.y0 if y0 is None else y0) > 1)
     except NotCompilable as exc:
@@ -340,16 +339,15 @@ def run_feedback(fi, dt, n_steps, scheme, y0, save_every, check_every, backend):
     ``None``.  (A read-only, unsafe or full cache directory is not one: the kernel
     is then compiled in memory, :mod:`liefi.engine.cache`.)  Errors
     of the run itself (:class:`~liefi.schemes.IntegrationError`) propagate.
+    ``scheme``: the run loop's scheme object, as :func:`prepare_feedback`'s.
 
     The returned :class:`~liefi.schemes.Solution` has ``cpu_seconds`` of the loop
     alone and ``overhead_seconds``: the one-off cost of tracing, loading and
     compiling the kernel, paid by the first run in the process that needs it.
     """
-    from ..schemes import get_scheme
-
     y0 = fi.y0 if y0 is None else y0
     cf = prepare_feedback(fi, scheme, y0, backend)
     if cf is None:
         return None
-    return cf.run(y0, fi.parameters(), dt, n_steps, get_scheme(scheme), save_every=save_every,
+    return cf.run(y0, fi.parameters(), dt, n_steps, scheme, save_every=save_every,
                   check_every=check_every, names=fi.names)

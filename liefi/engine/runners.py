@@ -269,9 +269,11 @@ class CompiledField(_Overhead):
             kernel not reported by an earlier run: paid once per process),
             ``backend`` and, with a projection, ``projection_evaluations``.
         """
-        from ..schemes import Solution, _fail, run_arguments
+        from ..schemes import Solution, _fail
+        from ..schemes.core import _step_arguments
 
-        sch, dt, n_steps, save_every = run_arguments(_loop_scheme(scheme), dt, n_steps, save_every)
+        sch = _loop_scheme(scheme)  # a run loop's object as it is; a name looked up here, once
+        dt, n_steps, save_every = _step_arguments(dt, n_steps, save_every)
         check_every = max(1, int(check_every))
         if project is not None and not self.projection:
             raise ValueError("project: this compiled field has no invariant residuals (compile it with projection=True)")
@@ -354,7 +356,7 @@ class CompiledDLA(_Overhead):
 
     def run(self, q0, q1, h, n_steps, *, save_every=1, t0=0.0):
         """``(t, q, p, cpu_seconds, updates)`` with ``q, p`` of shape ``(n, n_saved)`` and
-        ``p_k = M (q_k - q_{k-1}) / h`` (``p_0 = M (q_1 - q_0)/h``), as :meth:`liefi.dla.DLAIntegrator.run`."""
+        ``p_k = M (q_k - q_{k-1}) / h`` (``p_0 = M (q_1 - q_0)/h``), as :meth:`liefi.schemes.dla_integrator.DLAIntegrator.run`."""
         from ..schemes.dla_integrator import DLANonFiniteError
 
         n_steps, save_every = int(n_steps), max(1, int(save_every))

@@ -4,7 +4,7 @@ rules live in :mod:`liefi.engine.symbolic`.
 The compiled engine does not re-implement any formula.  It calls the library's
 functions (:func:`liefi.reduction.core.evaluate`, the feedback field
 :meth:`liefi.FeedbackIntegrator.vector_field`, the DLA step
-:meth:`liefi.dla.DLAIntegrator.update`, the group's ``config_rate``,
+:meth:`liefi.schemes.dla_integrator.DLAIntegrator.update`, the group's ``config_rate``,
 ``penalty_grad``, ``orthogonal_matrices`` ...) on object arrays of :class:`Sym`
 scalars: every ``+ - * / **``, ``np.sin``, ``np.sqrt``, ``np.stack``,
 ``np.einsum``, ``@``, indexing ... then records a node of a scalar expression

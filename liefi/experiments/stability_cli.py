@@ -36,7 +36,7 @@ def sweep_gains(text):
 
 
 def _estimate_at(fi, dt, scheme, T, k=None):
-    """:func:`liefi.stability.estimate` at the scene's gains, or (``k``) at every gain equal to ``k``."""
+    """:func:`liefi.integrator.stability.estimate` at the scene's gains, or (``k``) at every gain equal to ``k``."""
     est = estimate(fi if k is None else fi.with_gains(k), dt, scheme, t_final=T)
     if k is not None and not (math.isfinite(est.lam) and est.lam < 1e300):
         raise ValueError(f"gains: at k = {k:g} the largest eigenvalue of Hess V is {est.lam:.3g}, past the ~1e300 "

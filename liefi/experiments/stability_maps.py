@@ -3,7 +3,7 @@
 For every gain ``k`` (all gains equal to ``k``) the largest ``dt`` whose run
 stays finite and the largest whose drift stays below ``accurate`` are found by
 bisection in ``dt``; :func:`plot_stability_map` draws them with the estimate
-``dt_max(k) = beta / lambda_max(k)`` of :mod:`liefi.stability`.
+``dt_max(k) = beta / lambda_max(k)`` of :mod:`liefi.integrator.stability`.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 r"""Dense output and events of a fixed-step run, in the shape of ``scipy.integrate.solve_ivp``.
 
-A fixed-step run of a feedback integrator (:func:`liefi.run.run_feedback`)
+A fixed-step run of a feedback integrator (:func:`liefi.integrator.run.run_feedback`)
 steps on the grid ``t_k = t_0 + k dt`` with the one-step map ``Phi_dt`` of
 its scheme (an explicit tableau on ``X - A grad V``; a split scheme's tableau
 on ``X`` followed by its feedback step, :mod:`liefi.schemes.split`).  The
@@ -37,7 +37,7 @@ the end of the run (with ``adaptive`` gains they may differ from a
 segment's; they act only on the drift, which is at rounding either way).
 
 The same primitive gives a run whose ``dt`` does not divide the span its last,
-shortened step (:func:`liefi.run.run_feedback`), and the state at an event:
+shortened step (:func:`liefi.integrator.run.run_feedback`), and the state at an event:
 a sign change of ``event(t, y)`` between two saved states is located by
 Brent's method (:func:`scipy.optimize.brentq`, to ``4 eps |t|``) on
 ``event(t, Phi_{t - t_k}(y_k))``, so the event's state is a partial-step

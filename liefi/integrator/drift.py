@@ -1,7 +1,7 @@
 """Drift of the invariants: their scales, the largest relative residual, and the first-integral check.
 
-Part of :mod:`liefi.stability` (which re-exports every function here): the
-guard of a run (:mod:`liefi.guard`) measures with them how far a run has left
+Part of :mod:`liefi.integrator.stability` (which re-exports every function here): the
+guard of a run (:mod:`liefi.integrator.guard`) measures with them how far a run has left
 the invariant set.
 """
 

@@ -111,14 +111,14 @@ class FeedbackIntegrator:
         ``"energy"`` (``h~`` or ``h`` by ``energy=``), and :class:`Invariant` objects.
         Default ``("constraints", "energy")`` followed by the Casimirs the phase
         space carries (``system.space.casimirs``: the six attitude Casimirs of a
-        rolling body, :data:`liefi.rolling.ATTITUDE_CASIMIRS`; none elsewhere).
+        rolling body, :data:`liefi.systems.rolling.ATTITUDE_CASIMIRS`; none elsewhere).
     gains : float, dict or "auto"
         Default ``"auto"``.  One number for every gain, or ``{name: k}`` with names ``"J_1"``...,
         ``"energy"``, ``"penalty"``, the invariants' names; ``"constraints"`` sets every ``J_i``.
         For an ensemble a gain may differ between members: an array of shape
         ``y0.shape[:-1]`` (e.g. ``{"energy": [10.0, 100.0, 1000.0]}``).
         ``"auto"``: chosen by :meth:`run` for accuracy, from the scheme, ``dt`` and
-        the horizon ``T`` (:mod:`liefi.gains`, which holds the derivation).  The
+        the horizon ``T`` (:mod:`liefi.integrator.gains`, which holds the derivation).  The
         residual ``r_j = I_j - I_j0`` relaxes at the rate ``kappa_j = k_j |grad I_j|^2``;
         with ``z = dt kappa`` one step of an explicit Runge--Kutta tableau
         ``(A, b, c)`` of order ``p`` maps ``r -> R(-z) r + delta(z)``, where
@@ -128,7 +128,7 @@ class FeedbackIntegrator:
         ``|r| <= D(z) = delta(z) (1 - |R|^N)/(1 - |R|)`` plus a random walk of
         rounding.  ``gains="auto"`` takes ``z* = argmin D`` (0, no feedback,
         unless it buys a factor 2) and ``k_j = w_j z*/dt`` with ``w_j`` the
-        unit-rate weights of :func:`liefi.gains.unit_rate_gains`
+        unit-rate weights of :func:`liefi.integrator.gains.unit_rate_gains`
         (``1/|grad I_j|^2``, scaled so that ``lambda_max(Hess V) = 1``): Euler
         gets ``z* = 1`` (Bae & Chang's ``k = 1/(dt L)``), RK4 ``kappa* ~ 0.26 omega``,
         far below its stability limit, and short horizons ``z* = 0``.  Both
@@ -139,7 +139,7 @@ class FeedbackIntegrator:
         at the rate ``z*`` (``adaptive=``).  On the split schemes (``imex-*``) the
         feedback step maps ``r -> (r + delta(0))/(1 + z)``: ``D`` falls for every
         ``z``, and ``"auto"`` takes ``z* = 1/sqrt(u)`` (a Gauss--Newton step onto
-        the invariant set; :data:`liefi.gains.SPLIT_RATE_MAX`), fixed along the run.
+        the invariant set; :data:`liefi.integrator.gains.SPLIT_RATE_MAX`), fixed along the run.
     energy : {"extended", "original"}
         Penalize ``h~`` (default, the paper's main choice) or ``h`` (its Remarks).
     configuration : bool
@@ -254,7 +254,7 @@ class FeedbackIntegrator:
 
         # --- gains ---------------------------------------------------------------
         #: "auto": gains chosen from dt and the Hessian of V when a run knows dt
-        #: (liefi.gains.auto_gains); until then unit-rate gains (see below).
+        #: (liefi.integrator.gains.auto_gains); until then unit-rate gains (see below).
         self.gains_mode = "auto" if isinstance(gains, str) and gains == "auto" else "fixed"
         self._set_gains(self._parse_gains(1.0 if self.gains_mode == "auto" else gains))
 
@@ -421,7 +421,7 @@ class FeedbackIntegrator:
         """A copy with other (fixed) gains; same system, invariants, targets and ``A``.
 
         ``gains`` as in the constructor (a number or ``{name: k}``; not ``"auto"``).
-        Used by the adaptive runs (:mod:`liefi.policy`, :mod:`liefi.gains`), which change the gains
+        Used by the adaptive runs (:mod:`liefi.integrator.policy`, :mod:`liefi.integrator.gains`), which change the gains
         along a run: the zero set of ``V`` -- the invariant set -- does not depend on them.
         """
         import copy
@@ -448,8 +448,8 @@ class FeedbackIntegrator:
     def without(self, drops):
         """A copy whose ``V`` leaves out the invariants ``drops`` (``{name: reason}``); they stay monitored.
 
-        Used by :func:`liefi.run.run_feedback` for the invariants the scheme keeps
-        exactly (:func:`liefi.gains.exactly_kept`): their feedback term vanishes
+        Used by :func:`liefi.integrator.run.run_feedback` for the invariants the scheme keeps
+        exactly (:func:`liefi.integrator.gains.exactly_kept`): their feedback term vanishes
         identically and only costs work.  The copy's :attr:`dropped` lists
         ``{"name", "reason"}``; its field (numpy and compiled) has no such term.
         The embedding penalty cannot be dropped.
@@ -511,7 +511,7 @@ class FeedbackIntegrator:
         ``grad V = sum_j k_j r_j grad I_j + k0 grad P`` and, on the zero set of
         ``V``, ``Hess V = sum_j k_j grad I_j grad I_j^T + k0 Hess P``: its largest
         eigenvalue is that of the small Gram matrix
-        ``G_ij = sqrt(k_i k_j) grad I_i . grad I_j`` (:mod:`liefi.stability`).
+        ``G_ij = sqrt(k_i k_j) grad I_i . grad I_j`` (:mod:`liefi.integrator.stability`).
         """
         y = np.asarray(y, dtype=float)
         g, z = self.split(y)
@@ -540,7 +540,7 @@ class FeedbackIntegrator:
         :meth:`invariant_gradients` and the split schemes' feedback step
         (:func:`liefi.schemes.split.feedback_step`) all read it.  With ``t`` evaluated
         without derivatives (``evaluate(..., derivatives=False)``) every ``grad I_j`` is
-        ``None``: the residuals of :func:`liefi.drift.drift` need no Jacobian.
+        ``None``: the residuals of :func:`liefi.integrator.drift.drift` need no Jacobian.
         """
         p, lay = params, self.parameter_layout
         out = []
@@ -658,11 +658,11 @@ class FeedbackIntegrator:
             sensitivities=None, **unknown):
         """Integrate from ``y0`` (default: the one given at construction) over ``t_span``, as ``solve_ivp``.
 
-        The loop is :func:`liefi.run.run_feedback`.  The default method is the best one
-        (:mod:`liefi.tolerance`): a split scheme, compiled, with the constructor's gains
+        The loop is :func:`liefi.integrator.run.run_feedback`.  The default method is the best one
+        (:mod:`liefi.integrator.tolerance`): a split scheme, compiled, with the constructor's gains
         (``"auto"`` by default); without ``dt`` its order (``"imex-rk4"``, ``"imex-rk6"``
         or ``"imex-rk8"``, the fewest field evaluations) and its step are those
-        :func:`liefi.tolerance.choose_step` picks for ``rtol`` and ``atol``; with a given
+        :func:`liefi.integrator.tolerance.choose_step` picks for ``rtol`` and ``atol``; with a given
         ``dt`` it is ``"imex-rk4"``.  ``solution.method`` says which method ran and why.
         The old form ``run(dt, t_final, scheme)`` is retired (a ``TypeError`` names the new call).
 
@@ -686,7 +686,7 @@ class FeedbackIntegrator:
         t_eval : array_like, optional
             Times at which to store the solution, as in ``solve_ivp``: the state between two
             steps is a partial step of the scheme from the last step before it
-            (:mod:`liefi.dense`: the scheme's order, the invariants kept as at the steps).
+            (:mod:`liefi.integrator.dense`: the scheme's order, the invariants kept as at the steps).
         events : callable or list of callables, optional
             Event functions ``event(t, y)``, as in ``solve_ivp``, located on those partial
             steps; a ``terminal`` one ends the run with ``status=1``; a single trajectory only.
@@ -706,8 +706,8 @@ class FeedbackIntegrator:
         check_stability : bool, default True
             Estimate ``dt * lambda_max(A Hess V)`` before the run against the scheme's bound
             (warn with the largest safe ``dt`` and gain at the limit, refuse 10x past it) and
-            stop with :class:`liefi.stability.StabilityError` when the drift explodes; the
-            report is ``solution.stability`` (:mod:`liefi.stability`).
+            stop with :class:`liefi.integrator.stability.StabilityError` when the drift explodes; the
+            report is ``solution.stability`` (:mod:`liefi.integrator.stability`).
         adaptive : bool, optional
             Rescale the gains along the run so that ``dt * lambda_max`` stays at the scheme's
             optimum (default: on for ``gains="auto"``; with fixed gains it only lowers them).
@@ -717,7 +717,7 @@ class FeedbackIntegrator:
             Progress on stderr (default: for runs of more than a few seconds, on a terminal).
         drop_exact : bool, default True
             Leave out of ``V`` an invariant that every Runge--Kutta step keeps to rounding
-            (:func:`liefi.gains.exactly_kept`: a constant gradient no other term moves) and
+            (:func:`liefi.integrator.gains.exactly_kept`: a constant gradient no other term moves) and
             that starts on its target; ``solution.dropped`` lists them, still monitored.
         errors : {"raise", "return"}, default "raise"
             On non-finite numbers: raise :class:`~liefi.schemes.IntegrationError` naming the

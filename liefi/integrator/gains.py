@@ -1,8 +1,8 @@
 r"""Every choice of gains: the feedback rate that minimizes a drift bound, per scheme, step and horizon.
 
 This module holds all the choosing of gains; the theory it reads (``lambda_max(Hess V)``,
-the unforced rates, the schemes' bounds, the pilot) is :mod:`liefi.stability`, below it,
-and the run's policy (:mod:`liefi.policy`), above it, asks it for a run's gains:
+the unforced rates, the schemes' bounds, the pilot) is :mod:`liefi.integrator.stability`, below it,
+and the run's policy (:mod:`liefi.integrator.policy`), above it, asks it for a run's gains:
 
 * :func:`unit_rate_gains` (``lambda_max = 1``, Jacobi weights) and :func:`rate_gains`
   (those at a rate ``z``: every gain chosen through a rate is this product);
@@ -14,7 +14,7 @@ and the run's policy (:mod:`liefi.policy`), above it, asks it for a run's gains:
   adaptive run (numeric gains only lowered where ``dt lambda_max`` passes the rate);
 * :func:`exactly_kept` and :func:`exact_drops` -- the invariants that need no gain;
 * :func:`run_gains` -- what a fixed-step run starts with: the gains, the rate they are
-  adapted at and which members adapt (the one question :class:`liefi.policy.Policy`
+  adapted at and which members adapt (the one question :class:`liefi.integrator.policy.Policy`
   asks here at a run's start; :func:`adapted_gains` the one between its segments).
 
 The feedback term ``-k_j (I_j - I_j0) grad I_j`` relaxes the residual
@@ -161,7 +161,7 @@ def unit_rate_gains(fi, y=None):
 
     The Jacobi scaling of the Gram matrix: each invariant alone would relax at
     the same rate; the common factor makes the largest eigenvalue 1
-    (:func:`liefi.stability.stiffness`).  The penalty (Hessian eigenvalue 2 on
+    (:func:`liefi.integrator.stability.stiffness`).  The penalty (Hessian eigenvalue 2 on
     the group) gets weight 1/2.  A vanishing gradient gets the weight of the
     largest one.  For a batch ``y`` (an ensemble) each member gets its own
     (arrays of shape ``y.shape[:-1]``): the gains a single run of that member gets.
@@ -208,7 +208,7 @@ def auto_gains(fi, dt, scheme="euler", *, y=None, t_final=None):
 
     ``x*`` is :func:`optimal_rate` (1 for Euler: Bae & Chang's ``k = 1/(dt L)``).
     With ``t_final`` the largest ``lambda_max`` along a pilot up to ``t_final``
-    (:func:`liefi.stability.estimate`) is used, so the gains are safe over the
+    (:func:`liefi.integrator.stability.estimate`) is used, so the gains are safe over the
     whole run (without adapting).
     """
     dt = positive_number(dt, "dt")

@@ -1,12 +1,12 @@
 """The stability guard: the verdicts and the messages of a run's checks.
 
-The run's policy (:class:`liefi.policy.Policy`) decides the step and the gains
-(:mod:`liefi.gains`); the guard turns the theory's numbers (:mod:`liefi.stability`:
+The run's policy (:class:`liefi.integrator.policy.Policy`) decides the step and the gains
+(:mod:`liefi.integrator.gains`); the guard turns the theory's numbers (:mod:`liefi.integrator.stability`:
 ``dt lambda_max`` against the scheme's bound, the invariants' drift, the metric)
 into verdicts and words, and calls nothing above it.  The policy asks one
 :class:`Guard` per run, once at each point of the run:
 
-* :meth:`Guard.before` -- the pre-run verdict (:func:`liefi.stability.check`, or the
+* :meth:`Guard.before` -- the pre-run verdict (:func:`liefi.integrator.stability.check`, or the
   resolution of the unforced dynamics where the gains adapt);
 * :meth:`Guard.segment` -- after each segment, by the rule of :func:`_guard_verdict`:
   ``"error"`` when the drift exploded after ``dt lambda_max`` left the bound,
@@ -297,7 +297,7 @@ AUDIT_STATES = 2000
 class Guard:
     """The checks of one fixed-step run: before it, once per segment and after it (module docstring).
 
-    Asked by the run's policy (:class:`liefi.policy.Policy`), one question at a
+    Asked by the run's policy (:class:`liefi.integrator.policy.Policy`), one question at a
     time; fills in ``report`` (a :class:`RunReport`) and warns through
     ``warn(message, depth)`` (the policy's warning; ``depth``: the frames
     between it and the policy).  ``sch``: the registry scheme; ``t0``: the
@@ -318,10 +318,10 @@ class Guard:
     def before(self, run_fi, fi, y0, n_steps, *, adaptive, backend, watch, stacklevel):
         """The pre-run verdict, and (``watch``) the drift at the start that the later checks compare with.
 
-        Fixed gains on an explicit tableau: :func:`liefi.stability.check` along a
+        Fixed gains on an explicit tableau: :func:`liefi.integrator.stability.check` along a
         short pilot (a warning at the limit, a refusal 10x past it); adapted
         gains or a split scheme: only the resolution of the unforced dynamics.
-        ``stacklevel`` as :func:`liefi.stability.check`'s, counted from the caller.
+        ``stacklevel`` as :func:`liefi.integrator.stability.check`'s, counted from the caller.
         """
         dt, rep = self.dt, self.report
         if self.check_stability:
@@ -365,11 +365,11 @@ class Guard:
 
         ``dt lambda_max`` against the bound (remembered from the first time it
         passed it) and, with ``check_stability``, the drift of the invariants:
-        :class:`~liefi.stability.StabilityError` when it exploded after the bound
+        :class:`~liefi.integrator.stability.StabilityError` when it exploded after the bound
         was passed (:func:`_guard_verdict`), a warning for a large drift within
         it, or (fixed gains) when the stiffness grew past the bound.  ``y_all``:
         the whole state, for the error.  Returns ``(st, lam, ratio)``: the
-        :class:`~liefi.stability.Stiffness` at ``y``, its largest ``lambda_max``
+        :class:`~liefi.integrator.stability.Stiffness` at ``y``, its largest ``lambda_max``
         and ``dt lambda_max / beta``.
         """
         rep, dt, beta, sch = self.report, self.dt, self.beta, self.sch

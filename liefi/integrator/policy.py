@@ -1,31 +1,31 @@
 """The run policy: the step and the gains of one fixed-step run, decided in one place.
 
-The run loop (:mod:`liefi.run`) drives; it asks one :class:`Policy`
+The run loop (:mod:`liefi.integrator.run`) drives; it asks one :class:`Policy`
 
-* :meth:`Policy.step` -- the step: as given, or for a tolerance (:func:`liefi.tolerance.choose_step`:
+* :meth:`Policy.step` -- the step: as given, or for a tolerance (:func:`liefi.integrator.tolerance.choose_step`:
   the error estimate, shortened until the step resolves the unforced motion), whole steps to the end;
-* :meth:`Policy.drops` -- the invariants the scheme keeps exactly (:func:`liefi.gains.exact_drops`:
+* :meth:`Policy.drops` -- the invariants the scheme keeps exactly (:func:`liefi.integrator.gains.exact_drops`:
   their gain is 0, they leave ``V``);
-* :meth:`Policy.start` -- the gains to start with, asked of :mod:`liefi.gains` once
-  (:func:`liefi.gains.run_gains`: ``gains="auto"`` the accurate rate, adapted along
+* :meth:`Policy.start` -- the gains to start with, asked of :mod:`liefi.integrator.gains` once
+  (:func:`liefi.integrator.gains.run_gains`: ``gains="auto"`` the accurate rate, adapted along
   the run only near the stability limit; fixed gains lowered where ``dt lambda_max``
   passes the rate with ``adaptive=True``) and the pre-run verdict
-  (:meth:`liefi.guard.Guard.before`: :func:`liefi.stability.check`, a warning at the
+  (:meth:`liefi.integrator.guard.Guard.before`: :func:`liefi.integrator.stability.check`, a warning at the
   limit, a refusal 10x past it; the resolution of the unforced dynamics);
 * :meth:`Policy.segment_length` and, once per segment, :meth:`Policy.between` --
-  the verdict on the segment, asked of the guard once (:meth:`liefi.guard.Guard.segment`:
-  the drift of the invariants, ``dt lambda_max``; :class:`~liefi.stability.StabilityError`
+  the verdict on the segment, asked of the guard once (:meth:`liefi.integrator.guard.Guard.segment`:
+  the drift of the invariants, ``dt lambda_max``; :class:`~liefi.integrator.stability.StabilityError`
   when it exploded past the limit), and the length and gains of the next one
-  (adaptive runs, member by member in an ensemble: :func:`liefi.gains.adapted_gains`,
+  (adaptive runs, member by member in an ensemble: :func:`liefi.integrator.gains.adapted_gains`,
   asked once);
 * :meth:`Policy.after` -- the audit of the saved states; :meth:`Policy.failure` --
   what to change, appended to an :class:`~liefi.schemes.IntegrationError` (the guard's).
 
-Below it, and never calling back up: :mod:`liefi.gains` (every choice of gains:
+Below it, and never calling back up: :mod:`liefi.integrator.gains` (every choice of gains:
 the unit-rate gains, the drift bound and the accurate rate, the contraction rate,
-the gains re-chosen along a run), :mod:`liefi.tolerance` (the error estimate) and
-:mod:`liefi.guard` (the verdicts, the audit and the messages made from their
-numbers), and under them the theory, :mod:`liefi.stability` (the Hessian of
+the gains re-chosen along a run), :mod:`liefi.integrator.tolerance` (the error estimate) and
+:mod:`liefi.integrator.guard` (the verdicts, the audit and the messages made from their
+numbers), and under them the theory, :mod:`liefi.integrator.stability` (the Hessian of
 ``V``, ``lambda_max``, the schemes' bounds, the unforced rates, the pilot), which
 chooses nothing.
 """
@@ -87,14 +87,14 @@ def _segment(s0, n_steps, N, save_every):
 class Policy:
     """The step and the gains of one fixed-step run of a feedback integrator, and their checks (module docstring).
 
-    Parameters as :func:`liefi.run.run_feedback`.  ``scheme`` is a registry
-    scheme (explicit or split); ``beta`` its real stability bound.
+    Parameters as :func:`liefi.integrator.run.run_feedback`.  ``scheme`` is the scheme object the run loop
+    resolved (explicit or split; never a name); ``beta`` its real stability bound.
     """
 
     def __init__(self, scheme, *, backend, check_stability=True, adaptive=None, stacklevel=3, choose_order=False,
                  resolution_limit=None):
         self.sch = scheme
-        #: a step chosen for a tolerance may also choose the order (:func:`liefi.tolerance.choose_order`)
+        #: a step chosen for a tolerance may also choose the order (:func:`liefi.integrator.tolerance.choose_order`)
         self.choose_order = bool(choose_order)
         #: ``dt`` times the fastest rate that resolves the motion (a step for a tolerance brings its own)
         self.resolution_limit = RESOLUTION_LIMIT if resolution_limit is None else float(resolution_limit)
@@ -104,7 +104,7 @@ class Policy:
         self.check_stability = bool(check_stability)
         self._adaptive_arg = adaptive
         self.stacklevel = stacklevel
-        #: the ``info`` of :func:`liefi.tolerance.choose_step` when the step was chosen for a tolerance
+        #: the ``info`` of :func:`liefi.integrator.tolerance.choose_step` when the step was chosen for a tolerance
         self.chosen = None
 
     # --- the step -----------------------------------------------------------------------
@@ -130,7 +130,7 @@ class Policy:
         return dt, t_end, n_steps, check_every
 
     def tolerance_step(self, fi, y0, t_start, t_end, rtol, atol, *, max_steps):
-        """``(dt, info)``: the step for ``rtol``/``atol`` over ``[t_start, t_end]`` (:func:`liefi.tolerance.choose_step`).
+        """``(dt, info)``: the step for ``rtol``/``atol`` over ``[t_start, t_end]`` (:func:`liefi.integrator.tolerance.choose_step`).
 
         ``y0`` the start (a batch: one step for every member, the most
         demanding).  A start that is not a finite state of ``fi`` gets the whole
@@ -181,7 +181,7 @@ class Policy:
         ``gains="auto"``: every member of an ensemble gets its own rate and gains
         (those of its single run); on an explicit tableau they are adapted along
         the run only when the accurate rate sits near the stability limit.
-        Fixed gains: :func:`liefi.stability.check` (warn at the limit, refuse 10x
+        Fixed gains: :func:`liefi.integrator.stability.check` (warn at the limit, refuse 10x
         past it) along a short pilot.  ``O(1)`` calls over the batch.
         """
         self.fi = fi
@@ -195,7 +195,7 @@ class Policy:
         self.resolutions = math.nan
         #: the ensemble's shape; members of an ensemble are adapted (and checked) on their own schedule
         self.batch = tuple(getattr(fi, "batch", ()))
-        # the gains to start with, their rate and which members adapt: one question to liefi.gains
+        # the gains to start with, their rate and which members adapt: one question to liefi.integrator.gains
         # (gains="auto": the accurate rate z*, every member of an ensemble its own; adapted along the
         # run only where z* sits near the stability limit); then the pre-run verdict: one question
         # to the guard; O(1) calls over the batch
@@ -271,7 +271,7 @@ class Policy:
         st, _, ratio = self.guard.segment(run_fi, y, t_now, s0, y_all, adaptive=self.adaptive)
         if not self.adaptive:
             return run_fi, N
-        # the next gains, asked of liefi.gains once: for the whole run, or for the members due now
+        # the next gains, asked of liefi.integrator.gains once: for the whole run, or for the members due now
         base, rate = self.fi, self.rate
         if sub is not None:
             keep = np.asarray(self.mask).reshape(-1)[sub] & (self.next_i[sub] == s0)  # those adapted now
@@ -307,7 +307,7 @@ class Policy:
         """The adaptation of an ensemble: the members ``idx`` whose own check falls at step ``s0`` (module docstring).
 
         ``y`` their states at the time ``t_now``, ``lam`` their ``lambda_max`` at the gains of the segment
-        that ended, ``new`` their next gains (:func:`liefi.gains.adapted_gains`); the
+        that ended, ``new`` their next gains (:func:`liefi.integrator.gains.adapted_gains`); the
         other members keep theirs and their schedule.
         """
         dt, beta = self.dt, self.beta
@@ -337,7 +337,7 @@ class Policy:
 
     # --- after ------------------------------------------------------------------------------
     def after(self, ts, Ys):
-        """Audit the saved states ``Ys`` (``(n_t, ..., n)``) at times ``ts`` (:meth:`liefi.guard.Guard.audit`)."""
+        """Audit the saved states ``Ys`` (``(n_t, ..., n)``) at times ``ts`` (:meth:`liefi.integrator.guard.Guard.audit`)."""
         self.guard.audit(self.fi, ts, Ys, (self.sched_t, self.sched_g), backend=self.backend)
 
     # --- failure --------------------------------------------------------------------------

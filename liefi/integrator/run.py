@@ -3,15 +3,18 @@
 One job: given a :class:`~liefi.FeedbackIntegrator`, a step, a horizon and a
 scheme of the registry (:mod:`liefi.schemes.registry`), it
 
-1. validates the arguments once (the policy's step, :func:`liefi.schemes.steps_for`); a given
+1. resolves the scheme once, first, into its object (:mod:`liefi.schemes.registry`: the one look-up by name of
+   the run; the policy, the step for a tolerance, the gains, the guard, the dense output, the numpy loop
+   :func:`liefi.schemes.core.step_loop` and the compiled engine all get the object), and validates the
+   arguments once (the policy's step, :func:`liefi.schemes.steps_for`); a given
    ``dt`` that does not divide the span runs whole steps and then one last step shortened to
    end at ``t_final`` (:func:`liefi.schemes.core.step_grid`, a partial step of
-   :mod:`liefi.dense`), reported in ``solution.method`` (``"last_step"``, and in ``"why"``);
+   :mod:`liefi.integrator.dense`), reported in ``solution.method`` (``"last_step"``, and in ``"why"``);
 2. plans the run (:class:`RunPlan`): the number of steps, the memory of the
    saved output -- refused when it would not fit in memory, and capped by
    default (``save_every=None`` keeps at most :data:`DEFAULT_SAVE_BYTES`) --
    and the expected time, from the measured cost of one step;
-3. asks the run's one policy (:class:`liefi.policy.Policy`) for the step (given,
+3. asks the run's one policy (:class:`liefi.integrator.policy.Policy`) for the step (given,
    or chosen for a tolerance), the starting gains and the pre-run checks, then
    runs in segments on the chosen backend (numpy, or the compiled engine
    :func:`liefi.engine.run_feedback`), asking the policy once per segment for
@@ -26,7 +29,7 @@ scheme of the registry (:mod:`liefi.schemes.registry`), it
    ``(t0, t_final)``), watching ``events`` after every segment (a terminal one
    ends the run), with ``t_eval``, ``dense_output`` and the events' states
    given by partial steps of the run's scheme from the last step before them
-   (:mod:`liefi.dense`: the steps' order, and the invariants kept as at the steps).  :func:`positional_span` reads
+   (:mod:`liefi.integrator.dense`: the steps' order, and the invariants kept as at the steps).  :func:`positional_span` reads
    ``run(t0, t_final)`` as a span and refuses the retired ``run(dt, t_final, scheme)``.
 
 :func:`check_ivp` is the guard of the adaptive ``scipy:METHOD`` path and
@@ -45,8 +48,8 @@ import numpy as np
 
 from .._data import as_state
 from .._progress import Progress, stderr_is_terminal
-from ..schemes import IntegrationError, Solution, integrate, positive_int
-from ..schemes.core import step_grid
+from ..schemes import IntegrationError, Solution, positive_int
+from ..schemes.core import step_grid, step_loop
 from ..schemes import registry as _registry
 from ..schemes import split as _split
 from .tolerance import MAX_RUN_STEPS  # a run of more steps is refused before it starts (``--max-steps``)
@@ -144,7 +147,7 @@ def _want_progress(progress, expected):
 def _fixed_step_scheme(scheme):
     if isinstance(scheme, _split.BoundSplitStep):
         return scheme.scheme
-    sch = _registry.get(scheme)
+    sch = scheme if _registry.is_scheme_object(scheme) else _registry.get(scheme)
     if getattr(sch, "kind", None) not in ("explicit", "split"):
         raise ValueError(
             f"scheme: {sch.name!r} is not a fixed-step scheme of a feedback integrator; choose one of "
@@ -168,10 +171,10 @@ def _segment_runner(sch, dt, backend, names, t_start=0.0):
     def run(fi_cur, y, n, s0, save_every, check_every, out=None):
         t0 = t_start + s0 * dt
         if state["backend"] != "numpy":
-            from ..engine import run_feedback
+            from ..engine import kernels
 
             try:
-                sol = run_feedback(fi_cur, dt, n, sch, y, save_every, check_every, state["backend"])
+                sol = kernels.run_feedback(fi_cur, dt, n, sch, y, save_every, check_every, state["backend"])
             except IntegrationError as exc:  # times relative to the segment
                 raise IntegrationError(str(exc), t0 + exc.t, s0 + exc.step, exc.y, exc.components,
                                        getattr(exc, "what", "")) from None
@@ -181,7 +184,7 @@ def _segment_runner(sch, dt, backend, names, t_start=0.0):
             state["backend"] = "numpy"
         stepper = sch.bind(fi_cur) if split else sch
         try:
-            return integrate(fi_cur.vector_field, y, dt, n, stepper, t0=t0, save_every=save_every,
+            return step_loop(fi_cur.vector_field, y, dt, n, stepper, t0=t0, save_every=save_every,
                              names=names, check_every=check_every, out=out)
         except IntegrationError as exc:  # t absolute, step relative
             raise IntegrationError(str(exc), exc.t, s0 + exc.step, exc.y, exc.components,
@@ -236,7 +239,8 @@ def positional_span(t_span, more, *, scheme=None):
 
 
 def method_scheme(method, scheme):
-    """The ``scheme`` of ``run(method=...)``, ``solve_ivp``'s name for it: a liefi scheme, or a clear refusal.
+    """The ``scheme`` of ``run(method=...)``, ``solve_ivp``'s name for it: a liefi scheme (the object), or a clear
+    refusal.
 
     ``method`` names a fixed-step scheme of :mod:`liefi.schemes` (``"rk4"``,
     ``"imex-rk8"``, case-insensitive); one of ``solve_ivp``'s adaptive methods
@@ -252,7 +256,7 @@ def method_scheme(method, scheme):
     except ValueError:
         sch = None
     if sch is not None and sch.kind in ("explicit", "split"):
-        return sch.name
+        return sch  # the object: the run loop does not look it up again
     try:
         ivp = _registry.get(f"scipy:{method}", kind="scipy")
     except ValueError:
@@ -277,27 +281,27 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
     memory the saved output may use (default: :data:`DEFAULT_SAVE_BYTES` with
     ``save_every=None``, half the available memory with an explicit stride).
     ``drop_exact`` (default True): leave out of ``V`` the invariants the scheme
-    keeps exactly (:func:`liefi.gains.exact_drops`); ``solution.dropped`` lists them
+    keeps exactly (:func:`liefi.integrator.gains.exact_drops`); ``solution.dropped`` lists them
     (``{"name", "reason"}``).  ``t_eval``, ``events`` and ``dense_output`` as
-    ``solve_ivp``'s, by partial steps of the scheme (:mod:`liefi.dense`).
+    ``solve_ivp``'s, by partial steps of the scheme (:mod:`liefi.integrator.dense`).
     ``errors``: ``"raise"`` (default) or ``"return"``: a failed run returns the
     states up to the failure with ``success=False``, ``status=-1``.
-    ``scheme=None``: :data:`liefi.tolerance.DEFAULT_SCHEME`; ``backend=None``:
+    ``scheme=None``: :data:`liefi.integrator.tolerance.DEFAULT_SCHEME`; ``backend=None``:
     compiled when numba is installed, else numpy; ``dt=None``: the step of
-    :func:`liefi.tolerance.choose_step` for ``rtol`` (default
-    :data:`liefi.tolerance.DEFAULT_RTOL`) and ``atol``; a given ``dt`` that does not divide the span
+    :func:`liefi.integrator.tolerance.choose_step` for ``rtol`` (default
+    :data:`liefi.integrator.tolerance.DEFAULT_RTOL`) and ``atol``; a given ``dt`` that does not divide the span
     ends with one shortened step (``solution.method["last_step"]``; a ``dt`` longer than the span
     becomes one step of the span).  ``resolution_limit``: the largest ``dt``
     times the fastest rate the guard accepts without a warning, for a step chosen for a tolerance before
-    the call (:meth:`liefi.scenes.Scene.run`; default :data:`liefi.stability.RESOLUTION_LIMIT`).
+    the call (:meth:`liefi.scenes.Scene.run`; default :data:`liefi.integrator.stability.RESOLUTION_LIMIT`).
     ``max_step``: as ``solve_ivp``'s, the largest step: a step chosen for the tolerance is shortened to
     ``(t_final - t0) / ceil((t_final - t0) / max_step)``; a given ``dt`` above it is refused.
     ``sensitivities``: names (``"y0"``, the system's parameters) whose derivatives of the saved states
     ``solution.sensitivities`` holds (:mod:`liefi.integrator.sensitivity`).
 
     Returns the :class:`~liefi.schemes.Solution` with ``method`` (which method
-    ran and why: :func:`liefi.tolerance.describe`), ``stability`` (the
-    policy's :class:`~liefi.guard.RunReport`), ``plan`` (:class:`RunPlan`),
+    ran and why: :func:`liefi.integrator.tolerance.describe`), ``stability`` (the
+    policy's :class:`~liefi.integrator.guard.RunReport`), ``plan`` (:class:`RunPlan`),
     ``cpu_seconds`` (integration) and ``overhead_seconds``.
     """
     from . import dense as _dense
@@ -316,7 +320,10 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
         raise ValueError(f"errors: expected 'raise' or 'return', got {errors!r}")
     if y0 is not None:  # before the step is chosen from it (a complex or string y0 named, not cast)
         y0 = as_state(y0, "y0", fi.names)
-    scheme_given, dt_given = scheme is not None, dt is not None
+    # the scheme, resolved once, here: every module below gets the object, none looks it up by name
+    scheme_given = scheme is not None
+    sch = _fixed_step_scheme(scheme if scheme_given else _tol.DEFAULT_SCHEME)
+    dt_given = dt is not None
     t_final, h_last, last_note = t_end, 0.0, None
     if dt_given and _finite_positive(dt):  # a dt that does not divide the span: the last step shortened
         n_full, h_last = step_grid(float(dt), t_end - t_start)
@@ -327,7 +334,6 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
             t_end = t_start + n_full * float(dt)  # the grid's end; a partial step goes on to t_final
             last_note = (f"dt does not divide the span: {n_full} step{'s' if n_full > 1 else ''} of dt, then a "
                          f"last step shortened to {h_last:.6g} to end at t_final")
-    sch = _fixed_step_scheme(scheme if scheme_given else _tol.DEFAULT_SCHEME)
     backend = _tol.default_backend() if backend is None else backend
     # the one policy of the run: its step, its gains and their checks
     policy = Policy(sch, backend=backend, check_stability=check_stability, adaptive=adaptive,
@@ -507,7 +513,7 @@ def _last_step_failure(policy, run_fi, sch, y, y_bad, names, t_end, t_final, n_s
 
 
 def _stop_at_event(hit, k_prev, ts, out, grid):
-    """End the saved output at a terminal event ``hit = (t, y, j)`` (:meth:`liefi.dense.EventTracker.advance`).
+    """End the saved output at a terminal event ``hit = (t, y, j)`` (:meth:`liefi.integrator.dense.EventTracker.advance`).
 
     The states up to the ``j``-th new one (at ``k_prev + j``) are kept; the
     event's state is saved after them unless it is that saved state.  Returns
@@ -558,7 +564,7 @@ def check_ivp(fi, scheme, t_final, *, max_steps=IVP_MAX_STEPS):
     real stability bound of its tableau), so it needs at least
     ``t_final lambda_max / beta`` steps; past ``max_steps`` it is refused with
     the advice to use ``scipy:LSODA`` or ``scipy:BDF``.  ``lambda_max`` is the
-    Gram estimate of :func:`liefi.stability.stiffness` at the start (``O(1)``).
+    Gram estimate of :func:`liefi.integrator.stability.stiffness` at the start (``O(1)``).
     """
     from .stability import stiffness
 
@@ -581,10 +587,10 @@ def check_result_drift(fi, t, Y, names, scheme, dt, *, limit=None):
     """The drift guard of a run made outside the loop (e.g. DLA): refuse garbage returned as a result.
 
     ``Y`` is ``(len(names), n_t)``.  When the largest relative drift of the
-    integrator's invariants (:func:`liefi.stability.drift`, relative to their
+    integrator's invariants (:func:`liefi.integrator.stability.drift`, relative to their
     scale at the start) passes ``limit`` (default
-    :data:`liefi.stability.GUARD_DRIFT` x 100, i.e. O(1): the run lost every
-    invariant) a :class:`~liefi.stability.StabilityError` says when.
+    :data:`liefi.integrator.stability.GUARD_DRIFT` x 100, i.e. O(1): the run lost every
+    invariant) a :class:`~liefi.integrator.stability.StabilityError` says when.
     """
     from .stability import GUARD_DRIFT, StabilityError, drift, drift_scales
 

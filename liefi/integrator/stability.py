@@ -40,13 +40,13 @@ and calls nothing above it:
 * :func:`drift` and :func:`drift_scales` -- the invariants' drift relative to
   their scale, which the guard watches.
 
-Above it, :mod:`liefi.gains` chooses the gains from these numbers (the unit-rate
+Above it, :mod:`liefi.integrator.gains` chooses the gains from these numbers (the unit-rate
 gains ``1/|grad I_j|^2``, the accurate rate, the contraction rate ``x*`` of
 Bae & Chang, "Feedback integrators revisited", arXiv:2512.01528, and the gains
 re-chosen along an adaptive run -- needed where the stiffness grows, e.g. the
 Heisenberg system, whose ``|grad J|^2`` grows like ``|q|^2``); the guard
-(:mod:`liefi.guard`) turns them into verdicts; the run's policy
-(:mod:`liefi.policy`) asks both, once per segment.
+(:mod:`liefi.integrator.guard`) turns them into verdicts; the run's policy
+(:mod:`liefi.integrator.policy`) asks both, once per segment.
 
 The (dt, gain) maps, the extreme-case battery and the stiff work-precision
 study are experiments: :mod:`liefi.experiments`.
@@ -630,7 +630,7 @@ def estimate(fi, dt, scheme="euler", *, t_final=None, y0=None, max_evals=None, r
     ``t_final``, within ``max_evals`` evaluations of ``X``; default a few
     percent of the run's work).  ``t_final=None``: at
     ``y0`` only.  ``resolution_limit``: the estimate's ``limit`` (a run for a
-    tolerance passes the one of :func:`liefi.tolerance.resolution_limit`).  For a batch ``y0`` the pilot follows :data:`PILOT_MEMBERS`
+    tolerance passes the one of :func:`liefi.integrator.tolerance.resolution_limit`).  For a batch ``y0`` the pilot follows :data:`PILOT_MEMBERS`
     members, the stiffest at the start among them: its cost does not grow with
     the batch.
     """

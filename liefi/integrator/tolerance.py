@@ -7,7 +7,7 @@ its order is chosen with the step (step 6 below): ``imex-rk4``, ``imex-rk6`` or
 ``imex-rk8``, whichever needs the fewest field evaluations for the tolerance;
 with a given ``dt`` it is :data:`DEFAULT_SCHEME`, ``imex-rk4`` (classical RK4).
 With ``gains="auto"`` (the constructor's default) that step is a Gauss--Newton
-step onto the invariant set (:data:`liefi.gains.SPLIT_RATE_MAX`), so every
+step onto the invariant set (:data:`liefi.integrator.gains.SPLIT_RATE_MAX`), so every
 invariant stays at rounding for the price of the tableau plus one gradient
 evaluation, in any units: the harness
 (``liefi bench``) finds it the cheapest run at a given error on every scene
@@ -60,7 +60,7 @@ invariant set the split step's error is the error of its tableau on ``X``
    leaves ``K e^2`` of the tableau's per-step defect ``e`` of the invariants (measured ``K`` 0.2--1.1),
    below rounding at the default tolerance but not at a loose one's long steps (the Chaplygin sleigh on
    SO(2) at ``1e-4``, ``dt omega = 2.4``: ``e = 7e-5``, drift ``3e-9``).  So the runs the check already
-   makes report their drift (:func:`liefi.drift.drift`): a run at the coarse step, or a longer candidate,
+   makes report their drift (:func:`liefi.integrator.drift.drift`): a run at the coarse step, or a longer candidate,
    whose drift is above :data:`DRIFT_LEVEL` and more than :data:`DRIFT_FLOOR_RATIO` times the drift of
    the shorter run it was compared with is refused, and the step is cut to where ``K e^2 ~ dt^{2(p+1)}``
    reaches the level.  Its cost: the invariants evaluated at the saved states of runs already made;
@@ -110,14 +110,14 @@ import math
 import numpy as np
 
 from .._data import as_float_array
-from .tolerance_drift import (  # noqa: F401 -- re-exported: liefi.tolerance.X as before the split
+from .tolerance_drift import (  # noqa: F401 -- re-exported: liefi.integrator.tolerance.X as before the split
     DRIFT_AIM, DRIFT_FLOOR_RATIO, DRIFT_LEVEL, _drift_cap, _run_drift,
 )
-from .tolerance_local import (  # noqa: F401 -- re-exported: liefi.tolerance.X as before the split
+from .tolerance_local import (  # noqa: F401 -- re-exported: liefi.integrator.tolerance.X as before the split
     FIRST_ERROR, PART_FLOOR, PILOT_STEPS, TARGET, _local_estimate, _local_step, _parts, _size, _tableau,
     unforced_field,
 )
-from .tolerance_check import (  # noqa: F401 -- re-exported: liefi.tolerance.X as before the split
+from .tolerance_check import (  # noqa: F401 -- re-exported: liefi.integrator.tolerance.X as before the split
     CHECK_BUDGET, CHECK_BYTES, CHECK_COARSEST, CHECK_ERROR, CHECK_FLOOR, CHECK_GROWTH, CHECK_MIN_STEPS,
     CHECK_PART_FLOOR, CHECK_SAMPLES, CHECK_TRIES_BUDGET, CHECK_TRUST, CHECK_WIDEN, WIDEN_FACTOR, _check_plan,
     _global_check, _measure, _samples, _verify_longer,
@@ -325,7 +325,7 @@ def resolution_limit(tab, T, omega, rtol, target=None):
     largest ``theta`` below the first crossing, on a grid of ``theta`` in ``[1e-4, 4]`` (``1e-4`` if the
     grid's first point fails: a tolerance below what the mode allows at any reasonable step).  A higher
     order allows a longer step at the same tolerance, and a looser tolerance a longer step: the guard's
-    fixed ``dt omega <= 0.2`` (:data:`liefi.stability.RESOLUTION_LIMIT`) ignores both.  ``target``:
+    fixed ``dt omega <= 0.2`` (:data:`liefi.integrator.stability.RESOLUTION_LIMIT`) ignores both.  ``target``:
     default :data:`TARGET`.
     """
     target = TARGET if target is None else target
@@ -364,10 +364,10 @@ def _mode_error(tab):
 def resolved_step(fi, tab, Y, dt, T=None, rtol=None, measured=None):
     """``(dt, limit)``: ``dt`` shortened until it resolves the unforced motion (the stability guard's test).
 
-    The guard (:func:`liefi.stability.estimate`) warns past ``dt omega > limit`` and refuses when the
-    tableau amplifies the unforced motion by more than :data:`~liefi.stability.GROWTH_LIMIT` a step.
+    The guard (:func:`liefi.integrator.stability.estimate`) warns past ``dt omega > limit`` and refuses when the
+    tableau amplifies the unforced motion by more than :data:`~liefi.integrator.stability.GROWTH_LIMIT` a step.
     ``limit``: :func:`resolution_limit` for the horizon ``T`` and ``rtol`` when both are given (the run
-    passes it to the guard), else :data:`~liefi.stability.RESOLUTION_LIMIT`.  ``measured``: a step at
+    passes it to the guard), else :data:`~liefi.integrator.stability.RESOLUTION_LIMIT`.  ``measured``: a step at
     which the run's global error was measured in the asymptotic regime (the check): up to it the motion
     is resolved by measurement, whatever the bound.
     """
@@ -395,10 +395,10 @@ def stable_step(fi, sch, Y, dt, T):
     scheme keeps the feedback stable along the run, at ``fi``'s fixed gains.
 
     An explicit tableau steps the feedback's stiff mode ``-lambda`` by ``R(-dt lambda)``, stable while
-    ``dt lambda_max <= beta`` (:mod:`liefi.stability`); ``lambda_max`` (of ``A Hess V``) changes along the motion
+    ``dt lambda_max <= beta`` (:mod:`liefi.integrator.stability`); ``lambda_max`` (of ``A Hess V``) changes along the motion
     (Kepler's grows 4.6x from the start to the pericentre), so it is taken along the stability guard's pilot
-    over the horizon ``T`` (:func:`liefi.stability.estimate`) with a budget that covers the horizon at the
-    pilot's step (within :data:`~liefi.stability.PILOT_MAX_EVALS`; the run's own check scales its budget with
+    over the horizon ``T`` (:func:`liefi.integrator.stability.estimate`) with a budget that covers the horizon at the
+    pilot's step (within :data:`~liefi.integrator.stability.PILOT_MAX_EVALS`; the run's own check scales its budget with
     the run's steps, which on a short horizon buys a pilot too short to reach the stiff part of the motion).  A step chosen for the
     tolerance alone could pass it: the run then blew up (Kepler, rk4, gains 4/2, rtol 1e-3: ``dt = 0.0283``
     against ``beta / lambda_max = 0.0193``; it diverged at ``t = 8``).  ``dt_stable`` is ``inf`` where the

@@ -103,7 +103,7 @@ def _global_check(fi, sch, y0, t0, T, H, tau, rtol, atol, p, backend):
     m = max(1, n // max(CHECK_SAMPLES, _samples(y0)))
     n = m * int(math.ceil(n / m))
     H = tau / n
-    kw = dict(scheme=sch.name, progress=False, check_stability=False, backend=backend, drop_exact=True)
+    kw = dict(scheme=sch, progress=False, check_stability=False, backend=backend, drop_exact=True)
     try:
         import warnings
 
@@ -182,7 +182,7 @@ def _measure(fi, sch, y0, t0, T, dt, h, E, rtol, atol, p, backend):
     N = m * int(math.ceil(N / m))
     dt = T / N
     q = max(1, int(math.ceil(dt / h - 1e-9)))
-    kw = dict(scheme=sch.name, progress=False, check_stability=False, backend=backend, drop_exact=True)
+    kw = dict(scheme=sch, progress=False, check_stability=False, backend=backend, drop_exact=True)
     try:
         import warnings
 

@@ -1,7 +1,7 @@
 r"""The drift rule of a step chosen for a tolerance: the invariants kept at rounding.
 
 Part of step 5 of :mod:`liefi.integrator.tolerance`: the split step leaves ``K e^2`` of the tableau's per-step
-defect ``e`` of the invariants; a run whose drift (:func:`liefi.drift.drift`) is above :data:`DRIFT_LEVEL`
+defect ``e`` of the invariants; a run whose drift (:func:`liefi.integrator.drift.drift`) is above :data:`DRIFT_LEVEL`
 and more than :data:`DRIFT_FLOOR_RATIO` times the drift of a shorter run is the step's, and the step is cut
 to where ``K e^2 ~ dt^{2(p+1)}`` reaches :data:`DRIFT_AIM` of the level (:func:`_drift_cap`).
 Re-exported by :mod:`liefi.integrator.tolerance`.
@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-#: The invariants' relative drift (:func:`liefi.drift.drift`, against their scales at the start) that counts as
+#: The invariants' relative drift (:func:`liefi.integrator.drift.drift`, against their scales at the start) that counts as
 #: rounding: ``1e4 u`` (``2.2e-12``), ten times the highest floor of evaluating the invariants in floating point
 #: that no step lowers (the non-reversible knife edge: ``1.5e-13 = 700 u`` whatever the step).  Below it the
 #: drift need not follow the step: the roller racer's stays at ``1.2e-12`` from ``dt = 0.92`` to ``1.01``.
@@ -28,7 +28,7 @@ DRIFT_AIM = 0.25
 
 
 def _run_drift(fi, ys):
-    """The largest relative drift of the invariants over a run's saved states ``ys`` (:func:`liefi.drift.drift`,
+    """The largest relative drift of the invariants over a run's saved states ``ys`` (:func:`liefi.integrator.drift.drift`,
     scales at the start); ``0`` where it cannot be evaluated (no invariant: nothing to keep)."""
     from .drift import drift, drift_scales
 

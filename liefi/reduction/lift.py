@@ -4,7 +4,7 @@ Given a reduced system on ``g*`` (:class:`~liefi.phase_space.LieGroupPhaseSpace`
 or on ``g* x T*X`` (:class:`~liefi.phase_space.TrivialPrincipalBundle`) and a
 chart ``s -> G(s)`` of the group, :func:`unreduce` writes down the *unreduced*
 system on ``T*Q``, ``Q = G x X``, in the coordinates ``q = (s, x)``, as an
-ordinary :class:`~liefi.system.NonholonomicSystem` on a
+ordinary :class:`~liefi.systems.system.NonholonomicSystem` on a
 :class:`~liefi.phase_space.CotangentBundle`, together with the map
 ``pi : (q, p) -> (g, z)`` (left trivialization) and its tangent map.
 

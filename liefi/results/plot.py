@@ -294,8 +294,8 @@ def animate(sol, filename, *, x=None, y=None, contact=None, heading=None, frames
     x, y : str, optional
         The path's two components (as :func:`path`; default ``x, y`` or ``r_1, r_2`` ...).
     contact : callable, optional
-        A rolling body's contact function ``r(Gamma)`` (:func:`liefi.rolling.sphere` ...):
-        the path is then the contact point's (:func:`liefi.rolling.contact_point`),
+        A rolling body's contact function ``r(Gamma)`` (:func:`liefi.systems.rolling.sphere` ...):
+        the path is then the contact point's (:func:`liefi.systems.rolling.contact_point`),
         which needs a run with the configuration.
     heading : str or False, optional
         The heading angle's component (an arrow at angle ``heading``); default the

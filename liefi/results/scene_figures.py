@@ -1,5 +1,5 @@
 """Generic figures and the helpers scenes draw their own figures with (liefi's own figures: scenes, bench,
-reproduce).  A user's figures of their own run are :mod:`liefi.plot` (``liefi/results/plot.py``).
+reproduce).  A user's figures of their own run are :mod:`liefi.results.plot` (``liefi/results/plot.py``).
 
 Every function here draws into a matplotlib ``Figure`` (or ``SubFigure``) and
 returns it; matplotlib is imported *inside* the functions (Agg backend), never

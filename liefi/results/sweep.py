@@ -67,7 +67,7 @@ are JSON text, so for instance::
 
 Example
 -------
->>> from liefi.sweep import run_sweep
+>>> from liefi.results.sweep import run_sweep
 >>> run_sweep(abs, [-1, 2, -3])
 [1, 2, 3]
 """

@@ -10,7 +10,7 @@ equation of motion: the fields come from :mod:`liefi.reduction`.
 
 A scene also owns what is particular to it, so that the plotting, the
 ``liefi`` command and ``liefi reproduce`` stay generic: its figures
-(:meth:`Scene.figures`, drawn with the helpers of :mod:`liefi.plotting`),
+(:meth:`Scene.figures`, drawn with the helpers of :mod:`liefi.results.scene_figures`),
 whether they need the configuration (:attr:`Scene.figures_need_configuration`),
 the runs ``liefi reproduce`` makes (:meth:`Scene.paper_runs`), its reference
 solution and what it costs (:meth:`Scene.reference_solution`, computed once per
@@ -116,7 +116,7 @@ class RunResult:
     backend: str | None = None
     #: invariants left out of ``V`` (kept exactly by the scheme): ``[{"name", "reason"}]``
     dropped: list = _field(default_factory=list)
-    #: which method ran and why (:func:`liefi.tolerance.describe`; ``None`` outside the fixed-step loop)
+    #: which method ran and why (:func:`liefi.integrator.tolerance.describe`; ``None`` outside the fixed-step loop)
     method: dict = None
     #: ``() -> errors``: computes the errors against the reference (called once, on first use)
     _reference: object = _field(default=None, repr=False, compare=False)
@@ -406,9 +406,9 @@ class Scene:
 
     def figures(self, runs, *, tag=""):
         """The figures of ``runs`` (a :class:`RunResult`, or the mapping ``label -> RunResult``
-        of :meth:`paper_runs`): a list of :class:`liefi.plotting.FigureSpec`.
+        of :meth:`paper_runs`): a list of :class:`liefi.results.scene_figures.FigureSpec`.
 
-        The default is :func:`liefi.plotting.generic` (errors and drifts) for each run;
+        The default is :func:`liefi.results.scene_figures.generic` (errors and drifts) for each run;
         a scene with figures in the paper overrides it.  ``tag`` is appended to titles.
         """
         return [
@@ -451,15 +451,15 @@ class Scene:
         stiff-safe split scheme (``imex-euler``, ``imex-rk4``: :mod:`liefi.schemes.split`),
         ``"scipy:METHOD"`` (``solve_ivp`` with ``rtol``/``atol``, default 1e-9/1e-12), or one of the
         scene's ``extra_schemes`` (e.g. ``"dla"``).  ``gains="auto"``: chosen for accuracy
-        from the scheme, ``dt`` and the horizon (:mod:`liefi.gains`; see
+        from the scheme, ``dt`` and the horizon (:mod:`liefi.integrator.gains`; see
         :class:`~liefi.FeedbackIntegrator`).  ``RunResult.dropped``: the
         invariants left out of ``V`` because the scheme keeps them exactly.
         ``check_stability`` and ``adaptive`` are passed to
-        :meth:`liefi.FeedbackIntegrator.run` (:mod:`liefi.stability`).
+        :meth:`liefi.FeedbackIntegrator.run` (:mod:`liefi.integrator.stability`).
         ``backend``: ``"numpy"``, ``"numba"`` or ``"auto"`` (:mod:`liefi.engine`);
         default ``"auto"`` when numba is installed (``liefi[fast]``), else ``"numpy"``.
         ``rtol``/``atol`` without ``dt`` on a fixed-step scheme: the step is chosen for the
-        tolerance (:func:`liefi.tolerance.choose_step`) instead of the scene's, the gains default to
+        tolerance (:func:`liefi.integrator.tolerance.choose_step`) instead of the scene's, the gains default to
         ``"auto"`` (as ``liefi run`` and :class:`~liefi.FeedbackIntegrator`'s default), and with
         ``choose_order=True`` also the order (``imex-rk4``/``6``/``8`` for a split ``scheme``);
         ``RunResult.method`` says which method ran and why.
@@ -584,7 +584,7 @@ class Scene:
 
     def step_for_tolerance(self, variant, scheme, t_final, rtol=None, atol=None, *, gains=None, configuration=None,
                            choose_order=False):
-        """``(dt, info)``: the step :meth:`run` takes for ``rtol``/``atol`` (:func:`liefi.tolerance.choose_step`;
+        """``(dt, info)``: the step :meth:`run` takes for ``rtol``/``atol`` (:func:`liefi.integrator.tolerance.choose_step`;
         with ``choose_order``, ``info["scheme"]`` is the order chosen among ``scheme``'s kind).
 
         Known before the run (``liefi run`` refuses a run of too many steps with it); kept on the

@@ -1,9 +1,9 @@
 r"""The Chaplygin ball: a dynamically asymmetric ball rolling without slipping, centre of mass at its centre.
 
-Built by :func:`liefi.rolling.rolling_body` from its data only -- mass ``m``,
+Built by :func:`liefi.systems.rolling.rolling_body` from its data only -- mass ``m``,
 principal moments ``I = (I_1, I_2, I_3)`` (distinct), radius ``a`` --
 on ``SO(3) x R^2`` with the whole attitude advected and the two no-slip rows
-kept as constraint momenta (:mod:`liefi.rolling` says why).  On the constraint
+kept as constraint momenta (:mod:`liefi.systems.rolling` says why).  On the constraint
 set liefi's field is Chaplygin's (1903)
 
 .. math:: \dot M = M \times \Omega, \qquad \dot\Gamma = \Gamma \times \Omega, \qquad

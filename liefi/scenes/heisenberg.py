@@ -62,7 +62,7 @@ Variants (``Variant.options`` holds the start):
   straight line (visibly so after ``t ~ 5``).  It does not overflow: each
   burst of the unstable mode throws the state back inside the stable region,
   so an unguarded run (``check_stability=False``) returns a *finite, wrong*
-  trajectory.  liefi's stability guard (:mod:`liefi.stability`) therefore
+  trajectory.  liefi's stability guard (:mod:`liefi.integrator.stability`) therefore
   refuses ``t_final = 20`` up front (``ValueError``) and stops
   ``t_final = 10`` at ``t ~ 4.6`` with a :class:`liefi.IntegrationError`
   (``StabilityError``) naming the time and the invariant.  Adaptive gains are

@@ -20,7 +20,7 @@ couple position and momenta in a way ``(q, p) -> (q, -p)`` does not respect,
 while ``A_phi = 0`` leaves the spin ``p_phi = J phi'`` a momentum component.
 As on the knife edge, ``p_phi`` is a first integral of the extended field only
 on the constraint set (its rate off it is ``O(J_1)``): the stability guard's
-check of that (:func:`liefi.stability.first_integral_defect`) evaluates it there.
+check of that (:func:`liefi.integrator.stability.first_integral_defect`) evaluates it there.
 
 First integrals: the energy ``h`` (and ``h~``), ``J_1`` and ``p_phi``.
 

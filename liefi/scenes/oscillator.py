@@ -25,7 +25,7 @@ closed form ``y = cos t`` (:func:`liefi.scenes.exact.oscillator_y`).
 
 Extra scheme ``"dla"``: the first-order discrete Lagrange--d'Alembert
 integrator, built from the same system by
-:meth:`liefi.dla.DLAIntegrator.from_system`, started at ``q_0 = q_1 = (1, 1, 1)``
+:meth:`liefi.schemes.dla_integrator.DLAIntegrator.from_system`, started at ``q_0 = q_1 = (1, 1, 1)``
 (``(ns:dla:ic)``), with the discrete momentum ``p_{i+1} = (q_{i+1} - q_i)/h``
 paired with ``q_{i+1}``; the drifts reported for it are those of
 ``J = p . e(q)``, ``H``, ``H~`` and ``H_y`` at these pairs.  (The DLA keeps
@@ -147,7 +147,7 @@ class Oscillator(Scene):
         import importlib.util
 
         if importlib.util.find_spec("numba") is not None:
-            # the same DLA step generated from the data and compiled (bitwise equal to liefi.dla)
+            # the same DLA step generated from the data and compiled (bitwise equal to liefi.schemes.dla_integrator)
             from .. import engine
 
             t, q, p, cpu, updates = engine.compile_dla(self.system).run(q0, q1, dt, n_steps, save_every=save_every)

@@ -1,8 +1,8 @@
 r"""The rattleback (celt): Kane & Levinson's (1982) ellipsoid, rolling without slipping, reverses its spin.
 
-Built by :func:`liefi.rolling.rolling_body` from the body's data only, on
+Built by :func:`liefi.systems.rolling.rolling_body` from the body's data only, on
 ``SO(3) x R^2`` with the whole attitude advected and the two no-slip rows kept
-as constraint momenta (:mod:`liefi.rolling` says why).  No dissipation: the
+as constraint momenta (:mod:`liefi.systems.rolling` says why).  No dissipation: the
 energy is conserved and the spin about the vertical, ``<Omega, Gamma>``,
 reverses, then reverses back, again and again.
 

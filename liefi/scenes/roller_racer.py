@@ -5,7 +5,7 @@ Marsden--Ratiu 14.6) and the steering angle ``phi``.  Reduced by ``SE(2)`` the
 state is ``z = (phi, Pi_theta, Pi_x, Pi_y, p_phi)`` on ``se(2)* x T*S^1``.
 
 Data (nothing else is written here: ``h~``, ``lambda~_i``, the bracket terms
-and ``grad V`` are derived by :mod:`liefi.reduction` and :mod:`liefi.feedback`):
+and ``grad V`` are derived by :mod:`liefi.reduction` and :mod:`liefi.integrator.feedback`):
 
 * reduced mass tensor on ``(Pi_theta, Pi_x, Pi_y, p_phi)``
 

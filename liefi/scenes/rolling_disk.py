@@ -1,10 +1,10 @@
 r"""A thin uniform disk rolling without slipping on a plane, no dissipation.
 
-Built by :func:`liefi.rolling.rolling_body` from the body's data only -- mass
+Built by :func:`liefi.systems.rolling.rolling_body` from the body's data only -- mass
 ``m``, radius ``a``, the uniform disk's inertia ``I = m a^2 (1/4, 1/4, 1/2)``
-(diameters, axis) and the contact function :func:`liefi.rolling.disk` -- on
+(diameters, axis) and the contact function :func:`liefi.systems.rolling.disk` -- on
 ``SO(3) x R^2`` with the whole attitude advected and the two no-slip rows kept
-as constraint momenta (:mod:`liefi.rolling` says why).  The disk lies in the
+as constraint momenta (:mod:`liefi.systems.rolling` says why).  The disk lies in the
 body's ``e_1 e_2`` plane; ``Gamma_3 = <R e_3, e_3>`` is the cosine of its
 axis' angle to the vertical (``0``: upright, ``+-1``: lying flat, where the
 contact point is not defined; the start is tilted 70 degrees from flat and
@@ -247,10 +247,10 @@ def _integrals(w3, sigma, G, params, max_cos):
 
 def chaplygin_invariants(inertia=None, mass=MASS, radius=RADIUS, *, max_cos=None):
     r"""``C_1``, ``C_2`` of :func:`chaplygin_integrals` as :class:`~liefi.Invariant` of the reduced state
-    ``z = (rho_1, rho_2, Gamma, Pi, p)`` of :func:`liefi.rolling.rolling_body` with :func:`liefi.rolling.disk`.
+    ``z = (rho_1, rho_2, Gamma, Pi, p)`` of :func:`liefi.systems.rolling.rolling_body` with :func:`liefi.systems.rolling.disk`.
 
     The momenta are ``Pi = I Omega + m w <w, Omega>`` with ``w = Gamma x r = (a Gamma_3 / s) (Gamma_2,
-    -Gamma_1, 0)`` (:mod:`liefi.rolling`): ``w`` has no axial component and is orthogonal to ``(Gamma_1,
+    -Gamma_1, 0)`` (:mod:`liefi.systems.rolling`): ``w`` has no axial component and is orthogonal to ``(Gamma_1,
     Gamma_2, 0)``, so ``Omega_3 = Pi_3 / I_3`` and ``Omega_1 Gamma_1 + Omega_2 Gamma_2 = (Pi_1 Gamma_1 +
     Pi_2 Gamma_2) / I_1`` -- all the integrals need.  First integrals of the constrained motion (on ``J =
     0``); monitored by the scene, and penalized in ``V`` by its default variant ``integrals-in-V``.

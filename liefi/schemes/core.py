@@ -78,10 +78,10 @@ class Solution:
         where it occurred (as ``solve_ivp``).
     sol : DenseOutput or None
         With ``dense_output=True``: ``sol(t)`` the state at any ``t`` in the
-        run's interval (:class:`liefi.dense.DenseOutput`).
+        run's interval (:class:`liefi.integrator.dense.DenseOutput`).
     integrator : FeedbackIntegrator or None
         The integrator that made the run, when known: :meth:`to_xarray` and
-        :mod:`liefi.plot` read the invariants from it.
+        :mod:`liefi.results.plot` read the invariants from it.
     sensitivities : dict or None
         With ``run(..., sensitivities=names)``: ``{name: d y / d name}`` at the saved
         states (:mod:`liefi.integrator.sensitivity`).
@@ -243,11 +243,15 @@ def _finite(x):
 
 def run_arguments(scheme, dt, n_steps, save_every):
     """Checked ``(scheme, dt, n_steps, save_every)`` of a fixed-step run given its number of steps."""
-    sch = _get_scheme(scheme)
+    return (_get_scheme(scheme),) + _step_arguments(dt, n_steps, save_every)
+
+
+def _step_arguments(dt, n_steps, save_every):
+    """Checked ``(dt, n_steps, save_every)``: :func:`run_arguments` of a run whose scheme is an object already."""
     dt = positive_number(dt, "dt", "the step must be a positive finite number")
     if isinstance(n_steps, (bool, np.bool_)) or int(n_steps) != n_steps or int(n_steps) < 0:
         raise ValueError(f"n_steps: must be a non-negative integer, got {n_steps!r}")
-    return sch, dt, int(n_steps), positive_int(save_every, "save_every")
+    return dt, int(n_steps), positive_int(save_every, "save_every")
 
 
 def _get_scheme(scheme):
@@ -288,7 +292,15 @@ def integrate(f, y0, dt, n_steps, scheme="euler", *, t0=0.0, save_every=1, names
     IntegrationError
         At the first check that finds a non-finite number: no NaN is returned.
     """
-    sch, dt, n_steps, save_every = run_arguments(scheme, dt, n_steps, save_every)
+    return step_loop(f, y0, dt, n_steps, _get_scheme(scheme), t0=t0, save_every=save_every, names=names,
+                     check_every=check_every, on_failure=on_failure, out=out)
+
+
+def step_loop(f, y0, dt, n_steps, sch, *, t0=0.0, save_every=1, names=(), check_every=1, on_failure=None, out=None):
+    """:func:`integrate` with its scheme resolved: ``sch`` a stepper object (``step(f, y, dt)``, ``name``,
+    ``stages``), never a name.  The run loop (:mod:`liefi.integrator.run`) steps its numpy segments here, with the
+    scheme it resolved once."""
+    dt, n_steps, save_every = _step_arguments(dt, n_steps, save_every)
     y = np.array(y0, dtype=float)
     if not np.all(np.isfinite(y)):
         raise ValueError("y0: the initial state contains non-finite numbers")

@@ -1,7 +1,7 @@
-"""``dla``: the discrete Lagrange--d'Alembert integrator (:mod:`liefi.dla`) as a scheme of the registry.
+"""``dla``: the discrete Lagrange--d'Alembert integrator (:mod:`liefi.schemes.dla_integrator`) as a scheme of the registry.
 
 It steps positions, not the feedback field: ``step(integrator, q_prev, q_curr, h)``
-is :meth:`liefi.dla.DLAIntegrator.step`.  It has no feedback term, hence no
+is :meth:`liefi.schemes.dla_integrator.DLAIntegrator.step`.  It has no feedback term, hence no
 stiffness bound; its failure mode is an implicit step that converges to a
 wrong root or a step too large for the motion, which the run module's drift
 guard catches (the energy drift of a variational integrator stays bounded
@@ -27,7 +27,7 @@ class DLAScheme:
     stages = 1
 
     def integrator(self, system):
-        """The :class:`~liefi.dla.DLAIntegrator` of a system (positions ``q``, mass from the metric)."""
+        """The :class:`~liefi.schemes.dla_integrator.DLAIntegrator` of a system (positions ``q``, mass from the metric)."""
         from .dla_integrator import DLAIntegrator
 
         return DLAIntegrator.from_system(system)

@@ -12,7 +12,7 @@ Every scheme is an object with
   ``scipy:METHOD``: one adaptive ``solve_ivp`` call).
 
 Users of the table: ``liefi run --scheme`` (choices and help),
-:meth:`liefi.scenes.Scene.run`, :mod:`liefi.run`, :mod:`liefi.stability`,
+:meth:`liefi.scenes.Scene.run`, :mod:`liefi.integrator.run`, :mod:`liefi.integrator.stability`,
 the compiled engine (the explicit tableaux) and ``liefi bench``.
 """
 
@@ -50,6 +50,11 @@ def _fold(name):
     return s.lower()
 
 
+def is_scheme_object(x):
+    """Whether ``x`` is a scheme object already (what :func:`get` hands back as it is, without ``kind``): not a name."""
+    return not isinstance(x, str) and hasattr(x, "name") and (hasattr(x, "kind") or callable(getattr(x, "step", None)))
+
+
 def get(name, kind=None):
     """The scheme called ``name`` (case-insensitive; a scheme object is returned as is).
 
@@ -71,7 +76,8 @@ def takes_scheme(func):
     """Decorator of a public function whose ``scheme`` argument may be a name: the name becomes the registry's
     scheme at the call (:func:`get`, which hands a scheme object, or a split scheme bound to an integrator, back
     as it is).  The body works on the object: a run, which resolves its scheme once in its run loop
-    (:mod:`liefi.integrator.run`), hands the object down and no module below looks it up again.
+    (:mod:`liefi.integrator.run`), hands the object down and no module below looks it up again (an object
+    passes without a call to :func:`get`).
     """
     import functools
     import inspect
@@ -80,9 +86,9 @@ def takes_scheme(func):
 
     @functools.wraps(func)
     def wrapper(*args, **kwargs):
-        if len(args) > pos:
+        if len(args) > pos and not is_scheme_object(args[pos]):
             args = args[:pos] + (get(args[pos]),) + args[pos + 1:]
-        elif "scheme" in kwargs:
+        elif "scheme" in kwargs and not is_scheme_object(kwargs["scheme"]):
             kwargs["scheme"] = get(kwargs["scheme"])
         return func(*args, **kwargs)
 

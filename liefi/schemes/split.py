@@ -3,7 +3,7 @@ r"""A stiff-safe scheme: explicit step of the extended field, linearly implicit 
 The feedback field ``y' = X(y) - A grad V(y)`` is stiff by design: the gains
 make ``A Hess V`` large while ``X`` is not stiff.  An explicit scheme is stable
 only while ``dt`` times the largest eigenvalue of ``A Hess V`` stays inside its
-stability region (:mod:`liefi.stability`).  The schemes here split the field
+stability region (:mod:`liefi.integrator.stability`).  The schemes here split the field
 into its two terms (the two "terms" of a diffrax ``MultiTerm``):
 
 1. an explicit Runge--Kutta step of the extended field ``X`` (Euler, Heun or
@@ -52,7 +52,7 @@ not once per stage.  The compiled engine runs these schemes too
 (:func:`liefi.engine.compile_split`: the trace of :func:`feedback_step`).
 
 Gains.  ``gains="auto"`` takes the rate ``z = dt k |grad I|^2`` of
-:mod:`liefi.gains` for a split scheme: the residual after a step is
+:mod:`liefi.integrator.gains` for a split scheme: the residual after a step is
 ``(r + delta)/(1 + z)``, so the drift bound falls for every ``z`` and the
 accurate rate is ``1/sqrt(u)`` -- the substep is then one Gauss--Newton step
 onto the invariant set, and the invariants stay at rounding for the price of
@@ -95,8 +95,8 @@ class LinearlyImplicitSplit:
     real_stability_bound = float("inf")
     #: Stable for every gain and step (the feedback substep is A-stable).
     stiff_safe = True
-    #: ``dt lambda_max`` of the contraction gains (:func:`liefi.gains.auto_gains`; ``gains="auto"``
-    #: takes the accurate rate of :mod:`liefi.gains` instead): the substep damps the stiffest mode by 1/11.
+    #: ``dt lambda_max`` of the contraction gains (:func:`liefi.integrator.gains.auto_gains`; ``gains="auto"``
+    #: takes the accurate rate of :mod:`liefi.integrator.gains` instead): the substep damps the stiffest mode by 1/11.
     optimal_rate = 10.0
 
     @property
@@ -194,7 +194,7 @@ def feedback_step(fi, y, dt, params=None, *, data=_core.NUMPY_DATA):
     Solved through the ``m x m`` Gram matrix of the invariants' gradients
     (module docstring).  ``dt`` is one step, or an array of steps of the
     batch's shape ``y.shape[:-1]`` (one per state: the partial steps of
-    :func:`liefi.dense.partial_step`).  ``params`` (default ``fi.parameters()``) and ``data`` as
+    :func:`liefi.integrator.dense.partial_step`).  ``params`` (default ``fi.parameters()``) and ``data`` as
     in :meth:`liefi.FeedbackIntegrator.field_parts`: the compiled engine traces
     this function with a symbolic state, parameter vector and step.
     """

@@ -15,7 +15,7 @@ potential of the loads and springs: a constant force ``F`` at a
 point ``P`` (gravity) has ``U = -F . r_P`` with ``r_P`` the position of ``P`` from a
 point fixed in the inertial frame.  The velocity constraints ``a_i(q) . qdot = 0`` are
 the model's nonholonomic constraints in ``qdot``.  The metric, vector potential,
-potential and rows are then extracted by :func:`liefi.sympy_input.lagrangian_data`
+potential and rows are then extracted by :func:`liefi.systems.sympy_input.lagrangian_data`
 (the one home of that extraction) and the system is
 :meth:`~liefi.NonholonomicSystem.from_velocity_constraints`: Lagrange--d'Alembert,
 the equations Kane's method gives for the same model with dependent speeds.

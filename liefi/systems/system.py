@@ -91,7 +91,7 @@ class NonholonomicSystem:
         ``start_check(y0, configuration)``: called by :class:`~liefi.FeedbackIntegrator`
         with its start (``(g, z)``, or ``z`` when ``configuration`` is False; any
         batch shape); raises ``ValueError`` naming what makes ``y0`` no state of
-        this system.  :func:`liefi.rolling.rolling_body` sets it (orthonormal
+        this system.  :func:`liefi.systems.rolling.rolling_body` sets it (orthonormal
         attitude rows, no slip at the contact).  Default none.
 
     Attributes
