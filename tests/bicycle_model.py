@@ -496,3 +496,65 @@ def weave_and_capsize_speeds(lateral, weave_bracket=(3.0, 5.0), capsize_bracket=
 
     kw = dict(xtol=1e-15, rtol=1e-15, maxiter=200)
     return brentq(weave, *weave_bracket, **kw), brentq(capsize, *capsize_bracket, **kw)
+
+
+def complex_step_lateral(bike):
+    """``A(v)`` of :func:`lateral_matrix` from the generated numerics, by complex-step differentiation.
+
+    An independent check of the nonlinear right-hand side a peer integrates: the rates
+    ``x' = M(x)^{-1} F(x)`` (``mass_matrix_full``, ``forcing_full``, ``sympy.lambdify``),
+    restricted to the constraint set through the independent coordinates and speeds
+    ``y = (q_ind, u_ind)``: the dependent coordinate solves ``f(q) = 0`` (Newton) and the
+    dependent speeds the velocity constraints (linear in them).  Then
+    ``dy'/dy_j = Im y'(y0 + i h e_j) / h`` with ``h = 1e-30``, exact to rounding (no
+    difference is taken).
+    """
+    import numpy as np
+    sympy, me = _sympy()
+    kane = bike.kane
+    q, u = list(kane.q), list(kane.u)
+    qd, ud = list(kane._qdep), list(kane._udep)
+    qi, ui = q[:len(q) - len(qd)], u[:len(u) - len(ud)]
+    p = bike.params
+    args = q + u
+    fM = sympy.lambdify(args, kane.mass_matrix_full.xreplace(p), "numpy", cse=True)
+    fF = sympy.lambdify(args, kane.forcing_full.xreplace(p), "numpy", cse=True)
+    hol = sympy.Matrix([bike.holonomic]).xreplace(p)
+    fh = sympy.lambdify(args, hol, "numpy", cse=True)
+    fhj = sympy.lambdify(args, hol.jacobian(qd), "numpy", cse=True)
+    con = sympy.Matrix(bike.nonholonomic).xreplace(p)
+    fc = sympy.lambdify(args, con, "numpy", cse=True)
+    fcj = sympy.lambdify(args, con.jacobian(ud), "numpy", cse=True)
+    iq = [q.index(s) for s in qd]
+    iu = [len(q) + u.index(s) for s in ud]
+    ind = [q.index(s) for s in qi] + [len(q) + u.index(s) for s in ui]
+    lat = [(qi + ui).index(s) for s in (bike.lean, bike.steer, bike.lean_rate, bike.steer_rate)]
+
+    def full(y, x_guess):
+        x = np.array(x_guess, dtype=complex)
+        x[ind] = y
+        for _ in range(8):  # Newton on f(q) = 0 (complex arithmetic carries the derivative)
+            x[iq] -= np.linalg.solve(np.asarray(fhj(*x), dtype=complex), np.asarray(fh(*x), dtype=complex).ravel())
+        for _ in range(2):  # the constraints are linear in the dependent speeds
+            x[iu] -= np.linalg.solve(np.asarray(fcj(*x), dtype=complex), np.asarray(fc(*x), dtype=complex).ravel())
+        return x
+
+    def rates(y, x_guess):
+        x = full(y, x_guess)
+        xd = np.linalg.solve(np.asarray(fM(*x), dtype=complex), np.asarray(fF(*x), dtype=complex).ravel())
+        return xd[ind]
+
+    def lateral(v, h=1e-30):
+        x0 = np.zeros(len(args))
+        x0[q.index(bike.pitch)] = bike.pitch0
+        for s, val in bike.speed_of(v).items():
+            x0[len(q) + u.index(s)] = val
+        x0 = full(x0[ind], x0).real
+        y0 = x0[ind].astype(complex)
+        J = np.empty((len(ind), len(ind)))
+        for j in range(len(ind)):
+            y = y0.copy()
+            y[j] += 1j * h
+            J[:, j] = rates(y, x0).imag / h
+        return J[np.ix_(lat, lat)]
+    return lateral
