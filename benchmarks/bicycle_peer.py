@@ -38,7 +38,7 @@ Measured on the dense output every 0.01 s: the largest |lean| on [0, 2] s and on
 Run from the repository root (sympy and scipy needed; pydy optional)::
 
     python benchmarks/bicycle_peer.py            # full table, t in [0, 100]
-    python benchmarks/bicycle_peer.py --quick    # t in [0, 5], DOP853 and RK45, one speed
+    python benchmarks/bicycle_peer.py --quick    # t in [0, 5], one speed, eigenvalues by complex steps
 
 Prints a Markdown table headed by the CPU model, and writes it with ``--out FILE``.
 """
@@ -81,16 +81,25 @@ def build(model):
     raise ValueError(f"--model must be 'sympy-test' or 'contact', got {model!r}")
 
 
-def phase_linearize(model):
-    """Build + linearize + eigenvalues + weave/capsize speeds; returns a JSON-able dict."""
+def phase_linearize(model, how="sympy"):
+    """Build + linearize + eigenvalues + weave/capsize speeds; returns a JSON-able dict.
+
+    ``how="sympy"``: ``KanesMethod.linearize`` (what sympy's test does; minutes);
+    ``how="complex-step"``: complex steps of the generated right-hand side on the
+    constraint set (``bicycle_model.complex_step_lateral``; seconds).
+    """
     import bicycle_model as bm
     t0 = _cpu()
     bike = build(model)
     t_build = _cpu() - t0
-    lateral = bm.lateral_matrix(bike, "minimal" if model == "sympy-test" else "full")
+    if how == "complex-step":
+        lateral = bm.complex_step_lateral(bike)
+    else:
+        lateral = bm.lateral_matrix(bike, "minimal" if model == "sympy-test" else "full")
     eig = {str(v): [[complex(w).real, complex(w).imag] for w in bm.eigenvalues(lateral(v))] for v in SPEEDS}
     weave, capsize = bm.weave_and_capsize_speeds(lateral)
-    return {"build": t_build, "total": _cpu() - t0, "eigenvalues": eig, "weave": weave, "capsize": capsize}
+    return {"build": t_build, "total": _cpu() - t0, "eigenvalues": eig, "weave": weave, "capsize": capsize,
+            "how": how}
 
 
 def numeric_model(bike):
@@ -219,7 +228,9 @@ def table(model, lin, lin_cpu, run, run_cpu, t_final):
 def _eigen_lines(lin, lin_cpu):
     import bicycle_model as bm
     import numpy as np
-    lines = ["Eigenvalues (lean/steer, sympy `KanesMethod.linearize`) against Meijaard et al. (2007), Table 2:", "",
+    how = {"sympy": "sympy `KanesMethod.linearize`",
+           "complex-step": "complex steps of the generated right-hand side"}[lin["how"]]
+    lines = [f"Eigenvalues (lean/steer, {how}) against Meijaard et al. (2007), Table 2:", "",
               "| v (m/s) | published | peer | max relative error |", "|---|---|---|---|"]
     for v in SPEEDS:
         ref = np.array(bm.BENCHMARK_EIGENVALUES[v])
@@ -251,9 +262,11 @@ def _run_lines(run, run_cpu, t_final):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--quick", action="store_true", help="t in [0, 5], the 5 m/s case only")
+    ap.add_argument("--quick", action="store_true", help="t in [0, 5], the 5 m/s case only, eigenvalues by complex steps")
     ap.add_argument("--model", default="sympy-test", choices=["sympy-test", "contact"])
     ap.add_argument("--t-final", type=float, default=None, help="end time of the runs (default 100, 5 with --quick)")
+    ap.add_argument("--linearizer", choices=["sympy", "complex-step"], default=None,
+                    help="how the eigenvalues are found (default sympy; complex-step with --quick)")
     ap.add_argument("--only", choices=["linearize", "run"], default=None, help="time one phase only")
     ap.add_argument("--out", default=None, help="also write the table to this file")
     ap.add_argument("--phase", nargs="+", help=argparse.SUPPRESS)
@@ -261,7 +274,7 @@ def main(argv=None):
     if a.phase:
         kind, model = a.phase[0], a.phase[1]
         if kind == "linearize":
-            res = phase_linearize(model)
+            res = phase_linearize(model, a.phase[2])
         else:
             t_final, quick = float(a.phase[2]), a.phase[3] == "1"
             res = phase_run(model, CASES[:1] if quick else CASES, METHODS, t_final)
@@ -270,7 +283,8 @@ def main(argv=None):
     t_final = a.t_final if a.t_final is not None else (5.0 if a.quick else 100.0)
     lin = run = lin_cpu = run_cpu = None
     if a.only != "run":
-        lin, lin_cpu = _child(["linearize", a.model])
+        how = a.linearizer or ("complex-step" if a.quick else "sympy")
+        lin, lin_cpu = _child(["linearize", a.model, how])
     if a.only != "linearize":
         run, run_cpu = _child(["run", a.model, repr(t_final), "1" if a.quick else "0"])
     text = table(a.model, lin, lin_cpu, run, run_cpu, t_final)

@@ -77,3 +77,24 @@ def test_generated_numerics_give_the_benchmark_eigenvalues(builder):
     weave, capsize = bm.weave_and_capsize_speeds(lateral)
     assert abs(weave - bm.WEAVE_SPEED) / bm.WEAVE_SPEED < 1e-10
     assert abs(capsize - bm.CAPSIZE_SPEED) / bm.CAPSIZE_SPEED < 1e-10
+
+
+@pytest.mark.slow
+def test_peer_measures_the_drift_it_reports():
+    # benchmarks/bicycle_peer.py on 1 s of the self-stable run: the tight run holds the
+    # front contact on the ground, the rolling and the energy near rounding; the loose run
+    # lets them drift by orders of magnitude more, and the table says so.
+    pytest.importorskip("sympy")
+    import os
+    import sys
+    sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "benchmarks"))
+    import bicycle_peer as bp
+    res = bp.phase_run("sympy-test", bp.CASES[:1], bp.METHODS, 1.0)
+    tight, loose = res["rows"]
+    assert (tight["method"], loose["method"]) == ("DOP853", "RK45")
+    for key in ("holonomic", "nonholonomic", "energy"):
+        assert tight[key] < 1e-11, (key, tight[key])
+        assert loose[key] > 100 * tight[key], (key, loose[key], tight[key])
+    assert not tight["fell"] and tight["t_end"] == 1.0
+    text = bp.table("sympy-test", None, None, res, 0.0, 1.0)
+    assert "DOP853 1e-12" in text and "RK45 1e-06" in text
