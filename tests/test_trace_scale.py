@@ -124,3 +124,28 @@ def test_the_guard_s_eigenvalues_of_a_large_system_cost_a_fixed_number_of_field_
     np.testing.assert_allclose(np.max(np.abs(ev), -1), np.max(np.abs(dense), -1), rtol=1e-4)
     for dt in (0.1, 1.0, 1.5):
         assert abs(stability.dynamics_growth("rk4", dt, ev) - stability.dynamics_growth("rk4", dt, dense)) < 1e-4
+
+
+def test_checking_a_system_s_data_calls_them_a_number_of_times_independent_of_their_size():
+    """The checks at construction (complex step against central differences, the imaginary part kept) take the
+    ``2n`` differences in two calls on a batch of directions: one call per direction made the chain of 32 knife
+    edges' construction 1.9 s (``N^2.75``: ``N`` stacks per call of its constraint, ``6N`` calls per probe)."""
+    calls = {}
+
+    def build(n):
+        count = [0]
+
+        def constraint(q):
+            count[0] += 1
+            row = [np.cos(q[..., 0]), np.sin(q[..., 0])] + [q[..., k] * 0.0 for k in range(2, n)]
+            return np.stack(row, -1)[..., None, :]
+
+        def potential(q):
+            return 0.5 * np.sum(q**2, -1)
+
+        liefi.NonholonomicSystem(liefi.CotangentBundle(n), np.eye(n), constraint, potential)
+        calls[n] = count[0]
+
+    build(3)
+    build(24)
+    assert calls[24] == calls[3], calls
