@@ -149,3 +149,27 @@ def test_checking_a_system_s_data_calls_them_a_number_of_times_independent_of_th
     build(3)
     build(24)
     assert calls[24] == calls[3], calls
+
+
+def test_the_numpy_field_of_a_large_system_takes_the_curvature_term_without_dense_products(chain, monkeypatch):
+    """``0.5 w^T dC_k w`` of ``d ht / dx`` as ``(w^T dE_k) . (m E^T w)`` above ``_DENSE_DC_PRODUCTS``: ``n K D``
+    products a state, not the ``n K D^2`` of ``dE m`` (the chain of 64 knife edges' first run spent 2 of its
+    2.5 minutes there); the same values to rounding."""
+    from liefi.reduction import core
+
+    system, y0 = chain(16)
+    Y = y0 + 0.1 * np.random.default_rng(1).standard_normal((3, y0.size))  # off J = 0: w != 0
+    shapes = []
+    matmul = _sparse.matmul
+
+    def recorded(a, b):
+        shapes.append(np.shape(a))
+        return matmul(a, b)
+
+    monkeypatch.setattr(_sparse, "matmul", recorded)
+    fast = core.evaluate(system, Y)
+    n, K, D = system.space.data_dim, system.K, system.space.D
+    assert n * K * D * D > 10**6 and not any(s[-3:] == (n, K, D) for s in shapes), shapes
+    monkeypatch.setattr(core, "_DENSE_DC_PRODUCTS", 10**15, raising=False)
+    dense = core.evaluate(system, Y)
+    np.testing.assert_allclose(fast.dht, dense.dht, rtol=0, atol=1e-14 * np.max(np.abs(dense.dht)))
