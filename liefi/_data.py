@@ -199,9 +199,10 @@ class DataFunction:
             with np.errstate(all="ignore"):
                 _, jc = _diff.probe_jacobian(self.fun, x)
                 h = 1e-6 * np.maximum(1.0, np.abs(x))
-                jf = np.stack(
-                    [(np.asarray(self.fun(x + h[k] * e), float) - np.asarray(self.fun(x - h[k] * e), float)) / (2 * h[k])
-                     for k, e in enumerate(np.eye(self.n))], 0)
+                dx = h[:, None] * np.eye(self.n)  # row k: h_k e_k; the 2n differences in two calls
+                with _diff.directions_after(x):
+                    fp, fm = (np.asarray(self.fun(x + s * dx), float) for s in (1.0, -1.0))
+                jf = (fp - fm) / (2 * h.reshape((self.n,) + (1,) * (fp.ndim - 1)))
         except Exception:  # noqa: BLE001 -- outside the datum's domain (or raising there): not a probe point
             return
         if not (np.all(np.isfinite(jc)) and np.all(np.isfinite(jf))):

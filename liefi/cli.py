@@ -357,7 +357,8 @@ def cmd_run(args):
         T = scene.t_final if args.t_final is None else args.t_final
         try:
             step, _ = scene.step_for_tolerance(variant, scheme, T, rtol, args.atol, gains=gains,
-                                               configuration=configuration, choose_order=args.scheme is None)
+                                               configuration=configuration, choose_order=args.scheme is None,
+                                               backend=args.backend)
             check_step_count(step, T, args.max_steps, name="rtol",
                              advice=f"the step for rtol {rtol:g}; loosen --rtol, take a shorter --t-final, give a "
                                     "larger --dt, or raise --max-steps")

@@ -95,3 +95,81 @@ def test_sparse_products_build_numpy_s_expressions():
     assert np.array_equal(_sparse.quadratic(w0, C0), np.einsum("...i,...kij,...j->...k", w0, C0, w0))
     assert np.array_equal(_sparse.matvec("...ji,...j->...i", B0, w0[:4] @ np.ones((4, 4))[:, :4]),
                           np.einsum("...ji,...j->...i", B0, w0[:4] @ np.ones((4, 4))[:, :4]))
+
+
+def test_the_guard_s_eigenvalues_of_a_large_system_cost_a_fixed_number_of_field_evaluations(chain):
+    """Above 64 states the eigenvalues of ``dX/dy`` come from Jacobian-vector products (Arnoldi): at most
+    ``2 KRYLOV_DIM`` evaluations of ``X`` per state, not ``2n`` (central differences along every coordinate,
+    whose batch made the chain of 32 knife edges' first run take 21 s and 3.7 GB), with the same spectral
+    radius and growth as the dense Jacobian."""
+    from liefi.integrator import _krylov, stability
+
+    system, y0 = chain(12)  # 72 states
+    fi = liefi.FeedbackIntegrator(system, y0, invariants=("constraints", "energy"), gains=10.0)
+    Y = np.stack([y0, y0 + 0.01 * np.sin(np.arange(y0.size))])
+    seen = [0]
+    field = fi.unforced_vector_field
+
+    def counted(y, *a, **k):
+        seen[0] += int(np.prod(np.shape(y)[:-1]))
+        return field(y, *a, **k)
+
+    fi.unforced_vector_field = counted
+    ev = stability._dynamics_eigenvalues(fi, Y)
+    assert seen[0] <= 2 * _krylov.KRYLOV_DIM * len(Y) < 2 * fi.n * len(Y)
+    fi.unforced_vector_field = field
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(_krylov, "DENSE_MAX_STATES", 10**6)
+        dense = stability._dynamics_eigenvalues(fi, Y)
+    np.testing.assert_allclose(np.max(np.abs(ev), -1), np.max(np.abs(dense), -1), rtol=1e-4)
+    for dt in (0.1, 1.0, 1.5):
+        assert abs(stability.dynamics_growth("rk4", dt, ev) - stability.dynamics_growth("rk4", dt, dense)) < 1e-4
+
+
+def test_checking_a_system_s_data_calls_them_a_number_of_times_independent_of_their_size():
+    """The checks at construction (complex step against central differences, the imaginary part kept) take the
+    ``2n`` differences in two calls on a batch of directions: one call per direction made the chain of 32 knife
+    edges' construction 1.9 s (``N^2.75``: ``N`` stacks per call of its constraint, ``6N`` calls per probe)."""
+    calls = {}
+
+    def build(n):
+        count = [0]
+
+        def constraint(q):
+            count[0] += 1
+            row = [np.cos(q[..., 0]), np.sin(q[..., 0])] + [q[..., k] * 0.0 for k in range(2, n)]
+            return np.stack(row, -1)[..., None, :]
+
+        def potential(q):
+            return 0.5 * np.sum(q**2, -1)
+
+        liefi.NonholonomicSystem(liefi.CotangentBundle(n), np.eye(n), constraint, potential)
+        calls[n] = count[0]
+
+    build(3)
+    build(24)
+    assert calls[24] == calls[3], calls
+
+
+def test_the_numpy_field_of_a_large_system_takes_the_curvature_term_without_dense_products(chain, monkeypatch):
+    """``0.5 w^T dC_k w`` of ``d ht / dx`` as ``(w^T dE_k) . (m E^T w)`` above ``_DENSE_DC_PRODUCTS``: ``n K D``
+    products a state, not the ``n K D^2`` of ``dE m`` (the chain of 64 knife edges' first run spent 2 of its
+    2.5 minutes there); the same values to rounding."""
+    from liefi.reduction import core
+
+    system, y0 = chain(16)
+    Y = y0 + 0.1 * np.random.default_rng(1).standard_normal((3, y0.size))  # off J = 0: w != 0
+    shapes = []
+    matmul = _sparse.matmul
+
+    def recorded(a, b):
+        shapes.append(np.shape(a))
+        return matmul(a, b)
+
+    monkeypatch.setattr(_sparse, "matmul", recorded)
+    fast = core.evaluate(system, Y)
+    n, K, D = system.space.data_dim, system.K, system.space.D
+    assert n * K * D * D > 10**6 and not any(s[-3:] == (n, K, D) for s in shapes), shapes
+    monkeypatch.setattr(core, "_DENSE_DC_PRODUCTS", 10**15, raising=False)
+    dense = core.evaluate(system, Y)
+    np.testing.assert_allclose(fast.dht, dense.dht, rtol=0, atol=1e-14 * np.max(np.abs(dense.dht)))

@@ -339,9 +339,15 @@ def dynamics_rates(fi, y):
 
 
 def _dynamics_eigenvalues(fi, y):
-    """Eigenvalues of ``dX/dy`` at the states ``y``: ``(..., n)``."""
+    """Eigenvalues of ``dX/dy`` at the states ``y``: ``(..., n)``; above
+    :data:`~liefi.integrator._krylov.DENSE_MAX_STATES` states the outer ones (``(..., m)``, Arnoldi's Ritz
+    values from Jacobian-vector products, :func:`~liefi.integrator._krylov.ritz_values`)."""
+    from ._krylov import DENSE_MAX_STATES, ritz_values
+
     y = np.asarray(y, dtype=float)
     n = y.shape[-1]
+    if n > DENSE_MAX_STATES:
+        return ritz_values(fi.unforced_vector_field, y)
     h = 1e-6 * np.maximum(1.0, np.abs(y))
     E = np.eye(n)
     pts = np.concatenate([y[..., None, :] + h[..., None, :] * E, y[..., None, :] - h[..., None, :] * E], -2)

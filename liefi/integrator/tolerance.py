@@ -249,10 +249,13 @@ def chosen_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=
     measured = CHECK_GROWTH * chk[2] if chk is not None and chk[4] and chk[5] else None
     if verified is not None and verified[2]:
         measured = max(measured or 0.0, verified[0])
-    dt_est, limit = resolved_step(fi, tab, Y, min(dt_est, T), T, rtol, measured)
+    wanted = min(dt_est, T)
+    dt_est, limit = resolved_step(fi, tab, Y, wanted, T, rtol, measured)
+    resolved = min(dt_est, T)
     dt_est, dt_stable = stable_step(fi, sch, Y, min(dt_est, T), T)
     n = max(1, math.ceil(T / min(dt_est, T) - 1e-9))
     dt = T / n
+    binding = _binding(chk, verified, safe, wanted, resolved, min(dt_est, T), dt_local, drift_cap, T, dt)
     if chk is None:
         est = (T * C * dt ** p) if C > 0 else 0.0
     else:
@@ -280,10 +283,38 @@ def chosen_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=
         "stable_step": None if dt_stable == math.inf else dt_stable,
         "estimated_error": est,
         "unmeasured": unmeasured,
+        "binding": binding,
     }
     if costs is not None:
         info["predicted_cost"] = costs
     return dt, info, sch
+
+
+def _binding(chk, verified, safe, wanted, resolved, stable, dt_local, drift_cap, T, dt):
+    """What set the step :func:`chosen_step` chose (``info["binding"]``, said by :func:`describe`): the step
+    is the shortest of the tolerance's (local model, measured check or verified longer step, drift rule), the
+    resolution limit's and the explicit feedback's stability, rounded down to ``T/N``."""
+    if stable < resolved * (1 - 1e-12):
+        return "the stability of the explicit feedback at these gains"
+    if resolved < wanted * (1 - 1e-12):
+        return "the resolution limit of the unforced motion (dt times its fastest rate)"
+    if wanted >= T * (1 - 1e-12) and dt == T:
+        return "the span: one step"
+    if chk is None and math.ceil(T / dt - 1e-9) >= CHECK_MIN_STEPS:
+        return "the local error model alone (the check's runs could not be made)"
+    if chk is None:
+        return (f"the local error model alone, an upper bound (local errors adding up linearly in t): a run of "
+                f"{math.ceil(T / dt - 1e-9)} steps, fewer than {CHECK_MIN_STEPS}, is not checked, so its error "
+                "can be far below rtol")
+    if drift_cap < math.inf and wanted >= drift_cap * (1 - 1e-12):
+        return "the drift rule (the invariants kept at rounding)"
+    if safe:
+        return "the conservative bound of an untrusted check"
+    if verified is not None and wanted >= verified[0] * (1 - 1e-12):
+        return "a longer step run and measured within the tolerance"
+    if wanted >= CHECK_GROWTH * chk[2] * (1 - 1e-12):
+        return f"the measured error's range: at most {CHECK_GROWTH:g} x the check's coarse step"
+    return "the measured global error (the check's runs)"
 
 
 def _cheapest_order(fi, sch, Y, T, rtol, atol, f=None):
@@ -451,6 +482,8 @@ def describe(scheme, dt, gains_mode, backend, *, chosen=None, scheme_given=False
                  "evaluations" if chosen.get("predicted_cost") else "")
         parts.append(f"dt {dt:.6g} chosen for rtol {chosen['rtol']:g} (a step-doubling pilot of the order-"
                      f"{chosen['order']} tableau on X, {how}{order})")
+        if chosen.get("binding"):
+            parts.append(f"the step is set by {chosen['binding']}")
     elif dt_given:
         parts.append(f"dt {dt:.6g} as asked")
     parts.append(f"backend {backend}")

@@ -92,6 +92,11 @@ class NumpyData:
 #: the accessor of the numpy path (the default everywhere)
 NUMPY_DATA = NumpyData()
 
+#: Above this many products ``n K D^2`` a state (``dE m``, ``n`` coordinates, ``K`` constraints, ``D`` momenta) the
+#: numpy path takes the term ``w^T dC w`` of ``d ht / dx`` as ``(w^T dE_k) . (m E^T w)`` (``n K D``); every scene
+#: of liefi is far below it and keeps the dense products (bit-identical results).
+_DENSE_DC_PRODUCTS = 10**6
+
 
 def is_traced(a) -> bool:
     """Whether ``a`` is an array of traced scalars (object dtype): then no float casts apply."""
@@ -237,12 +242,18 @@ def evaluate(system, z, *, data=NUMPY_DATA, derivatives=True) -> Terms:
                     dJ_dx = dJ_dx + _sparse.matmul(dE, Pi[..., None, :, None])[..., 0]
                 else:
                     dJ_dx = dJ_dx + np.einsum("...kij,...j->...ki", dE, Pi)
-                dEm = _sparse.matmul(dE, m[..., None, :, :])
-                dC = _sparse.matmul(dEm, Et[..., None, :, :])
-                dC = dC + np.swapaxes(dC, -1, -2)
+                if not (is_traced(dE) or is_traced(m) or is_traced(w)) and n * K * D * D > _DENSE_DC_PRODUCTS:
+                    # 0.5 w^T (dE_k m E^T + E m dE_k^T) w = (w^T dE_k) . (m E^T w): n K D products, not the
+                    # n K D^2 of dE m (a chain of 64 knife edges: 2e6 against 5e8 a state)
+                    u = np.einsum("...de,...e->...d", m, np.einsum("...id,...i->...d", E, w))
+                    dht_dx = dht_dx + np.einsum("...kd,...d->...k", np.einsum("...i,...kid->...kd", w, dE), u)
+                else:
+                    dEm = _sparse.matmul(dE, m[..., None, :, :])
+                    dC = _sparse.matmul(dEm, Et[..., None, :, :])
+                    dC = dC + np.swapaxes(dC, -1, -2)
             if dm is not None:
                 dC = dC + _sparse.matmul(_sparse.matmul(E[..., None, :, :], dm), Et[..., None, :, :])
-            dht_dx = dh_dx - _sparse.matvec("...ij,...j->...i", dJ_dx, w)
+            dht_dx = dht_dx - _sparse.matvec("...ij,...j->...i", dJ_dx, w)
             if not np.isscalar(dC):
                 dht_dx = dht_dx + 0.5 * _sparse.quadratic(w, dC)
 

@@ -166,6 +166,24 @@ class RunResult:
         }
 
 
+def tolerance_method(scheme, dt, rtol, atol, choose_order=None, default=None):
+    """``(scheme, choose_order)`` of a run asked for ``scheme`` (or None), ``dt`` and ``rtol``/``atol``.
+
+    The one choice :meth:`Scene.run`, :meth:`liefi.FeedbackIntegrator.run` and ``liefi run`` make: a
+    tolerance without ``dt`` and without ``scheme`` runs :data:`liefi.tolerance.DEFAULT_SCHEME`'s kind with
+    the order chosen with the step; a named ``scheme`` is run as named (its order kept unless
+    ``choose_order``); without a tolerance, ``default`` (the scene's scheme, for its own step).
+    """
+    from ..integrator.tolerance import DEFAULT_SCHEME
+
+    for_tolerance = dt is None and (rtol is not None or atol is not None)
+    if scheme is None:
+        if for_tolerance:
+            return DEFAULT_SCHEME, True if choose_order is None else bool(choose_order)
+        scheme = default
+    return scheme, bool(choose_order)
+
+
 def _json_number(x):
     """numpy numbers and arrays as JSON (the step's ``info``)."""
     return x.tolist() if hasattr(x, "tolist") else float(x)
@@ -439,7 +457,7 @@ class Scene:
         max_saved=20000,
         rtol=None,
         atol=None,
-        choose_order=False,
+        choose_order=None,
         check_stability=True,
         adaptive=None,
         backend=None,
@@ -461,7 +479,11 @@ class Scene:
         ``rtol``/``atol`` without ``dt`` on a fixed-step scheme: the step is chosen for the
         tolerance (:func:`liefi.integrator.tolerance.choose_step`) instead of the scene's, the gains default to
         ``"auto"`` (as ``liefi run`` and :class:`~liefi.FeedbackIntegrator`'s default), and with
-        ``choose_order=True`` also the order (``imex-rk4``/``6``/``8`` for a split ``scheme``);
+        ``choose_order=True`` also the order (``imex-rk4``/``6``/``8`` for a split ``scheme``).
+        Without ``scheme`` a tolerance runs liefi's default method, the one
+        :meth:`liefi.FeedbackIntegrator.run` and ``liefi run`` choose for it (:func:`tolerance_method`):
+        a split scheme whose order is chosen with the step (``choose_order`` defaults to True then, and to
+        False when ``scheme`` is named); the scene's own scheme goes with its own step ``dt``.
         ``RunResult.method`` says which method ran and why.
         """
         import importlib.util
@@ -477,7 +499,7 @@ class Scene:
 
         v = self.variant(variant) if not isinstance(variant, Variant) else variant
         T = positive_number(self.t_final if t_final is None else t_final, "t_final", "must be a positive number")
-        scheme = self.scheme if scheme is None else scheme
+        scheme, choose_order = tolerance_method(scheme, dt, rtol, atol, choose_order, self.scheme)
         fixed_step = scheme not in self.extra_schemes and not str(scheme).lower().startswith("scipy:")
         if scheme in self.extra_schemes and dt is None and (rtol is not None or atol is not None):
             raise ValueError(
@@ -492,7 +514,7 @@ class Scene:
             gains = "auto" if gains is None else gains
             with compile_notice():  # the step's check runs compile the kernels: a long compile is announced
                 dt, chosen, fi = self._step_for_tolerance(v, scheme, gains, configuration, T, rtol, atol,
-                                                          choose_order)
+                                                          choose_order, backend)
             scheme = chosen["scheme"]
         dt = positive_number(self.dt if dt is None else dt, "dt", "the step must be a positive number")
         if T / dt > 1e10:
@@ -576,27 +598,30 @@ class Scene:
             result.method = method
         return result
 
-    def _step_for_tolerance(self, v, scheme, gains, configuration, T, rtol, atol, choose_order=False):
+    def _step_for_tolerance(self, v, scheme, gains, configuration, T, rtol, atol, choose_order=False, backend=None):
         """``(dt, info, fi)``: the fixed step of ``scheme`` for ``rtol``/``atol`` (:meth:`step_for_tolerance`)."""
         dt, info = self.step_for_tolerance(v, scheme, T, rtol, atol, gains=gains, configuration=configuration,
-                                           choose_order=choose_order)
+                                           choose_order=choose_order, backend=backend)
         return dt, info, self.integrator(v, gains=gains, configuration=configuration)
 
     def step_for_tolerance(self, variant, scheme, t_final, rtol=None, atol=None, *, gains=None, configuration=None,
-                           choose_order=False):
+                           choose_order=False, backend=None):
         """``(dt, info)``: the step :meth:`run` takes for ``rtol``/``atol`` (:func:`liefi.integrator.tolerance.choose_step`;
         with ``choose_order``, ``info["scheme"]`` is the order chosen among ``scheme``'s kind).
 
         Known before the run (``liefi run`` refuses a run of too many steps with it); kept on the
         scene for the same arguments, so that the run that follows does not repeat the pilot.
+        ``backend``: the run's (its check runs on it, as :meth:`liefi.FeedbackIntegrator.run`'s does).
         """
         from ..integrator.run import _fixed_step_scheme
-        from ..integrator.tolerance import DEFAULT_RTOL, choose_step
+        from ..integrator.tolerance import DEFAULT_RTOL, choose_step, default_backend
 
         v = self.variant(variant) if not isinstance(variant, Variant) else variant
         rtol = DEFAULT_RTOL if rtol is None else rtol
+        backend = default_backend() if backend is None else backend
+        other = () if backend == default_backend() else (backend,)  # the default's stored steps keep their key
         key = (v.name, str(scheme), repr(gains), configuration, float(t_final), repr(rtol), repr(atol),
-               bool(choose_order))
+               bool(choose_order)) + other
         cache = self.__dict__.setdefault("_stepcache", {})
         if key not in cache:
             import json
@@ -606,13 +631,13 @@ class Scene:
             def pilot():
                 fi = self.integrator(v, gains=gains, configuration=configuration)
                 dt, info = choose_step(fi, _fixed_step_scheme(scheme), fi.y0, 0.0, float(t_final), rtol, atol,
-                                       choose_order=choose_order)
+                                       choose_order=choose_order, backend=backend)
                 return {"dt": np.array(dt), "info": np.array(json.dumps(info, default=_json_number))}
 
             # the pilot is deterministic: kept in the store like a reference, by everything it depends on
             got = store.remember(self, v, ("step", str(scheme), gains, configuration, float(t_final),
                                            np.asarray(rtol, float), None if atol is None else np.asarray(atol, float),
-                                           bool(choose_order)),
+                                           bool(choose_order)) + other,
                                  pilot)
             cache[key] = float(got["dt"]), json.loads(str(got["info"]))
         return cache[key]

@@ -1,0 +1,46 @@
+"""One choice of method for a tolerance, whichever way a user asks (issue 26).
+
+``Scene.run(rtol=...)``, :meth:`liefi.FeedbackIntegrator.run` with ``rtol`` and ``liefi run --rtol`` must
+run the same scheme at the same step: before, ``Scene.run`` kept the scene's own (paper) scheme and did not
+choose the order, so scenes whose paper scheme is Euler chose a step of 1e-8 to 1e-16 and the rattleback ran
+``imex-rk4`` at 632,000 steps where ``fi.run`` runs a higher order at a few thousand.
+"""
+
+import json
+
+import pytest
+
+from liefi import scenes
+from liefi.cli import main
+from liefi.scenes.base import tolerance_method
+
+T, RTOL = 1.0, 1e-4
+
+
+@pytest.fixture(autouse=True)
+def _no_store(monkeypatch):
+    monkeypatch.setenv("LIEFI_REFERENCE_STORE", "0")  # every path chooses, none reads a stored step
+
+
+@pytest.mark.parametrize("name", ["suslov", "knife-edge", "kepler"])
+def test_scene_run_fi_run_and_the_cli_choose_the_same_scheme_and_step(name, capsys):
+    sc = scenes.get(name)
+    sc.__dict__.pop("_stepcache", None)
+    r = sc.run(t_final=T, rtol=RTOL, backend="numpy")
+    fi = sc.integrator(sc.variant(), gains="auto")
+    sol = fi.run(T, rtol=RTOL, backend="numpy")
+    sc.__dict__.pop("_stepcache", None)  # the CLI chooses again, not from the scene's memory
+    assert main(["run", name, "--rtol", str(RTOL), "--t-final", str(T), "--backend", "numpy", "--json"]) in (0, None)
+    cli = json.loads(capsys.readouterr().out)["method"]
+    assert r.method["scheme"] == sol.method["scheme"] == cli["scheme"], (name, r.method, sol.method, cli)
+    assert r.method["dt"] == sol.method["dt"] == cli["dt"], (name, r.method["dt"], sol.method["dt"], cli["dt"])
+    assert r.method["scheme"].startswith("imex-rk") and T / r.method["dt"] < 1e5
+
+
+def test_the_method_for_a_tolerance_is_the_default_one_unless_named():
+    assert tolerance_method(None, None, 1e-6, None, default="euler") == ("imex-rk4", True)
+    assert tolerance_method(None, None, None, 1e-9, default="euler") == ("imex-rk4", True)
+    assert tolerance_method("rk4", None, 1e-6, None, default="euler") == ("rk4", False)  # named: its order kept
+    assert tolerance_method(None, 1e-3, None, None, default="euler") == ("euler", False)  # the scene's own step
+    assert tolerance_method(None, None, None, None, default="dla") == ("dla", False)
+    assert tolerance_method(None, None, 1e-6, None, False, default="euler") == ("imex-rk4", False)
