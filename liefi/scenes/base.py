@@ -170,7 +170,7 @@ def tolerance_method(scheme, dt, rtol, atol, choose_order=None, default=None):
     """``(scheme, choose_order)`` of a run asked for ``scheme`` (or None), ``dt`` and ``rtol``/``atol``.
 
     The one choice :meth:`Scene.run`, :meth:`liefi.FeedbackIntegrator.run` and ``liefi run`` make: a
-    tolerance without ``dt`` and without ``scheme`` runs :data:`liefi.tolerance.DEFAULT_SCHEME`'s kind with
+    tolerance without ``dt`` and without ``scheme`` runs :data:`liefi.integrator.tolerance.DEFAULT_SCHEME`'s kind with
     the order chosen with the step; a named ``scheme`` is run as named (its order kept unless
     ``choose_order``); without a tolerance, ``default`` (the scene's scheme, for its own step).
     """
