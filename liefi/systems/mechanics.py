@@ -35,7 +35,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._kinematics import MinimalSpeedsError, NonConservativeLoadError, _Checks, _fixed_point, _kinematics, _Speeds
+from ._kinematics import (MinimalSpeedsError, NonConservativeLoadError, _annihilator, _Checks, _fixed_point,
+                          _kinematics, _restore, _Speeds)
 from .sympy_input import _sympy, coordinate_names, lagrangian_data, lambdify_checked
 from .system import NonholonomicSystem
 
@@ -210,38 +211,91 @@ class MechanicsSystem(NonholonomicSystem):
             p = p + self.vector_potential(q)
         return p
 
-    def state(self, q, qdot=None, *, u=None):
+    def state(self, q, qdot=None, *, u=None, restored=None):
         """The state ``z = (q, p)`` from the coordinates and the velocities ``qdot`` or the speeds ``u``.
 
-        ``u`` (Kane models) holds every generalized speed in the model's order ``u_ind + u_dep``,
-        or the independent ones only: the dependent speeds are then solved from the
-        velocity constraints ``k_nh(q) u = 0``, so the state is on the constraint set.
+        ``u`` (Kane models) holds every generalized speed in the model's order ``u_ind + u_dep``
+        (:attr:`speeds`, the order :meth:`generalized_speeds` returns them in: an array, or that
+        mapping ``{name: value}``), or the independent ones only: the dependent speeds are then
+        solved from the velocity constraints ``k_nh(q) u = 0``, so the state is on the constraint set.
+        ``q`` holds the model's own coordinates, or those and the :attr:`restored_coordinates`
+        (a model in minimal speeds, :func:`from_mechanics`); their values are ``restored``
+        (default 0), and their rates are the model's (its restored rows).
         """
         if (qdot is None) == (u is None):
             raise ValueError("state: give the velocities qdot or (Kane models) the generalized speeds u, one of them")
-        q = np.asarray(q, float)
-        self._check_shape(q, "q")
+        q = self._full_q(q, restored)
         if u is not None:
+            if isinstance(u, dict):
+                u = self._speeds_in_order(u)
             u = np.asarray(u, float)
-            n, K = self.space.n, self.K
-            if self.speeds and K and u.shape[-1:] == (n - K,):
-                A = self._mech["speed_constraints"](q)  # (..., K, n): rows in u
-                dep = np.linalg.solve(A[..., n - K :], -np.einsum("...ij,...j->...i", A[..., : n - K], u)[..., None])[..., 0]
+            m, K = len(self.speeds), self._mech["model_rows"]
+            if not np.all(np.isfinite(u)) or u.shape[-1:] not in ((m,), (m - K,)) or not self.speeds:
+                want = f"{m} speeds {[str(s) for s in self.speeds]}" + (f" (or the {m - K} independent ones)" if K else "")
+                raise ValueError(f"u: expected {want}, finite, got shape {u.shape}" if self.speeds else
+                                 "u: a Lagrange model has no generalized speeds; give qdot")
+            if K and u.shape[-1:] == (m - K,):
+                A = self._mech["speed_constraints"](q)  # (..., K, m): rows in u
+                dep = np.linalg.solve(A[..., m - K :], -np.einsum("...ij,...j->...i", A[..., : m - K], u)[..., None])[..., 0]
                 batch = np.broadcast_shapes(u.shape[:-1], dep.shape[:-1])
                 u = np.concatenate([np.broadcast_to(u, batch + u.shape[-1:]), np.broadcast_to(dep, batch + (K,))], -1)
-            qdot = self._map("qdot_of_u", q, u, "u")
+            batch = np.broadcast_shapes(q.shape[:-1], u.shape[:-1])
+            qdot = self._mech["qdot_of_u"](np.concatenate([np.broadcast_to(q, batch + q.shape[-1:]),
+                                                          np.broadcast_to(u, batch + u.shape[-1:])], -1))
         qdot = np.asarray(qdot, float)
+        self._check_shape(qdot, "qdot")
         return np.concatenate(np.broadcast_arrays(q, self.momenta(q, qdot)), -1)
+
+    @property
+    def restored_coordinates(self):
+        """Names of the coordinates liefi restored (a model in minimal speeds: ``("x_C", "y_C")``), else ``()``."""
+        return tuple(str(s.func) for s in self._mech["restored"]) if self._mech else ()
 
     def velocities(self, z):
         """``qdot = M(q)^{-1} (p - b(q))`` of states ``z`` (``(..., 2n)``) or of a Solution (``(..., n, n_t)``)."""
         return self._of_states(z, self._qdot)
 
     def generalized_speeds(self, z):
-        """The model's speeds ``u(q, qdot)`` (Kane models) of states ``z`` or of a Solution."""
+        """The model's speeds ``u(q, qdot)`` (Kane models) of states ``z`` or of a Solution, by name.
+
+        One rule for speeds: they come out and go in in the model's order ``u_ind + u_dep``
+        (:attr:`speeds`).  This returns the mapping ``{name: values}`` in that order (``values``
+        of shape ``(...)`` for states ``(..., 2n)``, ``(..., n_t)`` for a Solution);
+        ``state(q, u=...)`` takes the same mapping, or an array in the same order
+        (``np.stack(list(speeds.values()), -1)``).
+        """
         if not self.speeds:
             raise ValueError("generalized_speeds: a Lagrange model has no generalized speeds; use velocities()")
-        return self._of_states(z, lambda zz: self._map("u_of_qdot", zz[..., : self.space.n], self._qdot(zz), "qdot"))
+        n = self.space.n
+        sol = hasattr(z, "y") and hasattr(z, "t")
+        U = self._of_states(z, lambda zz: self._map("u_of_qdot", zz[..., :n], self._qdot(zz), "qdot"))
+        U = np.moveaxis(U, -2, 0) if sol else np.moveaxis(U, -1, 0)
+        return {str(s.func): U[k] for k, s in enumerate(self.speeds)}
+
+    def _speeds_in_order(self, u):
+        names = [str(s.func) for s in self.speeds]
+        keys = {k if isinstance(k, str) else str(getattr(k, "func", k)): v for k, v in u.items()}
+        unknown = sorted(set(keys) - set(names))
+        K = self._mech["model_rows"]
+        if unknown or not (set(names) <= set(keys) or set(names[: len(names) - K]) == set(keys)):
+            raise ValueError(f"u: expected the speeds {names} by name (or the independent ones {names[: len(names) - K]}), "
+                             f"got {sorted(keys)}")
+        given = [n for n in names if n in keys]
+        return np.stack(np.broadcast_arrays(*[np.asarray(keys[n], float) for n in given]), -1)
+
+    def _full_q(self, q, restored):
+        q = np.asarray(q, float)
+        extra = self.restored_coordinates
+        if extra and q.shape[-1:] == (self.space.n - len(extra),):
+            r = np.zeros(len(extra)) if restored is None else np.asarray(restored, float)
+            if r.shape[-1:] != (len(extra),):
+                raise ValueError(f"restored: expected {len(extra)} values for {list(extra)}, got shape {r.shape}")
+            q = np.concatenate([q, np.broadcast_to(r, q.shape[:-1] + (len(extra),))], -1)
+        elif restored is not None:
+            raise ValueError(f"restored: the model has no restored coordinates, or q already holds them "
+                             f"({list(extra)})")
+        self._check_shape(q, "q")
+        return q
 
     def _qdot(self, z):
         n = self.space.n
@@ -356,30 +410,40 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
     if u:
         Kq, Ku = _kinematics(sympy, parts["kd"], q, qd, u)
     frame, bodies = parts["frame"], parts["bodies"]
+    model_rows = [sympy.sympify(c).xreplace(aux0) for c in parts["constraints"]]
+    # minimal speeds: the eliminated places and rows restored (_restore), the velocities in the range of B
+    restored = None if parts["L"] is not None else _restore(sympy, me, frame, bodies, parts["fixed"], q, qd, u, Kq, Ku,
+                                                            model_rows, aux0)
+    extra = [] if restored is None else restored["coords"]
+    parts["offsets"] = {} if restored is None else restored["offsets"]
+    kin_rows = [] if not u or len(u) == n else [sum((a * v for a, v in zip(row, qd)), sympy.S.Zero)
+                                                 for row in _annihilator(sympy, Kq, Ku)]
+    own = restored["velocities"] if restored else {}
+    q_all, qd_all = list(q) + extra, list(qd) + [s.diff(me.dynamicsymbols._t) for s in extra]
     if parts["L"] is not None:
         L = parts["L"]
     else:
         if not bodies:
             raise ValueError(f"model: the {parts['kind']} has no bodies; pass bodies= (or call kanes_equations(bodies, loads))")
-        L = me.kinetic_energy(frame, *bodies) if not u else sympy.S.Zero  # with speeds: _kinetic_form below
+        L = me.kinetic_energy(frame, *bodies) if not (u or own) else sympy.S.Zero  # else _kinetic_form below
         if parts["potential_energy"]:  # a System formed with LagrangesMethod: its Lagrangian holds them
             L = L - sum((b.potential_energy for b in bodies), sympy.S.Zero)
         else:
             _warn_ignored_potential_energy(sympy, parts, bodies)
     L = sympy.sympify(L).xreplace(aux0)
-    constraints = [sympy.sympify(c).xreplace(aux0) for c in parts["constraints"]]
+    constraints = model_rows + kin_rows + ([] if restored is None else restored["rows"])
 
     # the parameters: the model's free symbols, in the order of `constants` first
     t = me.dynamicsymbols._t
     free = set()
     H = c_w = None
-    if u and parts["L"] is None:
-        H, c_w, T0 = _kinetic_form(sympy, me, frame, bodies, list(qd) + list(u), aux0)
+    if (u or own) and parts["L"] is None:
+        H, c_w, T0 = _kinetic_form(sympy, me, frame, bodies, qd_all + list(u), aux0, own)
         L = L + T0
     for e in [L, *constraints, *(list(Kq) + list(Ku) if u else []), *(list(H) + list(c_w) if H is not None else [])]:
         free |= e.free_symbols
     free.discard(t)
-    checks = _Checks(sympy, q, qd, u, frame, aux0)
+    checks = _Checks(sympy, q_all, qd_all, u, frame, aux0)
     U_loads, power = _load_potential(sympy, me, parts, checks, potential)
     free |= (U_loads.free_symbols | power.free_symbols) - {t}
     params, values = _parameters(free, constants)
@@ -389,37 +453,42 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
     if u:  # the kinematic map, solved numerically at each evaluation (never a symbolic inverse)
         Xk = [sympy.Dummy(f"x{i}") for i in range(n)]
         flat = lambda K: [e.xreplace(dict(zip(q, Xk))) for e in K]  # noqa: E731
-        speeds = _Speeds(_bound(sympy, Xk, params, flat(Kq), (n, n), holder, "kinematic differential equations"),
-                         _bound(sympy, Xk, params, flat(Ku), (n, n), holder, "kinematic differential equations"))
+        kin = lambda K, shape: _bound(sympy, Xk, params, flat(K), shape, holder, "kinematic differential equations")  # noqa: E731
+        # K_u a constant matrix: W = -K_u^{-1} K_qdot once, symbolically exact (no solve per evaluation)
+        W = None if Ku.free_symbols or len(u) != n else kin(-Ku.inv() * Kq, (n, n))
+        speeds = _Speeds(kin(Kq, (n, n)), kin(Ku, (n, len(u))), len(u), W=W, extra=len(extra))
     checks.values = np.asarray(holder.values, float).reshape(-1, len(params))[0] if params else np.zeros(0)
     checks.params, checks.speeds = params, speeds
-    checks.velocities_are_derivatives(me, bodies, parts["fixed"])
     if parts["loads"] or parts["actuators"]:
         checks.power_is_minus_dU_dt(power, U_loads, parts["loads"] + parts["actuators"], potential is not None)
 
-    X, M, b, U, rows, q = lagrangian_data(sympy, L - U_loads, q, qd, constraints, params, speeds=u)
-    w = len(M)  # n velocities qdot, or 2n: (qdot, u)
+    X, M, b, U, rows, q_all = lagrangian_data(sympy, L - U_loads, q_all, qd_all, constraints, params, speeds=u)
+    w = len(M)  # n velocities qdot, or n + m: (qdot, u)
     if H is not None:  # T = 1/2 w.H w + c.w + T0 from the partial velocities, never expanded
-        M = [[H[i, j].xreplace(dict(zip(q, X))) for j in range(w)] for i in range(w)]
-        b = [e + c.xreplace(dict(zip(q, X))) for e, c in zip(b, c_w)]
+        M = [[H[i, j].xreplace(dict(zip(q_all, X))) for j in range(w)] for i in range(w)]
+        b = [e + c.xreplace(dict(zip(q_all, X))) for e, c in zip(b, c_w)]
     metric = _bound(sympy, X, params, [e for row in M for e in row], (w, w), holder, "metric")
     pot = None if U == 0 else _bound(sympy, X, params, [U], (), holder, "potential")
     b = [sympy.expand(e) for e in b]
     vp = None if all(e == 0 for e in b) else _bound(sympy, X, params, b, (w,), holder, "vector potential")
     A = None if not rows else _bound(sympy, X, params, [e for row in rows for e in row], (len(rows), w), holder,
                                      "constraints")
-    mech = dict(constants=holder, q=q, u=u, qdot_of_u=None, u_of_qdot=None, speed_constraints=None)
+    k_model, r = len(model_rows), len(extra)
+    mech = dict(constants=holder, q=q, u=u, qdot_of_u=None, u_of_qdot=None, speed_constraints=None, restored=extra,
+                model_rows=k_model)
     if u:  # the data in qdot: u = W(q) qdot, (qdot, u) = S qdot with S = [1; W]
+        Aw = A  # the rows in w = (qdot, u)
+        if r:
+            speeds.restored = lambda x: Aw(x)[..., len(rows) - r:, :]
         mech["u_of_qdot"], mech["qdot_of_u"] = speeds.u_of_qdot, speeds.qdot_of_u
-        mech["speed_constraints"] = None if A is None else speeds.rows_in_u(A)
+        mech["speed_constraints"] = None if not k_model else speeds.rows_in_u(lambda x: Aw(x)[..., :k_model, :])
         metric, vp, A = speeds.metric(metric), speeds.covector(vp), speeds.rows(A)
-    space = CotangentBundle(n, names=coordinate_names(sympy, q) if names is None else names)
+    space = CotangentBundle(n + r, names=coordinate_names(sympy, q_all) if names is None else names)
     if not rows:
         return MechanicsSystem(space, metric, None, pot, vector_potential=vp, mechanics=mech, **kw)
     return MechanicsSystem.from_velocity_constraints(
         space, metric, A, pot, scaling=scaling, vector_potential=vp, mechanics=mech, **kw
     )
-
 
 def _parts(sympy, me, model):
     """The model's coordinates, speeds, kinematics, Lagrangian or bodies, loads and constraints."""
@@ -471,14 +540,15 @@ def _parts(sympy, me, model):
     raise TypeError(f"model: expected a sympy.physics.mechanics LagrangesMethod, KanesMethod or System, got {kind}")
 
 
-def _kinetic_form(sympy, me, frame, bodies, w, aux0):
+def _kinetic_form(sympy, me, frame, bodies, w, aux0, velocities=None):
     r"""``(H, c, T0)`` with ``T = 1/2 w^T H w + c . w + T0``: the kinetic energy of the bodies in the velocities ``w``.
 
     Each velocity is affine in ``w`` (``v = J_v w + v_0``, ``omega = J_w w + omega_0``: the
     partial velocities), so ``H = sum m J_v^T J_v + J_w^T I J_w`` (``I`` the central inertia
     in the body's frame), ``c = sum m J_v^T v_0 + J_w^T I omega_0`` and
     ``T0 = sum m |v_0|^2/2 + omega_0 . I omega_0 / 2`` -- products of Jacobians, never an
-    expansion of ``T`` (Kane & Levinson 1985, Sec. 2.14 and 4.11).
+    expansion of ``T`` (Kane & Levinson 1985, Sec. 2.14 and 4.11).  ``velocities``: the
+    mass centres' velocities to use instead of the model's (:func:`_restore`).
     """
     zero = dict.fromkeys(w, 0)
     n = len(w)
@@ -486,7 +556,8 @@ def _kinetic_form(sympy, me, frame, bodies, w, aux0):
     for body in bodies:
         m = body.mass
         ref = body.frame if isinstance(body, me.RigidBody) else frame
-        parts = [(m * sympy.eye(3), body.masscenter.vel(frame).to_matrix(ref))]
+        v = (velocities or {}).get(body)  # a restored (derived) velocity (_restore), or the model's
+        parts = [(m * sympy.eye(3), (body.masscenter.vel(frame) if v is None else v).to_matrix(ref))]
         if isinstance(body, me.RigidBody):
             parts.append((body.central_inertia.to_matrix(ref), body.frame.ang_vel_in(frame).to_matrix(ref)))
         for inertia, vel in parts:
@@ -562,7 +633,7 @@ def _load_potential(sympy, me, parts, checks, potential):
         if me.find_dynamicsymbols(F) or F.has(t) or O is None:
             bad.append(load)
             continue
-        U -= vec.dot(where.pos_from(O))
+        U -= vec.dot(where.pos_from(O) + parts.get("offsets", {}).get(O, 0 * frame.x))  # a restored place of O
     for act in parts["actuators"]:
         for where, vec in act.to_loads():
             W += power(where, vec)
