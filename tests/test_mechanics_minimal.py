@@ -319,3 +319,97 @@ def test_fewer_speeds_than_coordinates_give_the_annihilator_row():
         qd = sled.velocities(z)
         assert abs(-np.sin(th) * qd[0] + np.cos(th) * qd[1]) < 1e-14
         np.testing.assert_allclose(list(sled.generalized_speeds(z).values()), [0.8, 1.5], atol=1e-14)
+
+
+# --- the rattleback ------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def rattleback_built():
+    KM, consts, start, extra = rattleback()
+    t0 = time.perf_counter()
+    rb = liefi.from_mechanics(KM, consts)
+    return KM, consts, start, extra, rb, time.perf_counter() - t0
+
+
+@pytest.mark.parametrize("tilt", [0.0, 1e-9, 1e-6])
+def test_rattleback_in_minimal_speeds_at_the_upright_has_the_models_own_field(rattleback_built, tilt):
+    """The yaw--roll--pitch rattleback of zero-velocity contact point (was ``MinimalSpeedsError``): its contact
+    point ``x_P, y_P`` restored, the field at roll/pitch ``0, 1e-9, 1e-6`` equals sympy's ``mass_matrix_full \\
+    forcing_full`` to 1e-12 relative (no pivot on a function that vanishes at the upright)."""
+    KM, consts, start, extra, rb, _ = rattleback_built
+    assert rb.restored_coordinates == ("x_P", "y_P")
+    for qv in ([0.3, tilt, tilt], [0.3, tilt, 0.02], [0.3, 0.02, tilt]):
+        assert_field(rb, KM, consts, np.array(qv), np.array([0.1, -0.2, 5.0]))
+
+
+def rattleback_on_liefi_rolling():
+    """The same body built with :func:`liefi.rolling.rolling_body` (the rattleback scene's data)."""
+    from liefi.rolling import ellipsoid, rolling_body
+
+    P = RATTLEBACK
+    inertia = [[P["A"], P["D"], 0.0], [P["D"], P["B"], 0.0], [0.0, 0.0, P["C"]]]  # sympy's inertia(R, A, B, C, D)
+    return rolling_body(P["m"], inertia, ellipsoid((P["a"], P["b"], P["c"]), offset=(0.0, 0.0, -P["h"])), P["g"])
+
+
+@pytest.mark.slow
+def test_rattleback_in_minimal_speeds_runs_as_the_same_body_built_with_liefi_rolling(rattleback_built):
+    """liefi's default run of the sympy model over ``[0, 5]`` against the same body built with ``liefi.rolling``
+    (its field integrated by DOP853 at 1e-12): the attitude rows and the body rates within 1e-6."""
+    from scipy.integrate import solve_ivp
+
+    from liefi.rolling import rolling_start
+
+    KM, consts, start, extra, rb, _ = rattleback_built
+    body = rattleback_on_liefi_rolling()
+    dcm = sympy.lambdify(list(KM.q), extra["frame"].dcm(extra["body"]), "numpy")  # rows: N's axes in the body's
+    q0, u0 = np.array(start["q"]), np.array(start["u"])
+    y0 = rolling_start(body, np.asarray(dcm(*q0), float), u0)[11:]  # (rho_1, rho_2, Gamma, Pi, p)
+    ref = solve_ivp(lambda _, y: body.constrained_vector_field(y), (0.0, 5.0), y0, method="DOP853", rtol=1e-12,
+                    atol=1e-12, dense_output=True)
+    sol = liefi.FeedbackIntegrator(rb, rb.state(q0, u=u0)).run(5.0, backend="numpy")
+    Yr = ref.sol(sol.t).T
+    V = np.stack([np.asarray(dcm(*q), float).ravel() for q in sol.y[:3].T])
+    Omega_ref = np.linalg.solve(body.metric(Yr[:, :9]), Yr[:, 9:][..., None])[..., :3, 0]
+    Omega = np.stack(list(rb.generalized_speeds(sol).values()), -1)
+    err = max(np.max(np.abs(V - Yr[:, :9])), np.max(np.abs(Omega - Omega_ref)) / np.max(np.abs(Omega_ref)))
+    assert err <= 1e-6, err
+
+
+# --- the trajectories and the drift (slow) -------------------------------------------------------------
+def own_trajectory(eom, consts, start, system, t_final=2.0):
+    """The model's own equations from the start, DOP853 at 1e-12: ``(q, v)`` at ``t_final``."""
+    from scipy.integrate import solve_ivp
+
+    f = own_rates(eom, consts)
+    n = len(eom.q)
+    v0 = np.asarray(start.get("u", start.get("qd")), float)
+    if system.speeds and len(v0) < len(system.speeds):
+        v0 = dependent(system, np.asarray(start["q"], float), v0)
+    y0 = np.concatenate([start["q"], v0])
+    sol = solve_ivp(lambda _, y: f(y[:n], y[n:]), (0.0, t_final), y0, method="DOP853", rtol=1e-12, atol=1e-12)
+    return sol.y[:n, -1], sol.y[n:, -1], y0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", sorted(MODELS))
+def test_the_model_runs_as_its_own_equations_and_holds_its_constraints_and_energy(name):
+    """Over ``[0, 2]`` liefi's field (DOP853 at 1e-12) agrees with the model's own to 1e-8 in ``(q, u)``; along
+    liefi's default run every constraint row (the model's and the restored ones) and the energy hold to 1e-12."""
+    from scipy.integrate import solve_ivp
+
+    eom, consts, start, system = build(name)
+    q_own, v_own, y0 = own_trajectory(eom, consts, start, system)
+    n = len(eom.q)
+    z0 = system.state(y0[:n], u=y0[n:]) if system.speeds else system.state(y0[:n], y0[n:])
+    sol = solve_ivp(lambda _, z: system.constrained_vector_field(z), (0.0, 2.0), z0, method="DOP853", rtol=1e-12,
+                    atol=1e-12)
+    z = sol.y[:, -1]
+    v = np.stack(list(system.generalized_speeds(z).values())) if system.speeds else system.velocities(z)[:n]
+    err = max(np.max(np.abs(z[:n] - q_own)), np.max(np.abs(v - v_own))) / max(1.0, np.max(np.abs(v_own)))
+    assert err <= 1e-8, err
+    fi = liefi.FeedbackIntegrator(system, z0)
+    run = fi.run(2.0, backend="numpy")
+    inv = fi.invariant_values(np.moveaxis(run.y, -1, 0))
+    scale = max(1.0, float(np.max(np.abs(run.y))))
+    for key in [f"J_{i + 1}" for i in range(system.K)] + ["h~"]:
+        drift = float(np.max(np.abs(inv[key] - inv[key][0])))
+        assert drift <= 1e-12 * scale * max(1.0, abs(float(inv[key][0]))), (key, drift)
