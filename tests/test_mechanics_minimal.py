@@ -203,9 +203,19 @@ def rattleback():
 
 
 # --- the model's own equations, carried to liefi's state -----------------------------------------
+_RATES = {}
+
+
 def own_rates(eom, constants):
     """``(q, u) -> (q', u')`` of the model's own ``mass_matrix_full \\ forcing_full`` (Kane), or ``(q, q') ->
     (q', q'')`` of ``LagrangesMethod.rhs()``."""
+    if id(eom) in _RATES:
+        return _RATES[id(eom)][1]
+    _RATES[id(eom)] = (eom, _own_rates(eom, constants))  # the model kept: its id stays its own
+    return _RATES[id(eom)][1]
+
+
+def _own_rates(eom, constants):
     if isinstance(eom, me.LagrangesMethod):
         q = list(eom.q)
         f = sympy.lambdify(q + [s.diff(t) for s in q], eom.rhs().subs(constants), "numpy", cse=True)
@@ -330,6 +340,7 @@ def rattleback_built():
     return KM, consts, start, extra, rb, time.perf_counter() - t0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("tilt", [0.0, 1e-9, 1e-6])
 def test_rattleback_in_minimal_speeds_at_the_upright_has_the_models_own_field(rattleback_built, tilt):
     """The yaw--roll--pitch rattleback of zero-velocity contact point (was ``MinimalSpeedsError``): its contact

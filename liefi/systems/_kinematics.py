@@ -231,7 +231,7 @@ def _restore(sympy, me, frame, bodies, fixed, q, qd, u, Kq, Ku, constraints, aux
     K = [Kq, Ku] if u else []
     allx = [plain(e) for e in exprs + [e for M in K for e in M] + list(Cw)]
     params = sorted(set().union(*(e.free_symbols for e in allx)) - set(X) - set(V) - set(Us) - {t}, key=str)
-    f = lambdify_checked(sympy, X + V + Us + params, allx, "model: the bodies' velocities", dummify=True)
+    f = lambdify_checked(sympy, X + V + Us + params, allx, "model: the bodies' velocities", cse=True, dummify=True)
     rng = np.random.default_rng(20261126)
     pv = rng.uniform(0.5, 1.5, len(params))
     nb = len(exprs)
