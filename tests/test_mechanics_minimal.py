@@ -424,3 +424,31 @@ def test_the_model_runs_as_its_own_equations_and_holds_its_constraints_and_energ
     for key in [f"J_{i + 1}" for i in range(system.K)] + ["h~"]:
         drift = float(np.max(np.abs(inv[key] - inv[key][0])))
         assert drift <= 1e-12 * scale * max(1.0, abs(float(inv[key][0]))), (key, drift)
+
+
+def test_bodies_that_give_their_contact_point_different_velocities_are_named():
+    """A bead located from the disc's contact point ``C`` with a velocity of its own: the disc and the bead give
+    ``C`` two different motions, so no one restored place of ``C`` fits both; ``MinimalSpeedsError`` names them."""
+    from liefi.mechanics import MinimalSpeedsError
+
+    q1, q2, q3, u1, u2, u3 = me.dynamicsymbols("q1 q2 q3 u1 u2 u3")
+    r, m, g = sympy.symbols("r m g")
+    N = me.ReferenceFrame("N")
+    Y = N.orientnew("Y", "Axis", [q1, N.z])
+    L = Y.orientnew("L", "Axis", [q2, Y.x])
+    R = L.orientnew("R", "Axis", [q3, L.y])
+    w_R_N_qd = R.ang_vel_in(N)
+    R.set_ang_vel(N, u1 * L.x + u2 * L.y + u3 * L.z)
+    C = me.Point("C")
+    C.set_vel(N, 0)
+    Dmc = C.locatenew("Dmc", r * L.z)
+    Dmc.v2pt_theory(C, N, R)
+    bead = C.locatenew("bead", r * Y.x)
+    bead.set_vel(N, r * u1 * N.x)
+    kd = [me.dot(R.ang_vel_in(N) - w_R_N_qd, uv) for uv in L]
+    bodies = [me.RigidBody("BodyD", Dmc, R, m, (me.inertia(L, m / 4 * r**2, m / 2 * r**2, m / 4 * r**2), Dmc)),
+              me.Particle("bead", bead, m)]
+    KM = me.KanesMethod(N, q_ind=[q1, q2, q3], u_ind=[u1, u2, u3], kd_eqs=kd, bodies=bodies,
+                        forcelist=[(Dmc, -m * g * Y.z)])
+    with pytest.raises(MinimalSpeedsError, match=r"\['BodyD', 'bead'\] located from C give it different velocities"):
+        liefi.from_mechanics(KM, {r: 0.5, m: 1.0, g: 9.81})

@@ -18,8 +18,9 @@ class NonConservativeLoadError(ValueError):
 
 
 class MinimalSpeedsError(ValueError):
-    """A body's velocity is not the time derivative of its position: the model builds the rolling
-    constraint into its kinematics instead of stating it as a velocity constraint."""
+    """Bodies located from one zero-velocity point give it different velocities: no one restored place of
+    that point fits them all (a model in minimal speeds whose bodies' velocities come from different
+    kinematics); see :func:`_restore`."""
 
 
 def _kinematics(sympy, kd, q, qd, u):

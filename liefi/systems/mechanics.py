@@ -347,6 +347,12 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
           constraints in ``qdot``; auxiliary speeds are zero, as in sympy's equations, and the
           loads at points moving with them only (reactions) do no work.  Kane's equations take
           forces only from the loads: a body's ``potential_energy`` is ignored, with a warning.
+          *Minimal speeds* run as written: a body whose velocity is given from a contact point
+          of zero velocity (``v2pt_theory``) gets the contact point's place restored (coordinates
+          ``x_C, y_C``, reported by :attr:`MechanicsSystem.restored_coordinates`), its kinetic
+          energy from the derivative of its position, and the rows "the model's velocity is the
+          true one"; fewer speeds than coordinates (``qdot = B(q) u``) give the annihilator rows
+          of ``B`` (``liefi.systems._kinematics._restore``, ``_annihilator``).
         * ``System``: its bodies, loads, actuators (``LinearSpring``/``DuffingSpring`` potential
           ``k (l - l0)^2 / 2`` ...), kinematic differential equations and nonholonomic
           constraints; ``potential_energy`` counts if it was formed with ``LagrangesMethod``.
@@ -378,11 +384,9 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
         Naming loads without a derivable potential (velocity-dependent forces, torques,
         forces that vary in the inertial frame), or a ``potential`` that does not match them.
     MinimalSpeedsError
-        If a body's velocity is not the time derivative of its position from a fixed point:
-        a model in minimal speeds (a rolling disk whose centre velocity is ``v2pt_theory`` from
-        a contact point of zero velocity) has the rolling condition built into its
-        kinematics; liefi needs the contact point's coordinates among ``q`` and the rolling
-        condition as velocity constraints (``u_dependent`` / ``velocity_constraints``).
+        If bodies located from the same zero-velocity point give it different velocities (their
+        velocities minus the derivatives of their positions from it differ), so that no one
+        restored place of that point fits them all.
     ValueError
         For holonomic constraints, dependent coordinates, missing constants and every error of
         :func:`liefi.from_sympy` (a ``T`` not quadratic, nonlinear constraints ...).
