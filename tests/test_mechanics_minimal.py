@@ -117,6 +117,31 @@ def disc_lagrange():
     return l, {r: 0.5, m: 1.0, g: 9.81}, dict(q=[0.1, 0.2, 0.3], qd=[0.5, -1.0, 3.0]), None
 
 
+def disc_system():
+    """The minimal-speeds disc through sympy's ``System`` (the contact point as its fixed point), ``form_eoms()``."""
+    q1, q2, q3, u1, u2, u3 = me.dynamicsymbols('q1 q2 q3 u1 u2 u3')
+    r, m, g = sympy.symbols('r m g')
+    N = me.ReferenceFrame('N')
+    Y = N.orientnew('Y', 'Axis', [q1, N.z])
+    L = Y.orientnew('L', 'Axis', [q2, Y.x])
+    R = L.orientnew('R', 'Axis', [q3, L.y])
+    w_R_N_qd = R.ang_vel_in(N)
+    R.set_ang_vel(N, u1 * L.x + u2 * L.y + u3 * L.z)
+    C = me.Point('C')
+    C.set_vel(N, 0)
+    Dmc = C.locatenew('Dmc', r * L.z)
+    Dmc.v2pt_theory(C, N, R)
+    disc = me.RigidBody('disc', Dmc, R, m, (me.inertia(L, m / 4 * r**2, m / 2 * r**2, m / 4 * r**2), Dmc))
+    system = me.System(N, C)
+    system.q_ind = [q1, q2, q3]
+    system.u_ind = [u1, u2, u3]
+    system.kdes = [me.dot(R.ang_vel_in(N) - w_R_N_qd, uv) for uv in L]
+    system.add_bodies(disc)
+    system.add_loads(me.Force(Dmc, -m * g * Y.z))
+    system.form_eoms()
+    return system, {r: 0.5, m: 1.0, g: 9.81}, dict(q=[0.1, 0.2, 0.3], u=[0.5, -1.0, 3.0]), None
+
+
 def sleigh_minimal():
     """A Chaplygin sleigh in minimal speeds: the blade's forward speed ``u1`` and the yaw rate ``u2`` for the
     three coordinates ``x, y, theta`` (``x' = u1 cos theta``, ``y' = u1 sin theta``), the mass centre ``a``
@@ -216,6 +241,8 @@ def own_rates(eom, constants):
 
 
 def _own_rates(eom, constants):
+    if isinstance(eom, me.System):
+        eom = eom.eom_method  # the KanesMethod of form_eoms()
     if isinstance(eom, me.LagrangesMethod):
         q = list(eom.q)
         f = sympy.lambdify(q + [s.diff(t) for s in q], eom.rhs().subs(constants), "numpy", cse=True)
@@ -253,7 +280,7 @@ def assert_field(system, eom, constants, qv, v, tol=1e-12):
     return err
 
 
-MODELS = {"disc-kane": disc_kane, "disc-kane-aux": disc_kane_aux, "disc-lagrange": disc_lagrange,
+MODELS = {"disc-kane": disc_kane, "disc-kane-aux": disc_kane_aux, "disc-lagrange": disc_lagrange, "disc-system": disc_system,
           "sleigh-minimal": sleigh_minimal, "sleigh-offset": sleigh_offset,
           "sleigh-body-speeds": lambda: sleigh_offset(body_speeds=True)}
 
