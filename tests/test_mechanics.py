@@ -18,7 +18,7 @@ me = pytest.importorskip("sympy.physics.mechanics")
 
 import liefi  # noqa: E402
 from liefi import CotangentBundle, NonholonomicSystem, scenes  # noqa: E402
-from liefi.mechanics import MinimalSpeedsError, NonConservativeLoadError  # noqa: E402
+from liefi.mechanics import NonConservativeLoadError  # noqa: E402
 from liefi.scenes import exact  # noqa: E402
 
 TOL = 1e-12

@@ -62,6 +62,29 @@ def disc_kane():
                                                                                           loads=ForceList)
 
 
+def disc_slope():
+    """The tutorial's disc on a slope: gravity tilted by ``beta`` in the ``N.x`` direction (the load's potential then
+    holds the restored place ``x_C``: ``U = -m g sin(beta) x_C + ...``)."""
+    q1, q2, q3, u1, u2, u3 = me.dynamicsymbols('q1 q2 q3 u1 u2 u3')
+    r, m, g, beta = sympy.symbols('r m g beta')
+    N = me.ReferenceFrame('N')
+    Y = N.orientnew('Y', 'Axis', [q1, N.z])
+    L = Y.orientnew('L', 'Axis', [q2, Y.x])
+    R = L.orientnew('R', 'Axis', [q3, L.y])
+    w_R_N_qd = R.ang_vel_in(N)
+    R.set_ang_vel(N, u1 * L.x + u2 * L.y + u3 * L.z)
+    C = me.Point('C')
+    C.set_vel(N, 0)
+    Dmc = C.locatenew('Dmc', r * L.z)
+    Dmc.v2pt_theory(C, N, R)
+    I = me.inertia(L, m / 4 * r**2, m / 2 * r**2, m / 4 * r**2)
+    kd = [me.dot(R.ang_vel_in(N) - w_R_N_qd, uv) for uv in L]
+    ForceList = [(Dmc, -m * g * (sympy.cos(beta) * N.z - sympy.sin(beta) * N.x))]
+    KM = me.KanesMethod(N, q_ind=[q1, q2, q3], u_ind=[u1, u2, u3], kd_eqs=kd)
+    KM.kanes_equations([me.RigidBody('BodyD', Dmc, R, m, (I, Dmc))], ForceList)
+    return KM, {r: 0.5, m: 1.0, g: 9.81, beta: 0.2}, dict(q=[0.1, 0.2, 0.3], u=[0.5, -1.0, 3.0]), None
+
+
 def disc_kane_aux():
     """sympy's tutorial ``rollingdisc_example_kane_constraints``: the contact point's auxiliary speeds and forces."""
     from sympy import symbols
@@ -281,6 +304,7 @@ def assert_field(system, eom, constants, qv, v, tol=1e-12):
 
 
 MODELS = {"disc-kane": disc_kane, "disc-kane-aux": disc_kane_aux, "disc-lagrange": disc_lagrange, "disc-system": disc_system,
+          "disc-slope": disc_slope,
           "sleigh-minimal": sleigh_minimal, "sleigh-offset": sleigh_offset,
           "sleigh-body-speeds": lambda: sleigh_offset(body_speeds=True)}
 

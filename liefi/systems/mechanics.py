@@ -614,9 +614,14 @@ def _load_potential(sympy, me, parts, checks, potential):
     U, W, bad = sympy.S.Zero, sympy.S.Zero, []
     q = set(parts["q"])
 
+    offsets, minimal = parts.get("offsets", {}), 0 < len(parts["u"]) < len(parts["q"])
+
     def power(where, vec):
         if isinstance(where, me.ReferenceFrame):
             return vec.dot(where.ang_vel_in(frame))
+        O = (offsets or minimal) and (parts["fixed"] or _fixed_point(where, frame, aux0))
+        if O and (O in offsets or minimal):  # minimal speeds: the derived velocity, the model's on its set only
+            return vec.dot(where.pos_from(O).dt(frame) + offsets.get(O, 0 * frame.x).dt(frame))
         return vec.dot(where.vel(frame))
 
     aux0 = dict.fromkeys(parts["aux"], sympy.S.Zero)
@@ -637,7 +642,7 @@ def _load_potential(sympy, me, parts, checks, potential):
         if me.find_dynamicsymbols(F) or F.has(t) or O is None:
             bad.append(load)
             continue
-        U -= vec.dot(where.pos_from(O) + parts.get("offsets", {}).get(O, 0 * frame.x))  # a restored place of O
+        U -= vec.dot(where.pos_from(O) + offsets.get(O, 0 * frame.x))  # with a restored place of O
     for act in parts["actuators"]:
         for where, vec in act.to_loads():
             W += power(where, vec)
