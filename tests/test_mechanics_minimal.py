@@ -364,6 +364,8 @@ def test_speeds_come_out_and_go_in_by_name_in_the_models_order():
     np.testing.assert_allclose(sled.state(start["q"], u={"u3": start["u"][1], "u1": start["u"][0]}), z, atol=1e-14)
     with pytest.raises(ValueError, match=r"u: expected the speeds \['u1', 'u3', 'u2'\]"):
         sled.state(start["q"], u={"u1": 1.0, "w": 2.0})
+    with pytest.raises(ValueError, match=r"u: expected 3 speeds \['u1', 'u3', 'u2'\] \(or the 2 "):
+        sled.state(start["q"], u=[1.0, 2.0, 3.0, 4.0])
     sol = liefi.FeedbackIntegrator(sled, z, gains=1.0).run(0.05, dt=1e-2, scheme="rk4", backend="numpy")
     us = sled.generalized_speeds(sol)
     assert list(us) == ["u1", "u3", "u2"] and us["u1"].shape == sol.t.shape

@@ -231,7 +231,8 @@ class MechanicsSystem(NonholonomicSystem):
             u = np.asarray(u, float)
             m, K = len(self.speeds), self._mech["model_rows"]
             if not np.all(np.isfinite(u)) or u.shape[-1:] not in ((m,), (m - K,)) or not self.speeds:
-                want = f"{m} speeds {[str(s) for s in self.speeds]}" + (f" (or the {m - K} independent ones)" if K else "")
+                want = f"{m} speeds {[str(s.func) for s in self.speeds]}" + (
+                    f" (or the {m - K} independent ones)" if K else "")
                 raise ValueError(f"u: expected {want}, finite, got shape {u.shape}" if self.speeds else
                                  "u: a Lagrange model has no generalized speeds; give qdot")
             if K and u.shape[-1:] == (m - K,):
