@@ -82,7 +82,7 @@ def disc_slope():
     ForceList = [(Dmc, -m * g * (sympy.cos(beta) * N.z - sympy.sin(beta) * N.x))]
     KM = me.KanesMethod(N, q_ind=[q1, q2, q3], u_ind=[u1, u2, u3], kd_eqs=kd)
     KM.kanes_equations([me.RigidBody('BodyD', Dmc, R, m, (I, Dmc))], ForceList)
-    return KM, {r: 0.5, m: 1.0, g: 9.81, beta: 0.2}, dict(q=[0.1, 0.2, 0.3], u=[0.5, -1.0, 3.0]), None
+    return KM, {r: 0.5, m: 1.0, g: 9.81, beta: 0.2}, dict(q=[0.0, 0.2, 0.0], u=[0.0, 4.0, 0.3]), None
 
 
 def disc_kane_aux():
