@@ -417,7 +417,10 @@ def rattleback_on_liefi_rolling():
 @pytest.mark.slow
 def test_rattleback_in_minimal_speeds_runs_as_the_same_body_built_with_liefi_rolling(rattleback_built):
     """liefi's default run of the sympy model over ``[0, 5]`` against the same body built with ``liefi.rolling``
-    (its field integrated by DOP853 at 1e-12): the attitude rows and the body rates within 1e-6."""
+    (its field integrated by DOP853 at 1e-12): the attitude rows and the body rates (relative to their largest)
+    within 1e-6 (5e-8 and 2.6e-7 measured).  The numpy path's default run chooses a coarser step here (1.7e-3
+    against the compiled run's 9.5e-4, with a warning that the global error could not be measured) and is off
+    by 1e-5."""
     from scipy.integrate import solve_ivp
 
     from liefi.rolling import rolling_start
@@ -429,7 +432,7 @@ def test_rattleback_in_minimal_speeds_runs_as_the_same_body_built_with_liefi_rol
     y0 = rolling_start(body, np.asarray(dcm(*q0), float), u0)[11:]  # (rho_1, rho_2, Gamma, Pi, p)
     ref = solve_ivp(lambda _, y: body.constrained_vector_field(y), (0.0, 5.0), y0, method="DOP853", rtol=1e-12,
                     atol=1e-12, dense_output=True)
-    sol = liefi.FeedbackIntegrator(rb, rb.state(q0, u=u0)).run(5.0, backend="numpy")
+    sol = liefi.FeedbackIntegrator(rb, rb.state(q0, u=u0)).run(5.0)  # the default: compiled, rtol 1e-6
     Yr = ref.sol(sol.t).T
     V = np.stack([np.asarray(dcm(*q), float).ravel() for q in sol.y[:3].T])
     Omega_ref = np.linalg.solve(body.metric(Yr[:, :9]), Yr[:, 9:][..., None])[..., :3, 0]
