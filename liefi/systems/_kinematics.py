@@ -336,7 +336,7 @@ class _Checks:
         to = {**dict(zip(self.qd, V)), **dict(zip(self.u, Us))}
         plain = lambda e: sp.sympify(e).xreplace(self.aux0).xreplace(to).xreplace(dict(zip(self.q, X)))  # noqa: E731
         f = lambdify_checked(sp, X + V + Us + list(self.params),
-                             [plain(e) for e in list(exprs) + list(scale_exprs)], what, dummify=True)
+                             [plain(e) for e in list(exprs) + list(scale_exprs)], what, cse=True, dummify=True)
         worst = 0.0
         for _ in range(4):
             x, v = self.rng.uniform(-1, 1, len(X)), self.rng.normal(size=len(V))
