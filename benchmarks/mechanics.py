@@ -25,6 +25,7 @@ import numpy as np
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests"))  # tests/test_mechanics.py imports its models from tests/models.py
 
 import liefi  # noqa: E402
 

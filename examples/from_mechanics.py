@@ -76,9 +76,9 @@ def main(t_final=5.0, dt=1e-3):
     run = time.perf_counter() - t
     v = fi.invariant_values(np.moveaxis(sol.y, -1, -2))
     drift = {k: float(np.max(np.abs(v[k] - v[k][0]))) for k in ("J_1", "J_2", "h~")}
-    u = disk.generalized_speeds(sol)  # (5, n_t): u1..u5 along the run
+    u = disk.generalized_speeds(sol)  # {"u1": (n_t,), ..., "u5": (n_t,)}: by name, in the model's order
     print(f"rolling disk: built in {build:.2f} s, {sol.steps} rk4 steps in {run:.2f} s; drift {drift}; "
-          f"final spin rate u2 = {u[1, -1]:.6f}")
+          f"final spin rate u2 = {u['u2'][-1]:.6f}")
 
     LM, constants = sleigh()
     t = time.perf_counter()

@@ -18,7 +18,7 @@ me = pytest.importorskip("sympy.physics.mechanics")
 
 import liefi  # noqa: E402
 from liefi import CotangentBundle, NonholonomicSystem, scenes  # noqa: E402
-from liefi.mechanics import MinimalSpeedsError, NonConservativeLoadError  # noqa: E402
+from liefi.mechanics import NonConservativeLoadError  # noqa: E402
 from liefi.scenes import exact  # noqa: E402
 
 TOL = 1e-12
@@ -173,11 +173,11 @@ def test_kanes_method_rolling_disk_equals_the_hand_written_system():
     q0 = np.array([0.0, 0.2, 0.0, 0.0, 0.0])
     z0 = disk.state(q0, u=[0.0, 4.0, 0.3])
     assert np.max(np.abs(disk.constraint_momenta(z0))) < 1e-14
-    u0 = disk.generalized_speeds(z0)
+    u0 = np.stack(list(disk.generalized_speeds(z0).values()))  # {name: value} in the model's order
     np.testing.assert_allclose(u0[:3], [0.0, 4.0, 0.3], atol=1e-14)
     np.testing.assert_allclose(disk.state(q0, u=u0), z0, atol=1e-14)  # all five speeds: the same state
     sol = _same_trajectories(disk, ref, z0, gains=1.0)
-    u, qdot = disk.generalized_speeds(sol), disk.velocities(sol)
+    u, qdot = np.stack(list(disk.generalized_speeds(sol).values())), disk.velocities(sol)
     assert u.shape == qdot.shape == (5, sol.t.size)
     np.testing.assert_allclose(u[3:], qdot[3:], rtol=0, atol=1e-12)  # u4, u5 = x', y'
     # rolling: the contact point moves at r times the spin rate, |(x', y')| = r |q3'|
@@ -197,12 +197,13 @@ def test_kanes_method_agrees_with_kanes_equations():
     rng = np.random.default_rng(3)
     for _ in range(3):
         z = disk.project(np.concatenate([rng.uniform(-1, 1, 5), rng.normal(size=5)]))
-        uz = disk.generalized_speeds(z)
+        speeds = lambda z: np.stack(list(disk.generalized_speeds(z).values()))  # noqa: E731
+        uz = speeds(z)
         args = list(z[:5]) + list(uz)
         want = np.linalg.solve(np.asarray(Mf(*args), float), np.asarray(ff(*args), float).ravel())
         h = 1e-6  # d/dt of u(q, qdot) along liefi's constrained field, by a central difference
         dz = disk.constrained_vector_field(z)
-        got = (disk.generalized_speeds(z + h * dz) - disk.generalized_speeds(z - h * dz)) / (2 * h)
+        got = (speeds(z + h * dz) - speeds(z - h * dz)) / (2 * h)
         np.testing.assert_allclose(disk.velocities(z), dz[:5], atol=1e-12)
         np.testing.assert_allclose(got, want[5:], rtol=1e-6, atol=1e-6)
     del t
@@ -265,10 +266,18 @@ def test_mass_sweep_is_one_ensemble_call_equal_to_separate_builds():
     assert np.ptp(theta) > 1e-2  # the members differ: each ran with its own mass
 
 
-def test_minimal_speeds_disk_is_refused_with_the_fix():
-    KM, _ = disk_model(minimal=True)
-    with pytest.raises(MinimalSpeedsError, match="rolling condition as velocity constraints"):
-        liefi.from_mechanics(KM, {"m": 1.0, "r": 1.0, "g": 1.0})
+def test_minimal_speeds_disk_is_the_disk_with_its_contact_point():
+    """The docs' minimal-speeds disk (was refused, ``MinimalSpeedsError``): liefi restores the contact point's
+    ``x_C, y_C`` and the two rolling rows, which gives the disk written with ``x, y`` and dependent speeds."""
+    KM, (m, r, g) = disk_model(minimal=True)
+    disk = liefi.from_mechanics(KM, {m: 2.0, r: 0.5, g: 9.81})
+    full = liefi.from_mechanics(disk_model()[0], {m: 2.0, r: 0.5, g: 9.81})
+    assert disk.restored_coordinates == ("x_C", "y_C") and disk.K == full.K == 2
+    rng = np.random.default_rng(4)
+    z = full.project(np.concatenate([rng.uniform(-1, 1, (4, 5)), rng.normal(size=(4, 5))], -1))
+    np.testing.assert_allclose(disk.constrained_vector_field(z), full.constrained_vector_field(z), rtol=0, atol=1e-12)
+    z0 = disk.state([0.0, 0.2, 0.0], u=[0.0, 4.0, 0.3])
+    np.testing.assert_allclose(z0, full.state([0.0, 0.2, 0.0, 0.0, 0.0], u=[0.0, 4.0, 0.3]), rtol=0, atol=1e-14)
 
 
 def test_loads_without_a_potential_are_named():

@@ -371,11 +371,10 @@ def test_auxiliary_speeds_for_a_reaction_force_leave_the_equations_unchanged():
         assert_field(pend, *field(np.array([qv]), np.array([uv])))
 
 
-def test_the_rolling_disc_with_auxiliary_speeds_gets_its_real_trait_named():
-    """sympy's test_kane aux disc: refused for its minimal speeds (the centre's velocity from the contact
-    point), no longer for the auxiliary speeds, which change nothing."""
-    from liefi.mechanics import MinimalSpeedsError
-
+def test_the_rolling_disc_with_auxiliary_speeds_builds_with_its_contact_point_restored():
+    """sympy's test_kane aux disc: was refused for its minimal speeds (the centre's velocity from the contact
+    point); liefi restores the contact point's place (tests/test_mechanics_minimal.py), and the auxiliary
+    speeds change nothing."""
     q1, q2, q3, u1, u2, u3 = me.dynamicsymbols("q1 q2 q3 u1 u2 u3")
     u4, u5, f1, f2 = me.dynamicsymbols("u4, u5, f1, f2")
     r, m, g = sympy.symbols("r m g")
@@ -394,5 +393,5 @@ def test_the_rolling_disc_with_auxiliary_speeds_gets_its_real_trait_named():
     ForceList = [(Dmc, -m * g * Y.z), (C, f1 * L.x + f2 * (Y.z ^ L.x))]
     KM2 = me.KanesMethod(N, q_ind=[q1, q2, q3], u_ind=[u1, u2, u3], kd_eqs=kd, u_auxiliary=[u4, u5])
     KM2.kanes_equations([me.RigidBody("BodyD", Dmc, R, m, (I, Dmc))], ForceList)
-    with pytest.raises(MinimalSpeedsError, match="minimal speeds"):
-        liefi.from_mechanics(KM2, {r: 0.5, m: 1.0, g: 9.81})
+    disc = liefi.from_mechanics(KM2, {r: 0.5, m: 1.0, g: 9.81})
+    assert disc.restored_coordinates == ("x_C", "y_C") and disc.K == 2

@@ -35,21 +35,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._kinematics import (MinimalSpeedsError, NonConservativeLoadError, _annihilator, _Checks, _fixed_point,
+                          _kinematics, _restore, _Speeds)
 from .sympy_input import _sympy, coordinate_names, lagrangian_data, lambdify_checked
 from . import _mechanics_constraints as _mc
 from .system import NonholonomicSystem
 
 __all__ = ["from_mechanics", "MechanicsSystem", "NonConservativeLoadError", "MinimalSpeedsError"]
-
-
-class NonConservativeLoadError(ValueError):
-    """A load of the model has no potential liefi can derive (velocity-dependent, a torque, or a force
-    varying in the inertial frame); pass ``potential=`` if the loads are conservative."""
-
-
-class MinimalSpeedsError(ValueError):
-    """A body's velocity is not the time derivative of its position: the model builds the rolling
-    constraint into its kinematics instead of stating it as a velocity constraint."""
 
 
 class _Constants:
@@ -220,38 +212,92 @@ class MechanicsSystem(NonholonomicSystem):
             p = p + self.vector_potential(q)
         return p
 
-    def state(self, q, qdot=None, *, u=None):
+    def state(self, q, qdot=None, *, u=None, restored=None):
         """The state ``z = (q, p)`` from the coordinates and the velocities ``qdot`` or the speeds ``u``.
 
-        ``u`` (Kane models) holds every generalized speed in the model's order ``u_ind + u_dep``,
-        or the independent ones only: the dependent speeds are then solved from the
-        velocity constraints ``k_nh(q) u = 0``, so the state is on the constraint set.
+        ``u`` (Kane models) holds every generalized speed in the model's order ``u_ind + u_dep``
+        (:attr:`speeds`, the order :meth:`generalized_speeds` returns them in: an array, or that
+        mapping ``{name: value}``), or the independent ones only: the dependent speeds are then
+        solved from the velocity constraints ``k_nh(q) u = 0``, so the state is on the constraint set.
+        ``q`` holds the model's own coordinates, or those and the :attr:`restored_coordinates`
+        (a model in minimal speeds, :func:`from_mechanics`); their values are ``restored``
+        (default 0), and their rates are the model's (its restored rows).
         """
         if (qdot is None) == (u is None):
             raise ValueError("state: give the velocities qdot or (Kane models) the generalized speeds u, one of them")
-        q = np.asarray(q, float)
-        self._check_shape(q, "q")
+        q = self._full_q(q, restored)
         if u is not None:
+            if isinstance(u, dict):
+                u = self._speeds_in_order(u)
             u = np.asarray(u, float)
-            n, K = self.space.n, self.K
-            if self.speeds and K and u.shape[-1:] == (n - K,):
-                A = self._mech["speed_constraints"](q)  # (..., K, n): rows in u
-                dep = np.linalg.solve(A[..., n - K :], -np.einsum("...ij,...j->...i", A[..., : n - K], u)[..., None])[..., 0]
+            m, K = len(self.speeds), self._mech["model_rows"]
+            if not np.all(np.isfinite(u)) or u.shape[-1:] not in ((m,), (m - K,)) or not self.speeds:
+                want = f"{m} speeds {[str(s.func) for s in self.speeds]}" + (
+                    f" (or the {m - K} independent ones)" if K else "")
+                raise ValueError(f"u: expected {want}, finite, got shape {u.shape}" if self.speeds else
+                                 "u: a Lagrange model has no generalized speeds; give qdot")
+            if K and u.shape[-1:] == (m - K,):
+                A = self._mech["speed_constraints"](q)  # (..., K, m): rows in u
+                dep = np.linalg.solve(A[..., m - K :], -np.einsum("...ij,...j->...i", A[..., : m - K], u)[..., None])[..., 0]
                 batch = np.broadcast_shapes(u.shape[:-1], dep.shape[:-1])
                 u = np.concatenate([np.broadcast_to(u, batch + u.shape[-1:]), np.broadcast_to(dep, batch + (K,))], -1)
-            qdot = self._map("qdot_of_u", q, u, "u")
+            batch = np.broadcast_shapes(q.shape[:-1], u.shape[:-1])
+            qdot = self._mech["qdot_of_u"](np.concatenate([np.broadcast_to(q, batch + q.shape[-1:]),
+                                                          np.broadcast_to(u, batch + u.shape[-1:])], -1))
         qdot = np.asarray(qdot, float)
+        self._check_shape(qdot, "qdot")
         return np.concatenate(np.broadcast_arrays(q, self.momenta(q, qdot)), -1)
+
+    @property
+    def restored_coordinates(self):
+        """Names of the coordinates liefi restored (a model in minimal speeds: ``("x_C", "y_C")``), else ``()``."""
+        return tuple(str(s.func) for s in self._mech["restored"]) if self._mech else ()
 
     def velocities(self, z):
         """``qdot = M(q)^{-1} (p - b(q))`` of states ``z`` (``(..., 2n)``) or of a Solution (``(..., n, n_t)``)."""
         return self._of_states(z, self._qdot)
 
     def generalized_speeds(self, z):
-        """The model's speeds ``u(q, qdot)`` (Kane models) of states ``z`` or of a Solution."""
+        """The model's speeds ``u(q, qdot)`` (Kane models) of states ``z`` or of a Solution, by name.
+
+        One rule for speeds: they come out and go in in the model's order ``u_ind + u_dep``
+        (:attr:`speeds`).  This returns the mapping ``{name: values}`` in that order (``values``
+        of shape ``(...)`` for states ``(..., 2n)``, ``(..., n_t)`` for a Solution);
+        ``state(q, u=...)`` takes the same mapping, or an array in the same order
+        (``np.stack(list(speeds.values()), -1)``).
+        """
         if not self.speeds:
             raise ValueError("generalized_speeds: a Lagrange model has no generalized speeds; use velocities()")
-        return self._of_states(z, lambda zz: self._map("u_of_qdot", zz[..., : self.space.n], self._qdot(zz), "qdot"))
+        n = self.space.n
+        sol = hasattr(z, "y") and hasattr(z, "t")
+        U = self._of_states(z, lambda zz: self._map("u_of_qdot", zz[..., :n], self._qdot(zz), "qdot"))
+        U = np.moveaxis(U, -2, 0) if sol else np.moveaxis(U, -1, 0)
+        return {str(s.func): U[k] for k, s in enumerate(self.speeds)}
+
+    def _speeds_in_order(self, u):
+        names = [str(s.func) for s in self.speeds]
+        keys = {k if isinstance(k, str) else str(getattr(k, "func", k)): v for k, v in u.items()}
+        unknown = sorted(set(keys) - set(names))
+        K = self._mech["model_rows"]
+        if unknown or not (set(names) <= set(keys) or set(names[: len(names) - K]) == set(keys)):
+            raise ValueError(f"u: expected the speeds {names} by name (or the independent ones {names[: len(names) - K]}), "
+                             f"got {sorted(keys)}")
+        given = [n for n in names if n in keys]
+        return np.stack(np.broadcast_arrays(*[np.asarray(keys[n], float) for n in given]), -1)
+
+    def _full_q(self, q, restored):
+        q = np.asarray(q, float)
+        extra = self.restored_coordinates
+        if extra and q.shape[-1:] == (self.space.n - len(extra),):
+            r = np.zeros(len(extra)) if restored is None else np.asarray(restored, float)
+            if r.shape[-1:] != (len(extra),):
+                raise ValueError(f"restored: expected {len(extra)} values for {list(extra)}, got shape {r.shape}")
+            q = np.concatenate([q, np.broadcast_to(r, q.shape[:-1] + (len(extra),))], -1)
+        elif restored is not None:
+            raise ValueError(f"restored: the model has no restored coordinates, or q already holds them "
+                             f"({list(extra)})")
+        self._check_shape(q, "q")
+        return q
 
     def _qdot(self, z):
         n = self.space.n
@@ -303,6 +349,12 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
           constraints in ``qdot``; auxiliary speeds are zero, as in sympy's equations, and the
           loads at points moving with them only (reactions) do no work.  Kane's equations take
           forces only from the loads: a body's ``potential_energy`` is ignored, with a warning.
+          *Minimal speeds* run as written: a body whose velocity is given from a contact point
+          of zero velocity (``v2pt_theory``) gets the contact point's place restored (coordinates
+          ``x_C, y_C``, reported by :attr:`MechanicsSystem.restored_coordinates`), its kinetic
+          energy from the derivative of its position, and the rows "the model's velocity is the
+          true one"; fewer speeds than coordinates (``qdot = B(q) u``) give the annihilator rows
+          of ``B`` (``liefi.systems._kinematics._restore``, ``_annihilator``).
         * ``System``: its bodies, loads, actuators (``LinearSpring``/``DuffingSpring`` potential
           ``k (l - l0)^2 / 2`` ...), kinematic differential equations and velocity constraints;
           ``potential_energy`` counts if it was formed with ``LagrangesMethod``.
@@ -336,11 +388,9 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
         Naming loads without a derivable potential (velocity-dependent forces, torques,
         forces that vary in the inertial frame), or a ``potential`` that does not match them.
     MinimalSpeedsError
-        If a body's velocity is not the time derivative of its position from a fixed point:
-        a model in minimal speeds (a rolling disk whose centre velocity is ``v2pt_theory`` from
-        a contact point of zero velocity) has the rolling condition built into its
-        kinematics; liefi needs the contact point's coordinates among ``q`` and the rolling
-        condition as velocity constraints (``u_dependent`` / ``velocity_constraints``).
+        If bodies located from the same zero-velocity point give it different velocities (their
+        velocities minus the derivatives of their positions from it differ), so that no one
+        restored place of that point fits them all.
     ValueError
         For missing constants and every error of :func:`liefi.from_sympy` (a ``T`` not quadratic,
         nonlinear constraints ...); ``ConstraintRowsError`` (a ``ValueError``) for velocity constraints
@@ -369,31 +419,41 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
     if u:
         Kq, Ku = _kinematics(sympy, parts["kd"], q, qd, u)
     frame, bodies = parts["frame"], parts["bodies"]
+    model_rows = [sympy.sympify(c).xreplace(aux0) for c in parts["constraints"]]
+    # minimal speeds: the eliminated places and rows restored (_restore), the velocities in the range of B
+    restored = None if parts["L"] is not None else _restore(sympy, me, frame, bodies, parts["fixed"], q, qd, u, Kq, Ku,
+                                                            model_rows, aux0)
+    extra = [] if restored is None else restored["coords"]
+    parts["offsets"] = {} if restored is None else restored["offsets"]
+    kin_rows = [] if not u or len(u) == n else [sum((a * v for a, v in zip(row, qd)), sympy.S.Zero)
+                                                 for row in _annihilator(sympy, Kq, Ku)]
+    own = restored["velocities"] if restored else {}
+    q_all, qd_all = list(q) + extra, list(qd) + [s.diff(me.dynamicsymbols._t) for s in extra]
     if parts["L"] is not None:
         L = parts["L"]
     else:
         if not bodies:
             raise ValueError(f"model: the {parts['kind']} has no bodies; pass bodies= (or call kanes_equations(bodies, loads))")
-        L = me.kinetic_energy(frame, *bodies) if not u else sympy.S.Zero  # with speeds: _kinetic_form below
+        L = me.kinetic_energy(frame, *bodies) if not (u or own) else sympy.S.Zero  # else _kinetic_form below
         if parts["potential_energy"]:  # a System formed with LagrangesMethod: its Lagrangian holds them
             L = L - sum((b.potential_energy for b in bodies), sympy.S.Zero)
         else:
             _warn_ignored_potential_energy(sympy, parts, bodies)
     L = sympy.sympify(L).xreplace(aux0)
-    constraints = [sympy.sympify(c).xreplace(aux0) for c in parts["constraints"]]
+    constraints = model_rows + kin_rows + ([] if restored is None else restored["rows"])
     hol = [sympy.sympify(c).xreplace(aux0) for c in parts["holonomic"]]  # f(q) = 0 (liefi.systems.holonomic)
 
     # the parameters: the model's free symbols, in the order of `constants` first
     t = me.dynamicsymbols._t
     free = set()
     H = c_w = None
-    if u and parts["L"] is None:
-        H, c_w, T0 = _kinetic_form(sympy, me, frame, bodies, list(qd) + list(u), aux0)
+    if (u or own) and parts["L"] is None:
+        H, c_w, T0 = _kinetic_form(sympy, me, frame, bodies, qd_all + list(u), aux0, own)
         L = L + T0
     for e in [L, *constraints, *hol, *(list(Kq) + list(Ku) if u else []), *(list(H) + list(c_w) if H is not None else [])]:
         free |= e.free_symbols
     free.discard(t)
-    checks = _Checks(sympy, q, qd, u, frame, aux0)
+    checks = _Checks(sympy, q_all, qd_all, u, frame, aux0)
     U_loads, power = _load_potential(sympy, me, parts, checks, potential)
     free |= (U_loads.free_symbols | power.free_symbols) - {t}
     params, values = _parameters(free, constants)
@@ -403,41 +463,51 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
     if u:  # the kinematic map, solved numerically at each evaluation (never a symbolic inverse)
         Xk = [sympy.Dummy(f"x{i}") for i in range(n)]
         flat = lambda K: [e.xreplace(dict(zip(q, Xk))) for e in K]  # noqa: E731
-        speeds = _Speeds(_bound(sympy, Xk, params, flat(Kq), (n, n), holder, "kinematic differential equations"),
-                         _bound(sympy, Xk, params, flat(Ku), (n, n), holder, "kinematic differential equations"))
+        kin = lambda K, shape: _bound(sympy, Xk, params, flat(K), shape, holder, "kinematic differential equations")  # noqa: E731
+        # K_u a constant matrix: W = -K_u^{-1} K_qdot once, symbolically exact (no solve per evaluation)
+        W = None if Ku.free_symbols or len(u) != n else kin(-Ku.inv() * Kq, (n, n))
+        speeds = _Speeds(kin(Kq, (n, n)), kin(Ku, (n, len(u))), len(u), W=W, extra=len(extra))
     checks.values = np.asarray(holder.values, float).reshape(-1, len(params))[0] if params else np.zeros(0)
     checks.params, checks.speeds = params, speeds
-    checks.velocities_are_derivatives(me, bodies, parts["fixed"])
     if parts["loads"] or parts["actuators"]:
         checks.power_is_minus_dU_dt(power, U_loads, parts["loads"] + parts["actuators"], potential is not None)
 
-    X, M, b, U, rows, q = lagrangian_data(sympy, L - U_loads, q, qd, constraints, params, speeds=u)
-    w = len(M)  # n velocities qdot, or 2n: (qdot, u)
+    X, M, b, U, rows, q_all = lagrangian_data(sympy, L - U_loads, q_all, qd_all, constraints, params, speeds=u)
+    w = len(M)  # n velocities qdot, or n + m: (qdot, u)
     if H is not None:  # T = 1/2 w.H w + c.w + T0 from the partial velocities, never expanded
-        M = [[H[i, j].xreplace(dict(zip(q, X))) for j in range(w)] for i in range(w)]
-        b = [e + c.xreplace(dict(zip(q, X))) for e, c in zip(b, c_w)]
+        M = [[H[i, j].xreplace(dict(zip(q_all, X))) for j in range(w)] for i in range(w)]
+        b = [e + c.xreplace(dict(zip(q_all, X))) for e, c in zip(b, c_w)]
     metric = _bound(sympy, X, params, [e for row in M for e in row], (w, w), holder, "metric")
     pot = None if U == 0 else _bound(sympy, X, params, [U], (), holder, "potential")
     b = [sympy.expand(e) for e in b]
     vp = None if all(e == 0 for e in b) else _bound(sympy, X, params, b, (w,), holder, "vector potential")
     A = None if not rows else _bound(sympy, X, params, [e for row in rows for e in row], (len(rows), w), holder,
                                      "constraints")
+    keep = list(range(len(rows)))
     if hol:  # the values f -> holonomic=, the velocity constraints less the derivatives of f
-        A, kw = _mc.holonomic_data(sympy, hol, parts["q"], X, A, len(rows), speeds if u else None, kw,
-                                   lambda e, shape, what: _bound(sympy, X, params, e, shape, holder, what))
-    mech = dict(constants=holder, q=q, u=u, qdot_of_u=None, u_of_qdot=None, speed_constraints=None)
+        A, kw, keep = _mc.holonomic_data(sympy, hol, parts["q"], X, A, len(rows), speeds if u else None, kw,
+                                         lambda e, shape, what: _bound(sympy, X, params, e, shape, holder, what))
+    r = len(extra)
+    k_model = sum(1 for i in keep if i < len(model_rows))  # the model's own rows kept (less the derivatives of f)
+    if r and keep[-r:] != list(range(len(rows) - r, len(rows))):  # pragma: no cover - f holds no restored place
+        raise ValueError("model: a configuration constraint spans a restored contact point's row; "
+                         "state the contact point's coordinates in the model")
+    mech = dict(constants=holder, q=q, u=u, qdot_of_u=None, u_of_qdot=None, speed_constraints=None, restored=extra,
+                model_rows=k_model)
     if u:  # the data in qdot: u = W(q) qdot, (qdot, u) = S qdot with S = [1; W]
+        Aw = A  # the rows in w = (qdot, u)
+        if r:
+            speeds.restored = lambda x: Aw(x)[..., len(keep) - r:, :]
         mech["u_of_qdot"], mech["qdot_of_u"] = speeds.u_of_qdot, speeds.qdot_of_u
-        mech["speed_constraints"] = None if A is None else speeds.rows_in_u(A)
+        mech["speed_constraints"] = None if not k_model else speeds.rows_in_u(lambda x: Aw(x)[..., :k_model, :])
         metric, vp, A = speeds.metric(metric), speeds.covector(vp), speeds.rows(A)
     metric = _mc.regularized_metric(metric, A, kw) if hol else metric  # singular on the ambient space: regular off C
-    space = CotangentBundle(n, names=coordinate_names(sympy, q) if names is None else names)
+    space = CotangentBundle(n + r, names=coordinate_names(sympy, q_all) if names is None else names)
     if A is None:
         return MechanicsSystem(space, metric, None, pot, vector_potential=vp, mechanics=mech, **kw)
     return MechanicsSystem.from_velocity_constraints(
         space, metric, A, pot, scaling=scaling, vector_potential=vp, mechanics=mech, **kw
     )
-
 
 def _parts(sympy, me, model):
     """The model's coordinates, speeds, kinematics, Lagrangian or bodies, loads and constraints."""
@@ -483,14 +553,15 @@ def _parts(sympy, me, model):
     raise TypeError(f"model: expected a sympy.physics.mechanics LagrangesMethod, KanesMethod or System, got {kind}")
 
 
-def _kinetic_form(sympy, me, frame, bodies, w, aux0):
+def _kinetic_form(sympy, me, frame, bodies, w, aux0, velocities=None):
     r"""``(H, c, T0)`` with ``T = 1/2 w^T H w + c . w + T0``: the kinetic energy of the bodies in the velocities ``w``.
 
     Each velocity is affine in ``w`` (``v = J_v w + v_0``, ``omega = J_w w + omega_0``: the
     partial velocities), so ``H = sum m J_v^T J_v + J_w^T I J_w`` (``I`` the central inertia
     in the body's frame), ``c = sum m J_v^T v_0 + J_w^T I omega_0`` and
     ``T0 = sum m |v_0|^2/2 + omega_0 . I omega_0 / 2`` -- products of Jacobians, never an
-    expansion of ``T`` (Kane & Levinson 1985, Sec. 2.14 and 4.11).
+    expansion of ``T`` (Kane & Levinson 1985, Sec. 2.14 and 4.11).  ``velocities``: the
+    mass centres' velocities to use instead of the model's (:func:`_restore`).
     """
     zero = dict.fromkeys(w, 0)
     n = len(w)
@@ -498,7 +569,8 @@ def _kinetic_form(sympy, me, frame, bodies, w, aux0):
     for body in bodies:
         m = body.mass
         ref = body.frame if isinstance(body, me.RigidBody) else frame
-        parts = [(m * sympy.eye(3), body.masscenter.vel(frame).to_matrix(ref))]
+        v = (velocities or {}).get(body)  # a restored (derived) velocity (_restore), or the model's
+        parts = [(m * sympy.eye(3), (body.masscenter.vel(frame) if v is None else v).to_matrix(ref))]
         if isinstance(body, me.RigidBody):
             parts.append((body.central_inertia.to_matrix(ref), body.frame.ang_vel_in(frame).to_matrix(ref)))
         for inertia, vel in parts:
@@ -513,106 +585,6 @@ def _kinetic_form(sympy, me, frame, bodies, w, aux0):
                 c += IJ.T * v0
                 T0 += (v0.T * inertia * v0)[0, 0] / 2
     return H, c, T0
-
-
-def _kinematics(sympy, kd, q, qd, u):
-    """``(K_qdot, K_u)``: the kinematic differential equations as ``K_qdot(q) qdot + K_u(q) u = 0``.
-
-    Only the matrices: the map is solved numerically at each evaluation (:class:`_Speeds`),
-    never by a symbolic inverse, whose pivots may vanish where the map is regular.
-    """
-    n = len(q)
-    if len(u) != n:
-        raise ValueError(f"model: {len(u)} generalized speeds for {n} coordinates; liefi needs one speed per coordinate")
-    K = sympy.Matrix(kd)
-    Ku, Kq = K.jacobian(u), K.jacobian(qd)
-    rest = K.xreplace(dict.fromkeys(u, 0)).xreplace(dict.fromkeys(qd, 0))
-    if any(Ku.has(s) or Kq.has(s) for s in list(u) + list(qd)):
-        raise ValueError("model: the kinematic differential equations are not linear in u and qdot")
-    if any(e != 0 and sympy.simplify(e) != 0 for e in rest):
-        raise ValueError("model: the kinematic differential equations K_qdot qdot + K_u u + f_k = 0 have a term "
-                         f"f_k = {list(rest)} free of u and qdot; liefi needs the speeds linear and homogeneous in "
-                         "qdot (time-dependent kinematics are not integrated)")
-    return Kq, Ku
-
-
-def _solve(A, B):
-    """``A^{-1} B`` batch-first: LAPACK's pivoted LU on numbers (complex-step safe); traced (compiled engine)
-    matrices, which have no magnitude to pivot on, by the normal equations ``A^T A X = A^T B`` (positive
-    definite, so elimination without pivots meets no vanishing pivot where ``A`` is regular)."""
-    A, B = np.asarray(A), np.asarray(B)
-    if A.dtype == object:
-        At = np.swapaxes(A, -1, -2)
-        return np.linalg.solve(At @ A, At @ B)
-    if B.dtype == object:
-        return np.linalg.inv(A) @ B
-    try:
-        return np.linalg.solve(A, B)
-    except np.linalg.LinAlgError:
-        raise ValueError("model: the kinematic differential equations K_qdot(q) qdot + K_u(q) u = 0 are singular "
-                         "at a state of the run (K_u or K_qdot not invertible): the model's speeds do not "
-                         "parametrize its velocities there") from None
-
-
-class _Speeds:
-    r"""The model's speeds as a numerical map: ``u = W(q) qdot``, ``W = -K_u^{-1} K_qdot``.
-
-    The data extracted in the velocities ``w = (qdot, u)`` (``2n x 2n`` metric ``H``, covector
-    ``c``, rows ``C``) become data in ``qdot`` through ``w = S qdot``, ``S = [1; W]``:
-
-    .. math:: M = S^T H S, \qquad b = S^T c, \qquad a = C S,
-
-    each evaluated from the numeric ``K_qdot(q)``, ``K_u(q)`` by a linear solve, so ``M`` is
-    regular wherever the model's kinematic map and mass matrix are (no symbolic pivot).
-    """
-
-    def __init__(self, Kq, Ku):
-        self.Kq, self.Ku = Kq, Ku
-
-    def W(self, x):
-        return -_solve(self.Ku(x), self.Kq(x))
-
-    def S(self, x):
-        W = self.W(x)
-        return np.concatenate([np.broadcast_to(np.eye(W.shape[-1]), W.shape), W], -2)
-
-    def metric(self, H):
-        def metric(x):
-            S = self.S(x)
-            return np.swapaxes(S, -1, -2) @ H(x) @ S
-        return metric
-
-    def covector(self, c):
-        if c is None:
-            return None
-        return lambda x: (np.swapaxes(self.S(x), -1, -2) @ c(x)[..., None])[..., 0]
-
-    def rows(self, C):
-        if C is None:
-            return None
-        return lambda x: C(x) @ self.S(x)
-
-    def rows_in_u(self, C):
-        """``C [V; 1]`` with ``qdot = V u``, ``V = -K_qdot^{-1} K_u``: the constraint rows in ``u``."""
-        def rows(x):
-            V = -_solve(self.Kq(x), self.Ku(x))
-            Cx = C(x)
-            n = V.shape[-1]
-            return Cx[..., :n] @ V + Cx[..., n:]
-        return rows
-
-    def _split(self, z):
-        z = np.asarray(z)
-        n = z.shape[-1] // 2
-        return z[..., :n], z[..., n:]
-
-    def u_of_qdot(self, z):
-        x, v = self._split(z)
-        return (self.W(x) @ v[..., None])[..., 0]
-
-    def qdot_of_u(self, z):
-        x, v = self._split(z)
-        return -_solve(self.Kq(x), (self.Ku(x) @ v[..., None]))[..., 0]
 
 
 def _parameters(free, constants):
@@ -639,21 +611,6 @@ def _parameters(free, constants):
     return params, values
 
 
-def _fixed_point(point, frame, aux0=None):
-    """A point of ``point``'s position tree with velocity set to zero in ``frame`` (the auxiliary speeds at zero), or None."""
-    seen, todo = {point}, [point]
-    while todo:
-        p = todo.pop(0)
-        v = p._vel_dict.get(frame, None)
-        if v == 0 or (aux0 and v is not None and all(e == 0 for e in v.to_matrix(frame).xreplace(aux0))):
-            return p
-        for other in p._pos_dict:
-            if other not in seen:
-                seen.add(other)
-                todo.append(other)
-    return None
-
-
 def _load_potential(sympy, me, parts, checks, potential):
     """``(U, W)``: the loads' potential (derived for constant forces and springs, or the given one) and their power.
 
@@ -666,9 +623,14 @@ def _load_potential(sympy, me, parts, checks, potential):
     U, W, bad = sympy.S.Zero, sympy.S.Zero, []
     q = set(parts["q"])
 
+    offsets, minimal = parts.get("offsets", {}), 0 < len(parts["u"]) < len(parts["q"])
+
     def power(where, vec):
         if isinstance(where, me.ReferenceFrame):
             return vec.dot(where.ang_vel_in(frame))
+        O = (offsets or minimal) and (parts["fixed"] or _fixed_point(where, frame, aux0))
+        if O and (O in offsets or minimal):  # minimal speeds: the derived velocity, the model's on its set only
+            return vec.dot(where.pos_from(O).dt(frame) + offsets.get(O, 0 * frame.x).dt(frame))
         return vec.dot(where.vel(frame))
 
     aux0 = dict.fromkeys(parts["aux"], sympy.S.Zero)
@@ -689,7 +651,7 @@ def _load_potential(sympy, me, parts, checks, potential):
         if me.find_dynamicsymbols(F) or F.has(t) or O is None:
             bad.append(load)
             continue
-        U -= vec.dot(where.pos_from(O))
+        U -= vec.dot(where.pos_from(O) + offsets.get(O, 0 * frame.x))  # with a restored place of O
     for act in parts["actuators"]:
         for where, vec in act.to_loads():
             W += power(where, vec)
@@ -733,68 +695,3 @@ def _warn_ignored_potential_energy(sympy, parts, bodies):
             f"model: the potential_energy of {named} is ignored, as {how} ignores it: Kane's equations take "
             "forces only from the loads; liefi follows the model (give the force as a load, e.g. gravity, or a "
             "LinearSpring actuator, to include it)", UserWarning, stacklevel=3)
-
-
-class _Checks:
-    """Numerical identities the model must satisfy, evaluated at random states with the given constants.
-
-    The expressions may hold ``q``, ``qdot`` and the speeds ``u``; at each random ``(q, qdot)``
-    the speeds are ``u = W(q) qdot`` from the model's kinematic map, solved numerically
-    (:class:`_Speeds`), and the auxiliary speeds are zero.
-    """
-
-    def __init__(self, sympy, q, qd, u, frame, aux0=None):
-        self.sympy, self.q, self.qd, self.u, self.frame = sympy, q, qd, u, frame
-        self.aux0 = aux0 or {}
-        self.params, self.values, self.speeds = (), np.zeros(0), None
-        self.rng = np.random.default_rng(20261124)
-
-    def residual(self, exprs, scale_exprs, what):
-        """Largest ``|exprs|`` relative to ``1 + |scale_exprs|`` at four random ``(q, qdot)``."""
-        sp = self.sympy
-        X = [sp.Dummy() for _ in self.q]
-        V = [sp.Dummy() for _ in self.qd]
-        Us = [sp.Dummy() for _ in self.u]
-        to = {**dict(zip(self.qd, V)), **dict(zip(self.u, Us))}
-        plain = lambda e: sp.sympify(e).xreplace(self.aux0).xreplace(to).xreplace(dict(zip(self.q, X)))  # noqa: E731
-        f = lambdify_checked(sp, X + V + Us + list(self.params),
-                             [plain(e) for e in list(exprs) + list(scale_exprs)], what, dummify=True)
-        worst = 0.0
-        for _ in range(4):
-            x, v = self.rng.uniform(-1, 1, len(X)), self.rng.normal(size=len(V))
-            us = self.speeds.u_of_qdot(np.concatenate([x, v])) if self.u else np.zeros(0)
-            vals = np.abs(np.asarray(f(*x, *v, *us, *self.values), complex))
-            worst = max(worst, float(np.max(vals[: len(exprs)], initial=0.0) / (1.0 + np.sum(vals[len(exprs):]))))
-        return worst
-
-    def velocities_are_derivatives(self, me, bodies, fixed):
-        for body in bodies:
-            P = body.masscenter
-            O = fixed or _fixed_point(P, self.frame, self.aux0)
-            if O is None:
-                continue
-            try:
-                v_model = P.vel(self.frame)
-            except ValueError as exc:
-                raise ValueError(f"model: the velocity of {P} in {self.frame} is not defined ({exc})") from None
-            v_pos = P.pos_from(O).dt(self.frame)
-            a, b = v_model.to_matrix(self.frame), v_pos.to_matrix(self.frame)
-            err = self.residual(list(a - b), list(a) + list(b), f"model: the velocity of {P}")
-            if err > 1e-9:
-                raise MinimalSpeedsError(
-                    f"model: the velocity of {P} (body {body}) is not the time derivative of its position from "
-                    f"the fixed point {O} (relative difference {err:.3g}): the model builds a rolling condition "
-                    "into its kinematics (minimal speeds). liefi needs the contact point's coordinates among the "
-                    "generalized coordinates and the rolling condition as velocity constraints (KanesMethod "
-                    "u_dependent= and velocity_constraints=, LagrangesMethod nonhol_coneqs=)"
-                )
-
-    def power_is_minus_dU_dt(self, W, U, loads, given):
-        dU = sum((self.sympy.diff(U, qi) * vi for qi, vi in zip(self.q, self.qd)), self.sympy.S.Zero)
-        err = self.residual([W + dU], [W, dU], "potential" if given else "model: the loads")
-        if err > 1e-9:
-            what = "potential: its -dU/dt is not" if given else "model: liefi's potential gives a -dU/dt that is not"
-            raise NonConservativeLoadError(
-                f"{what} the power of the loads {[str(x) for x in loads]} (relative difference {err:.3g}); "
-                "the loads are not conservative with this potential"
-            )

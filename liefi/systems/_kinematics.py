@@ -1,0 +1,356 @@
+"""The kinematics of a ``sympy.physics.mechanics`` model: its speed map and the identities it must satisfy.
+
+Private helpers of :mod:`liefi.systems.mechanics` (which exports the two errors): the kinematic differential equations as
+matrices (:func:`_kinematics`), the speed map solved numerically at each evaluation
+(:class:`_Speeds`) and the numerical checks of the model (:class:`_Checks`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .sympy_input import lambdify_checked
+
+
+class NonConservativeLoadError(ValueError):
+    """A load of the model has no potential liefi can derive (velocity-dependent, a torque, or a force
+    varying in the inertial frame); pass ``potential=`` if the loads are conservative."""
+
+
+class MinimalSpeedsError(ValueError):
+    """Bodies located from one zero-velocity point give it different velocities: no one restored place of
+    that point fits them all (a model in minimal speeds whose bodies' velocities come from different
+    kinematics); see :func:`_restore`."""
+
+
+def _kinematics(sympy, kd, q, qd, u):
+    """``(K_qdot, K_u)``: the kinematic differential equations as ``K_qdot(q) qdot + K_u(q) u = 0``.
+
+    Only the matrices: the map is solved numerically at each evaluation (:class:`_Speeds`),
+    never by a symbolic inverse, whose pivots may vanish where the map is regular.  Fewer
+    speeds than coordinates (``m < n``, minimal speeds: ``qdot = B(q) u``) are taken: the
+    velocities then lie in the range of ``B`` (:func:`_annihilator` gives its rows).
+    """
+    n = len(q)
+    if len(u) > n:
+        raise ValueError(f"model: {len(u)} generalized speeds for {n} coordinates; liefi needs at most one speed "
+                         "per coordinate (move the extra speeds to u_dependent= with their velocity constraints, "
+                         "or to u_auxiliary=)")
+    K = sympy.Matrix(kd)
+    if K.shape[0] != n:
+        raise ValueError(f"model: {K.shape[0]} kinematic differential equations for {n} coordinates; give one per "
+                         "coordinate")
+    Ku, Kq = K.jacobian(u), K.jacobian(qd)
+    rest = K.xreplace(dict.fromkeys(u, 0)).xreplace(dict.fromkeys(qd, 0))
+    if any(Ku.has(s) or Kq.has(s) for s in list(u) + list(qd)):
+        raise ValueError("model: the kinematic differential equations are not linear in u and qdot")
+    if any(e != 0 and sympy.simplify(e) != 0 for e in rest):
+        raise ValueError("model: the kinematic differential equations K_qdot qdot + K_u u + f_k = 0 have a term "
+                         f"f_k = {list(rest)} free of u and qdot; liefi needs the speeds linear and homogeneous in "
+                         "qdot (time-dependent kinematics are not integrated)")
+    return Kq, Ku
+
+
+def _annihilator(sympy, Kq, Ku):
+    r"""The rows ``a(q)`` with ``a B = 0``, ``B = -K_qdot^{-1} K_u`` (``n x m``, ``m < n``): ``a . qdot = 0``
+    is the velocity constraint that minimal speeds build in (``qdot = B u``).
+
+    The left null space of ``B`` symbolically, each row cleared of its denominators (a
+    polynomial row, e.g. ``(-sin theta, cos theta, 0)`` for a sleigh's ``x' = u cos theta,
+    y' = u sin theta``, not ``(-tan theta, 1, 0)``).
+    """
+    B = -(Kq.LUsolve(Ku) if Kq != sympy.eye(Kq.shape[0]) else Ku)
+    rows = []
+    for v in B.T.nullspace(simplify=True):
+        v = [sympy.together(e) for e in v]
+        den = sympy.lcm([sympy.fraction(e)[1] for e in v])
+        rows.append([sympy.simplify(e * den) for e in v])
+    if len(rows) != Kq.shape[0] - Ku.shape[1]:
+        raise ValueError(f"model: the kinematic differential equations give qdot = B(q) u with B of rank "
+                         f"{Kq.shape[0] - len(rows)} < {Ku.shape[1]} speeds: the speeds are not independent")
+    return rows
+
+
+def _solve(A, B):
+    """``A^{-1} B`` batch-first: LAPACK's pivoted LU on numbers (complex-step safe); traced (compiled engine)
+    matrices, which have no magnitude to pivot on, by the normal equations ``A^T A X = A^T B`` (positive
+    definite, so elimination without pivots meets no vanishing pivot where ``A`` is regular)."""
+    A, B = np.asarray(A), np.asarray(B)
+    if A.dtype == object:
+        At = np.swapaxes(A, -1, -2)
+        return np.linalg.solve(At @ A, At @ B)
+    if B.dtype == object:
+        return np.linalg.inv(A) @ B
+    try:
+        return np.linalg.solve(A, B)
+    except np.linalg.LinAlgError:
+        raise ValueError("model: the kinematic differential equations K_qdot(q) qdot + K_u(q) u = 0 are singular "
+                         "at a state of the run (K_u or K_qdot not invertible): the model's speeds do not "
+                         "parametrize its velocities there") from None
+
+
+class _Speeds:
+    r"""The model's speeds as a numerical map: ``u = W(q) qdot``, ``W = -K_u^{-1} K_qdot``.
+
+    The data extracted in the velocities ``w = (qdot, u)`` (``(n+m) x (n+m)`` metric ``H``,
+    covector ``c``, rows ``C``) become data in ``qdot`` through ``w = S qdot``, ``S = [1; W]``:
+
+    .. math:: M = S^T H S, \qquad b = S^T c, \qquad a = C S,
+
+    each evaluated from the numeric ``K_qdot(q)``, ``K_u(q)`` by a linear solve, so ``M`` is
+    regular wherever the model's kinematic map and mass matrix are (no symbolic pivot).
+    A ``K_u`` that is a constant matrix (``u_i = f_i(q, qdot)``, as most kinematic equations are
+    written) is inverted once: ``W`` is then the lambdified ``-K_u^{-1} K_qdot`` (no solve per
+    evaluation).  With fewer speeds than coordinates (``m < n``) ``W`` is the least-squares
+    left inverse of ``B = -K_qdot^{-1} K_u``, ``W = -(K_u^T K_u)^{-1} K_u^T K_qdot`` (the speeds of
+    a ``qdot`` in the range of ``B``, and an extension off it); the ``r`` restored coordinates
+    (:func:`_restore`) take no part in ``u``: ``W`` has zero columns for them, and their rates
+    come from their rows (:attr:`restored`).
+    """
+
+    def __init__(self, Kq, Ku, m, *, W=None, extra=0):
+        self.Kq, self.Ku, self.m, self._W, self.extra = Kq, Ku, m, W, extra
+        self.restored = None  # x -> the r restored rows in w = (qdot, u), unit on their own coordinate
+
+    def W(self, x):
+        if self._W is not None:
+            W = self._W(x)
+        else:
+            Ku, Kq = self.Ku(x), self.Kq(x)
+            if Ku.shape[-1] == Ku.shape[-2]:
+                W = -_solve(Ku, Kq)
+            else:  # fewer speeds than coordinates: the least-squares left inverse of B
+                KuT = np.swapaxes(Ku, -1, -2)
+                W = -_solve(KuT @ Ku, KuT @ Kq)
+        if self.extra:
+            W = np.concatenate([W, np.zeros(W.shape[:-1] + (self.extra,), W.dtype)], -1)
+        return W
+
+    def S(self, x):
+        W = self.W(x)
+        n = W.shape[-1]
+        return np.concatenate([np.broadcast_to(np.eye(n), W.shape[:-2] + (n, n)), W], -2)
+
+    def metric(self, H):
+        def metric(x):
+            S = self.S(x)
+            return np.swapaxes(S, -1, -2) @ H(x) @ S
+        return metric
+
+    def covector(self, c):
+        if c is None:
+            return None
+        return lambda x: (np.swapaxes(self.S(x), -1, -2) @ c(x)[..., None])[..., 0]
+
+    def rows(self, C):
+        if C is None:
+            return None
+        return lambda x: C(x) @ self.S(x)
+
+    def rows_in_u(self, C):
+        """``C [V; 1]`` with ``qdot = V u``, ``V = -K_qdot^{-1} K_u``: the constraint rows in ``u`` (rows with no
+        entry on the restored coordinates)."""
+        def rows(x):
+            V = -_solve(self.Kq(x), self.Ku(x))
+            Cx = C(x)
+            n, m = V.shape[-2:]
+            return Cx[..., :n] @ V + Cx[..., Cx.shape[-1] - m:]
+        return rows
+
+    def _split(self, z, m):
+        z = np.asarray(z)
+        return z[..., : z.shape[-1] - m], z[..., z.shape[-1] - m:]
+
+    def u_of_qdot(self, z):
+        x, v = self._split(z, np.shape(z)[-1] // 2)
+        return (self.W(x) @ v[..., None])[..., 0]
+
+    def qdot_of_u(self, z):
+        """``(q, u) -> qdot``: ``qdot = -K_qdot^{-1} K_u u``, and the restored coordinates' rates from their rows."""
+        x, v = self._split(z, self.m)
+        qd = -_solve(self.Kq(x), (self.Ku(x) @ v[..., None]))[..., 0]
+        if self.extra:
+            Rw = self.restored(x)  # (r, n + r + m): unit on the restored rates
+            n = qd.shape[-1]
+            rest = (Rw[..., :n] @ qd[..., None] + Rw[..., n + self.extra:] @ v[..., None])[..., 0]
+            qd = np.concatenate([qd, -rest], -1)
+        return qd
+
+
+def _restore(sympy, me, frame, bodies, fixed, q, qd, u, Kq, Ku, constraints, aux0):
+    r"""The coordinates and rows that a model in minimal speeds eliminated, restored (route (a) of issue 25).
+
+    A model in minimal speeds builds a rolling condition into its kinematics: a body's
+    velocity is given (``set_vel``, ``v2pt_theory`` from a contact point ``C`` of zero
+    velocity) but is not the time derivative of its position, since ``C``'s own place
+    moves although its (material) velocity is zero.  For each body with mass centre ``P``
+    and root ``R`` (the fixed point, or the zero-velocity point of ``P``'s position tree)
+    the mismatch
+
+    .. math:: d_P = v_P^{\mathrm{model}}(q, u) - \frac{d}{dt} r_{RP}(q, \dot q)
+
+    is evaluated at random states (random parameter values) on the model's own velocity set
+    (``qdot = B u``, ``u`` on its velocity constraints):
+
+    * zero there: ``R`` is fixed; the body's kinetic energy is formed from ``d r_{RP}/dt`` on all
+      of ``TQ`` whenever the model's velocity is not that derivative off the set (minimal
+      speeds ``m < n``, or a velocity valid on the constraint set only), and is the model's
+      own otherwise (unchanged);
+    * not zero: ``R``'s place is restored: coordinates ``x_R, y_R`` (and ``z_R``) for the
+      inertial components of ``d_P`` that do not vanish, ``r_R = x_R N.x + y_R N.y (+ z_R N.z)``,
+      every body located from ``R`` gets the velocity ``dr_R/dt + dr_{RP}/dt``, and the
+      rows ``dx_{R,k}/dt - d_{P,k} = 0`` (the model's velocity is the true one) are velocity
+      constraints.  All bodies on ``R`` must give the same ``d`` (one place of ``R``).
+
+    Returns ``None`` if nothing is to change, else a dict: ``coords`` (the restored
+    dynamicsymbols), ``velocities`` ``{body: Vector}``, ``rows`` (expressions in
+    ``(qdot, restored rates, u)``, linear and homogeneous) and ``offsets`` ``{R: r_R}`` (for
+    the potentials of loads at points located from ``R``).
+    """
+    t = me.dynamicsymbols._t
+    n, m = len(q), len(u)
+    found = []
+    for body in bodies:
+        P = body.masscenter
+        R = fixed or _fixed_point(P, frame, aux0)
+        if R is None:
+            continue
+        try:
+            v_model = P.vel(frame)
+        except ValueError as exc:
+            raise ValueError(f"model: the velocity of {P} in {frame} is not defined ({exc})") from None
+        v_pos = P.pos_from(R).dt(frame)
+        found.append((body, R, v_pos, v_model.to_matrix(frame).xreplace(aux0), v_pos.to_matrix(frame).xreplace(aux0)))
+    if not found:
+        return None
+    X, V, Us = ([sympy.Dummy() for _ in s] for s in (q, qd, u))
+    plain = lambda e: sympy.sympify(e).xreplace(aux0).xreplace({**dict(zip(qd, V)), **dict(zip(u, Us))}).xreplace(  # noqa: E731
+        dict(zip(q, X)))
+    exprs = [e for (_, _, _, a, b) in found for e in list(a) + list(b)]
+    C = sympy.Matrix([sympy.sympify(c).xreplace(aux0) for c in constraints]) if constraints else sympy.zeros(0, 1)
+    Cw = C.jacobian(list(qd) + list(u)) if constraints else sympy.zeros(0, n + m)
+    K = [Kq, Ku] if u else []
+    allx = [plain(e) for e in exprs + [e for M in K for e in M] + list(Cw)]
+    params = sorted(set().union(*(e.free_symbols for e in allx)) - set(X) - set(V) - set(Us) - {t}, key=str)
+    f = lambdify_checked(sympy, X + V + Us + params, allx, "model: the bodies' velocities", cse=True, dummify=True)
+    rng = np.random.default_rng(20261126)
+    pv = rng.uniform(0.5, 1.5, len(params))
+    nb = len(exprs)
+
+    def evaluate(x, on_set):
+        """The model's and the derived velocities at ``x`` with velocities on all of TQ, or on the model's set."""
+        vals = np.asarray(f(*x, *np.zeros(n), *np.zeros(m), *pv), float)
+        kq = vals[nb: nb + n * n].reshape(n, n) if u else np.eye(n)
+        ku = vals[nb + n * n: nb + n * n + n * m].reshape(n, m) if u else -np.eye(n)
+        cw = vals[vals.size - Cw.shape[0] * (n + m):].reshape(Cw.shape[0], n + m)
+        B = -np.linalg.solve(kq, ku)  # qdot = B u
+        if on_set:
+            A = cw[:, :n] @ B + cw[:, n:] if u else cw  # the model's rows in u
+            basis = np.linalg.svd(A)[2][np.linalg.matrix_rank(A):].T if A.size else np.eye(B.shape[1])
+            us = basis @ rng.normal(size=basis.shape[1])
+            v = B @ us
+        else:
+            v = rng.normal(size=n)
+            us = np.linalg.lstsq(B, v, rcond=None)[0] if u else v
+        return np.asarray(f(*x, *v, *(us if u else []), *pv), float)[:nb]
+
+    def mismatch(on_set):
+        """``d_P`` relative to ``1 + max |v|`` over the bodies and samples: ``(bodies, samples, 3)``."""
+        vals = np.stack([evaluate(rng.uniform(-1, 1, n), on_set).reshape(len(found), 2, 3) for _ in range(4)], 1)
+        return (vals[..., 0, :] - vals[..., 1, :]) / (1.0 + np.abs(vals).max())
+
+    off_tq, d_set = np.abs(mismatch(False)).max((1, 2)), mismatch(True)
+    off_set = np.abs(d_set).max(1)
+    tol = 1e-9
+    velocities, rows, coords, offsets = {}, [], [], {}
+    for R in dict.fromkeys(r for _, r, *_ in found):
+        on = [k for k, (_, r, *_) in enumerate(found) if r is R]
+        comps = [i for i in range(3) if any(off_set[k, i] > tol for k in on)]
+        offset = 0 * frame.x
+        if comps:
+            d = [found[k][3] - found[k][4] for k in on]
+            if len(on) > 1:
+                if np.max(np.abs(d_set[on[1:]] - d_set[on[0]])) > tol:
+                    raise MinimalSpeedsError(
+                        f"model: the bodies {[str(found[k][0]) for k in on]} located from {R} give it different "
+                        "velocities (each body's velocity minus the derivative of its position from "
+                        f"{R}): liefi cannot restore one place of {R}; define every body's velocity from the same "
+                        "kinematics (v2pt_theory / a2pt_theory from one contact point)")
+            names = [f"{c}_{R.name}" for c in "xyz"]
+            taken = {str(s.func) if hasattr(s, "func") else str(s) for s in q}
+            for i in comps:
+                if names[i] in taken:
+                    raise ValueError(f"model: a coordinate is named {names[i]!r}, the name liefi gives the restored "
+                                     f"place of {R}; rename the coordinate")
+            new = me.dynamicsymbols(" ".join(names[i] for i in comps))
+            new = list(new) if isinstance(new, (list, tuple)) else [new]
+            coords += new
+            unit = (frame.x, frame.y, frame.z)
+            for s, i in zip(new, comps):
+                offset += s * unit[i]
+                rows.append(s.diff(t) - d[0][i])
+            offsets[R] = offset
+        for k in on:
+            if comps or off_tq[k] > tol or m < n:
+                velocities[found[k][0]] = found[k][2] + offset.dt(frame) if comps else found[k][2]
+    if not velocities:
+        return None
+    return dict(coords=coords, velocities=velocities, rows=rows, offsets=offsets)
+
+
+def _fixed_point(point, frame, aux0=None):
+    """A point of ``point``'s position tree with velocity set to zero in ``frame`` (the auxiliary speeds at zero), or None."""
+    seen, todo = {point}, [point]
+    while todo:
+        p = todo.pop(0)
+        v = p._vel_dict.get(frame, None)
+        if v == 0 or (aux0 and v is not None and all(e == 0 for e in v.to_matrix(frame).xreplace(aux0))):
+            return p
+        for other in p._pos_dict:
+            if other not in seen:
+                seen.add(other)
+                todo.append(other)
+    return None
+
+
+class _Checks:
+    """Numerical identities the model must satisfy, evaluated at random states with the given constants.
+
+    The expressions may hold ``q``, ``qdot`` and the speeds ``u``; at each random ``(q, qdot)``
+    the speeds are ``u = W(q) qdot`` from the model's kinematic map, solved numerically
+    (:class:`_Speeds`), and the auxiliary speeds are zero.
+    """
+
+    def __init__(self, sympy, q, qd, u, frame, aux0=None):
+        self.sympy, self.q, self.qd, self.u, self.frame = sympy, q, qd, u, frame
+        self.aux0 = aux0 or {}
+        self.params, self.values, self.speeds = (), np.zeros(0), None
+        self.rng = np.random.default_rng(20261124)
+
+    def residual(self, exprs, scale_exprs, what):
+        """Largest ``|exprs|`` relative to ``1 + |scale_exprs|`` at four random ``(q, qdot)``."""
+        sp = self.sympy
+        X = [sp.Dummy() for _ in self.q]
+        V = [sp.Dummy() for _ in self.qd]
+        Us = [sp.Dummy() for _ in self.u]
+        to = {**dict(zip(self.qd, V)), **dict(zip(self.u, Us))}
+        plain = lambda e: sp.sympify(e).xreplace(self.aux0).xreplace(to).xreplace(dict(zip(self.q, X)))  # noqa: E731
+        f = lambdify_checked(sp, X + V + Us + list(self.params),
+                             [plain(e) for e in list(exprs) + list(scale_exprs)], what, cse=True, dummify=True)
+        worst = 0.0
+        for _ in range(4):
+            x, v = self.rng.uniform(-1, 1, len(X)), self.rng.normal(size=len(V))
+            us = self.speeds.u_of_qdot(np.concatenate([x, v])) if self.u else np.zeros(0)
+            vals = np.abs(np.asarray(f(*x, *v, *us, *self.values), complex))
+            worst = max(worst, float(np.max(vals[: len(exprs)], initial=0.0) / (1.0 + np.sum(vals[len(exprs):]))))
+        return worst
+
+    def power_is_minus_dU_dt(self, W, U, loads, given):
+        dU = sum((self.sympy.diff(U, qi) * vi for qi, vi in zip(self.q, self.qd)), self.sympy.S.Zero)
+        err = self.residual([W + dU], [W, dU], "potential" if given else "model: the loads")
+        if err > 1e-9:
+            what = "potential: its -dU/dt is not" if given else "model: liefi's potential gives a -dU/dt that is not"
+            raise NonConservativeLoadError(
+                f"{what} the power of the loads {[str(x) for x in loads]} (relative difference {err:.3g}); "
+                "the loads are not conservative with this potential"
+            )
