@@ -500,3 +500,21 @@ if __name__ == "__main__":  # the table of the closing note: python tests/test_m
         _, o = check_case(case, on_constraints(case, guess, fixed), v, **RUN)
         print(f"| {name} | {o['sympy']:.3f} | {o['build']:.2f} | {o['error']:.1e} | {o['f']:.1e} | "
               f"{o['velocity']:.1e} | {o['energy']:.1e} |")
+
+
+def test_state_from_the_independent_speed_of_a_model_with_a_dependent_coordinate():
+    """The dependent speed u1 solves the model's own velocity constraint, which is the
+    derivative of its configuration constraint (dropped from the system's rows, kept for this)."""
+    case = kane_pendulum()
+    system = liefi.from_mechanics(case["model"], case["constants"])
+    L = 0.7
+    th = 0.4
+    assert system.space.shape_names == ("q2", "q1")  # the model's order: q_ind + q_dep
+    q1, q2 = L * np.cos(th), L * np.sin(th)  # on the circle
+    z = system.state([q2, q1], u=[0.9])  # the independent speed u2 only
+    speeds = system.generalized_speeds(z)
+    assert list(speeds) == ["u2", "u1"]
+    u1, u2 = speeds["u1"], speeds["u2"]
+    assert u2 == pytest.approx(0.9, rel=1e-14)
+    assert q1 * u1 + q2 * u2 == pytest.approx(0.0, abs=1e-14)  # tangent to the circle
+    assert np.abs(system.constraint_momenta(z)).max() < 1e-13

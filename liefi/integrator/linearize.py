@@ -331,7 +331,7 @@ def _mechanics_chart(system, z0):
         return p if system.vector_potential is None else p + system.vector_potential(q)
 
     if system.speeds:
-        u0 = np.asarray(system.generalized_speeds(z0), float)
+        u0 = np.stack(list(system.generalized_speeds(z0).values()), -1).astype(float)  # the model's order
         names = [str(s).replace("(t)", "") for s in system.speeds[: n - K]]
 
         def phi(c):

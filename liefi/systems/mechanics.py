@@ -483,21 +483,16 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
     vp = None if all(e == 0 for e in b) else _bound(sympy, X, params, b, (w,), holder, "vector potential")
     A = None if not rows else _bound(sympy, X, params, [e for row in rows for e in row], (len(rows), w), holder,
                                      "constraints")
-    keep = list(range(len(rows)))
+    Aw = A  # the rows in w = (qdot, u), the model's own first: its dependent speeds solve them (state(u=...))
     if hol:  # the values f -> holonomic=, the velocity constraints less the derivatives of f
-        A, kw, keep = _mc.holonomic_data(sympy, hol, parts["q"], X, A, len(rows), speeds if u else None, kw,
-                                         lambda e, shape, what: _bound(sympy, X, params, e, shape, holder, what))
-    r = len(extra)
-    k_model = sum(1 for i in keep if i < len(model_rows))  # the model's own rows kept (less the derivatives of f)
-    if r and keep[-r:] != list(range(len(rows) - r, len(rows))):  # pragma: no cover - f holds no restored place
-        raise ValueError("model: a configuration constraint spans a restored contact point's row; "
-                         "state the contact point's coordinates in the model")
+        A, kw = _mc.holonomic_data(sympy, hol, parts["q"], X, A, len(rows), speeds if u else None, kw,
+                                   lambda e, shape, what: _bound(sympy, X, params, e, shape, holder, what))
+    k_model, r = len(model_rows), len(extra)
     mech = dict(constants=holder, q=q, u=u, qdot_of_u=None, u_of_qdot=None, speed_constraints=None, restored=extra,
                 model_rows=k_model)
     if u:  # the data in qdot: u = W(q) qdot, (qdot, u) = S qdot with S = [1; W]
-        Aw = A  # the rows in w = (qdot, u)
         if r:
-            speeds.restored = lambda x: Aw(x)[..., len(keep) - r:, :]
+            speeds.restored = lambda x: Aw(x)[..., len(rows) - r:, :]
         mech["u_of_qdot"], mech["qdot_of_u"] = speeds.u_of_qdot, speeds.qdot_of_u
         mech["speed_constraints"] = None if not k_model else speeds.rows_in_u(lambda x: Aw(x)[..., :k_model, :])
         metric, vp, A = speeds.metric(metric), speeds.covector(vp), speeds.rows(A)
