@@ -11,7 +11,11 @@ What a user does, and what this script times in fresh processes:
 
 * **linearize**: build the ``KanesMethod``, ``KanesMethod.linearize`` about the upright
   run at speed ``v`` (as sympy's test does), the benchmark's eigenvalues at
-  v = 0, 4, 5, 10 m/s and the weave and capsize speeds by root finding;
+  v = 0, 4, 5, 10 m/s and the weave and capsize speeds by root finding
+  (``--linearizer complex-step``, the default with ``--quick`` and ``--model contact``:
+  complex steps of the generated right-hand side on the constraint set instead, in
+  seconds; sympy's linearizer takes about 3 CPU minutes on the first model and did not
+  finish in 14 on the second);
 * **run**: build, generate the right-hand side of
   ``mass_matrix_full(x) x' = forcing_full(x)`` and integrate it with
   ``scipy.integrate.solve_ivp``.  The numerics come from PyDy's
@@ -31,9 +35,10 @@ Runs, uncontrolled, from the upright straight run with a lean-rate perturbation:
 or until the lean reaches 60 degrees (reported as "fell at").  Integrators:
 DOP853 at rtol = atol = 1e-12 and RK45 at rtol = atol = 1e-6.
 
-Measured on the dense output every 0.01 s: the largest |lean| on [0, 2] s and on [8, 10] s (decayed or grown; on the last 2 s of a run that ends sooner), the front contact's height
-``max |f(q)|`` (m), the velocity constraints ``max_t max_i |c_i(q, u)|`` (m/s), the energy
-``max |E - E0| / |E0|``; CPU seconds of each phase.
+Measured on the dense output every 0.01 s: the largest ``|lean|`` on [0, 2] s and on
+[8, 10] s (decayed or grown; on the last 2 s of a run that ends sooner), the front
+contact's height ``max |f(q)|`` (m), the velocity constraints ``max_t max_i |c_i(q, u)|``
+(m/s), the energy ``max |E - E0| / |E0|``; CPU seconds of each phase.
 
 Run from the repository root (sympy and scipy needed; pydy optional)::
 
@@ -48,7 +53,6 @@ import json
 import os
 import subprocess
 import sys
-import time
 
 _HERE = os.path.dirname(os.path.abspath(__file__))
 _ROOT = os.path.dirname(_HERE)
