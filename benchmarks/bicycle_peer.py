@@ -11,7 +11,11 @@ What a user does, and what this script times in fresh processes:
 
 * **linearize**: build the ``KanesMethod``, ``KanesMethod.linearize`` about the upright
   run at speed ``v`` (as sympy's test does), the benchmark's eigenvalues at
-  v = 0, 4, 5, 10 m/s and the weave and capsize speeds by root finding;
+  v = 0, 4, 5, 10 m/s and the weave and capsize speeds by root finding
+  (``--linearizer complex-step``, the default with ``--quick`` and ``--model contact``:
+  complex steps of the generated right-hand side on the constraint set instead, in
+  seconds; sympy's linearizer takes about 3 CPU minutes on the first model and did not
+  finish in 14 on the second);
 * **run**: build, generate the right-hand side of
   ``mass_matrix_full(x) x' = forcing_full(x)`` and integrate it with
   ``scipy.integrate.solve_ivp``.  The numerics come from PyDy's
@@ -31,9 +35,10 @@ Runs, uncontrolled, from the upright straight run with a lean-rate perturbation:
 or until the lean reaches 60 degrees (reported as "fell at").  Integrators:
 DOP853 at rtol = atol = 1e-12 and RK45 at rtol = atol = 1e-6.
 
-Measured on the dense output every 0.01 s: the largest |lean| on [0, 2] s and on [8, 10] s (decayed or grown; on the last 2 s of a run that ends sooner), the front contact's height
-``max |f(q)|`` (m), the velocity constraints ``max_t max_i |c_i(q, u)|`` (m/s), the energy
-``max |E - E0| / |E0|``; CPU seconds of each phase.
+Measured on the dense output every 0.01 s: the largest ``|lean|`` on [0, 2] s and on
+[8, 10] s (decayed or grown; on the last 2 s of a run that ends sooner), the front
+contact's height ``max |f(q)|`` (m), the velocity constraints ``max_t max_i |c_i(q, u)|``
+(m/s), the energy ``max |E - E0| / |E0|``; CPU seconds of each phase.
 
 Run from the repository root (sympy and scipy needed; pydy optional)::
 
@@ -48,7 +53,6 @@ import json
 import os
 import subprocess
 import sys
-import time
 
 _HERE = os.path.dirname(os.path.abspath(__file__))
 _ROOT = os.path.dirname(_HERE)
@@ -95,7 +99,7 @@ def phase_linearize(model, how="sympy"):
     if how == "complex-step":
         lateral = bm.complex_step_lateral(bike)
     else:
-        lateral = bm.lateral_matrix(bike, "minimal" if model == "sympy-test" else "full")
+        lateral = bm.lateral_matrix(bike)
     eig = {str(v): [[complex(w).real, complex(w).imag] for w in bm.eigenvalues(lateral(v))] for v in SPEEDS}
     weave, capsize = bm.weave_and_capsize_speeds(lateral)
     return {"build": t_build, "total": _cpu() - t0, "eigenvalues": eig, "weave": weave, "capsize": capsize,
@@ -285,7 +289,7 @@ def main(argv=None):
     ap.add_argument("--model", default="sympy-test", choices=["sympy-test", "contact"])
     ap.add_argument("--t-final", type=float, default=None, help="end time of the runs (default 100, 5 with --quick)")
     ap.add_argument("--linearizer", choices=["sympy", "complex-step"], default=None,
-                    help="how the eigenvalues are found (default sympy; complex-step with --quick)")
+                    help="how the eigenvalues are found (default sympy; complex-step with --quick or --model contact)")
     ap.add_argument("--only", choices=["linearize", "run"], default=None, help="time one phase only")
     ap.add_argument("--out", default=None, help="also write the table to this file")
     ap.add_argument("--phase", nargs="+", help=argparse.SUPPRESS)
@@ -302,7 +306,9 @@ def main(argv=None):
     t_final = a.t_final if a.t_final is not None else (5.0 if a.quick else 100.0)
     lin = run = lin_cpu = run_cpu = None
     if a.only != "run":
-        how = a.linearizer or ("complex-step" if a.quick else "sympy")
+        # sympy's linearizer takes ~3 CPU min on the sympy-test model and did not finish in
+        # 14 CPU min on the contact model: complex steps are the default there.
+        how = a.linearizer or ("complex-step" if a.quick or a.model == "contact" else "sympy")
         lin, lin_cpu = _child(["linearize", a.model, how])
     if a.only != "linearize":
         run, run_cpu = _child(["run", a.model, repr(t_final), "1" if a.quick else "0"])

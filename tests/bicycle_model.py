@@ -412,25 +412,18 @@ def whipple_contact_coordinates():
     )
 
 
-def lateral_matrix(bike, method="minimal"):
+def lateral_matrix(bike):
     """The linearized lean-and-steer dynamics ``x' = A(v) x``, ``x = (lean, steer, lean rate, steer rate)``.
 
-    Linearizes ``bike.kane`` with ``KanesMethod.linearize`` about the upright straight run
-    at a symbolic forward speed ``v`` (all coordinates zero except the pitch at
-    ``bike.pitch0``, the speeds of ``bike.speed_of(v)``, all accelerations zero), as sympy's
-    test does, and keeps the rows and columns of lean, steer and their rates (the other
+    Linearizes ``bike.kane`` with ``KanesMethod.linearize(A_and_B=True,
+    linear_solver="CRAMER")`` about the upright straight run at a symbolic forward speed
+    ``v`` (all coordinates zero except the pitch at ``bike.pitch0``, the speeds of
+    ``bike.speed_of(v)``, all accelerations zero), substitutes the parameters, and keeps
+    the rows and columns of lean, steer and their rates, as sympy's test does (the other
     states -- yaw, contact position, wheel angles, rear wheel rate -- do not feed back
-    into them at first order).
-
-    Parameters
-    ----------
-    bike : Bicycle
-    method : {"minimal", "full"}
-        ``"minimal"``: ``linearize(A_and_B=True, linear_solver="CRAMER")``, the symbolic
-        minimal-form ``A`` of sympy's test, then the parameters substituted;
-        ``"full"``: ``linearize(A_and_B=False)`` returns ``M, A`` with the parameters
-        substituted and ``M^{-1} A`` solved numerically at each ``v`` (for large models,
-        where the symbolic inverse is slow).
+    into them at first order).  About three CPU minutes for :func:`whipple_sympy_test`;
+    for :func:`whipple_contact_coordinates` sympy's linearizer did not finish in 14 CPU
+    minutes, use :func:`complex_step_lateral` there.
 
     Returns
     -------
@@ -449,23 +442,10 @@ def lateral_matrix(bike, method="minimal"):
     u_ind = list(bike.kane.u[:len(bike.kane.u) - len(bike.kane._udep)])
     x_ind = q_ind + u_ind
     cols = [x_ind.index(s) for s in (bike.lean, bike.steer, bike.lean_rate, bike.steer_rate)]
-    if method == "minimal":
-        A, _, _ = bike.kane.linearize(A_and_B=True, op_point=op, linear_solver="CRAMER")
-        A4 = A.xreplace(bike.params).evalf().extract(cols, cols)
-        f = sympy.lambdify(v, A4, "numpy")
-        return lambda vv: np.array(f(vv), dtype=float)
-    if method != "full":
-        raise ValueError(f"lateral_matrix: method must be 'minimal' or 'full', got {method!r}")
-    M, A, _ = bike.kane.linearize(A_and_B=False, op_point=op)
-    x_full = list(bike.kane.q) + list(bike.kane.u)
-    rows = [x_full.index(s) for s in (bike.lean, bike.steer, bike.lean_rate, bike.steer_rate)]
-    fM = sympy.lambdify(v, M.xreplace(bike.params), "numpy")
-    fA = sympy.lambdify(v, A.xreplace(bike.params), "numpy")
-
-    def lateral(vv):
-        full = np.linalg.solve(np.array(fM(vv), dtype=float), np.array(fA(vv), dtype=float))
-        return full[np.ix_(rows, cols)]
-    return lateral
+    A, _, _ = bike.kane.linearize(A_and_B=True, op_point=op, linear_solver="CRAMER")
+    A4 = A.xreplace(bike.params).evalf().extract(cols, cols)
+    f = sympy.lambdify(v, A4, "numpy")
+    return lambda vv: np.array(f(vv), dtype=float)
 
 
 def eigenvalues(A):
