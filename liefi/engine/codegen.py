@@ -31,10 +31,8 @@ def _literal(v):
     return f"({r})" if v < 0 or r.startswith("-") else r
 
 
-def _node_lines(outputs, var_ref, indent="    "):
-    """Assignments ``t<id> = ...`` of every node reachable from ``outputs`` (in creation order, a
-    topological order of the graph) and the expressions of the outputs; ``var_ref(name, index)``
-    prints an input."""
+def reachable(outputs):
+    """Every non-constant node reachable from ``outputs``, in creation order (a topological order of the graph)."""
     seen = {}
     stack = list(outputs)
     while stack:
@@ -44,21 +42,30 @@ def _node_lines(outputs, var_ref, indent="    "):
         seen[node.id] = node
         if node.op != "var":
             stack.extend(node.args)
+    return sorted(seen.values(), key=lambda s: s.id)
+
+
+def node_expression(node, ref):
+    """The Python expression of an operation node, its arguments printed by ``ref[id]`` (constants as literals)."""
+    a = [_literal(x.value) if x.op == "const" else ref[x.id] for x in node.args]
+    if node.op == "pow" and node.args[1].op == "const":
+        return f"({a[0]} ** {_literal(node.args[1].value)})"
+    if node.op in _BINARY:
+        return _BINARY[node.op].format(*a)
+    return _UNARY[node.op].format(*a)
+
+
+def _node_lines(outputs, var_ref, indent="    "):
+    """Assignments ``t<id> = ...`` of every node reachable from ``outputs`` (in creation order, a
+    topological order of the graph) and the expressions of the outputs; ``var_ref(name, index)``
+    prints an input."""
     ref = {}
     lines = []
-    for node in sorted(seen.values(), key=lambda s: s.id):
+    for node in reachable(outputs):
         if node.op == "var":
             ref[node.id] = var_ref(*node.args)
             continue
-        a = [_literal(x.value) if x.op == "const" else ref[x.id] for x in node.args]
-        if node.op == "pow" and node.args[1].op == "const":
-            c = node.args[1].value
-            expr = f"({a[0]} ** {_literal(c)})"
-        elif node.op in _BINARY:
-            expr = _BINARY[node.op].format(*a)
-        else:
-            expr = _UNARY[node.op].format(*a)
-        lines.append(f"{indent}t{node.id} = {expr}")
+        lines.append(f"{indent}t{node.id} = {node_expression(node, ref)}")
         ref[node.id] = f"t{node.id}"
     return lines, [_literal(o.value) if o.op == "const" else ref[o.id] for o in outputs]
 

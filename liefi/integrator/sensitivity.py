@@ -173,23 +173,15 @@ def _jvp_source(name, f, inputs, args):
     (``d[q]`` for ``inputs[q]``): the tangent of every node is written once, inside a loop over
     the ``k`` columns of ``d``; the primal nodes are computed once, before it.
     """
-    from ..engine.codegen import _literal
-    from ..engine.symbolic import _BINARY, _UNARY, as_sym, derivative
+    from ..engine.codegen import _literal, node_expression, reachable
+    from ..engine.symbolic import as_sym, derivative
 
     f = [as_sym(o) for o in np.asarray(f, dtype=object).reshape(-1)]
     tr_d = _DIRECTIONS.get()
     memo = {x.id: tr_d[q] for q, x in enumerate(inputs)}
     T = [derivative(e, None, memo) for e in f]
-    seen, stack = {}, f + T
-    while stack:
-        node = stack.pop()
-        if node.id in seen or node.op == "const":
-            continue
-        seen[node.id] = node
-        if node.op != "var":
-            stack.extend(node.args)
     ref, moving, head, body = {}, set(), [], []
-    for node in sorted(seen.values(), key=lambda s: s.id):
+    for node in reachable(f + T):
         if node.op == "var":
             nm, i = node.args
             if nm == "d":
@@ -198,13 +190,7 @@ def _jvp_source(name, f, inputs, args):
             else:
                 ref[node.id] = f"{nm}[{i}]"
             continue
-        a = [_literal(x.value) if x.op == "const" else ref[x.id] for x in node.args]
-        if node.op == "pow" and node.args[1].op == "const":
-            expr = f"({a[0]} ** {_literal(node.args[1].value)})"
-        elif node.op in _BINARY:
-            expr = _BINARY[node.op].format(*a)
-        else:
-            expr = _UNARY[node.op].format(*a)
+        expr = node_expression(node, ref)
         if any(x.id in moving for x in node.args):
             moving.add(node.id)
             body.append(f"        t{node.id} = {expr}")
