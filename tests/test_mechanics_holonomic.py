@@ -500,3 +500,23 @@ if __name__ == "__main__":  # the table of the closing note: python tests/test_m
         _, o = check_case(case, on_constraints(case, guess, fixed), v, **RUN)
         print(f"| {name} | {o['sympy']:.3f} | {o['build']:.2f} | {o['error']:.1e} | {o['f']:.1e} | "
               f"{o['velocity']:.1e} | {o['energy']:.1e} |")
+
+
+# --- linearization on the constraint set with dependent coordinates (issue 27) ----------------------------
+@pytest.mark.parametrize("which", ["kane", "lagrange"])
+def test_linearize_nonminimal_pendulum_about_the_hanging_state(which):
+    """The tangent space of ``{J = 0, f = 0}`` has the rows ``df``: ``A`` in ``(q2, q2')``, ``+-i sqrt(g/L)``."""
+    case = kane_pendulum() if which == "kane" else lagrange_pendulum()
+    system = liefi.from_mechanics(case["model"], case["constants"])
+    if which == "kane":  # q = (q2, q1), u = (u2, u1); the mass hangs along N.x
+        lin = system.linearize([0.0, 0.7], u=[0.0, 0.0])
+        assert lin.coordinates == ("q2", "u2")
+    else:  # q = (q1, q2): q1 dependent (pivoted QR of df at the state)
+        lin = system.linearize([0.7, 0.0], [0.0, 0.0])
+        assert lin.coordinates == ("q2", "q2'")
+    w = np.sqrt(9.81 / 0.7)
+    np.testing.assert_allclose(lin.A, [[0.0, 1.0], [-w ** 2, 0.0]], rtol=0, atol=1e-12 * w ** 2)
+    lam = np.sort_complex(lin.nontrivial_eigenvalues)
+    np.testing.assert_allclose(lam, [-1j * w, 1j * w], rtol=1e-13)
+    with pytest.raises(ValueError, match="off the holonomic constraints"):
+        system.linearize([0.0, 0.69], u=[0.0, 0.0]) if which == "kane" else system.linearize([0.69, 0.0], [0.0, 0.0])

@@ -493,7 +493,7 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
         raise ValueError("model: a configuration constraint spans a restored contact point's row; "
                          "state the contact point's coordinates in the model")
     mech = dict(constants=holder, q=q, u=u, qdot_of_u=None, u_of_qdot=None, speed_constraints=None, restored=extra,
-                model_rows=k_model)
+                model_rows=k_model, q_dependent=[q.index(s) for s in parts.get("qdep", ()) if s in q])
     if u:  # the data in qdot: u = W(q) qdot, (qdot, u) = S qdot with S = [1; W]
         Aw = A  # the rows in w = (qdot, u)
         if r:
@@ -534,7 +534,8 @@ def _parts(sympy, me, model):
             cons = list(model._k_nh * model.u + model._f_nh)
         return dict(kind=kind, q=q, qd=[s.diff(t) for s in q], u=u, kd=kd, L=None, frame=model._inertial,
                     bodies=list(model._bodylist or []), loads=list(model._forcelist or []), fixed=None, constraints=cons,
-                    aux=list(model._uaux), actuators=[], potential_energy=False, holonomic=list(model._f_h))
+                    aux=list(model._uaux), actuators=[], potential_energy=False, holonomic=list(model._f_h),
+                    qdep=list(model._qdep))
     if isinstance(model, me.System):
         hol = list(model.holonomic_constraints)  # their derivatives are among velocity_constraints
         q, u = list(model.q), list(model.u)
@@ -546,7 +547,8 @@ def _parts(sympy, me, model):
         return dict(kind=kind, q=q, qd=[s.diff(t) for s in q], u=u, kd=list(model.kdes), L=None, frame=model.frame,
                     bodies=list(model.bodies), loads=list(model.loads), fixed=model.fixed_point,
                     constraints=list(model.velocity_constraints if hol else model.nonholonomic_constraints),
-                    aux=list(model.u_aux), actuators=list(model.actuators), potential_energy=lagrange, holonomic=hol)
+                    aux=list(model.u_aux), actuators=list(model.actuators), potential_energy=lagrange, holonomic=hol,
+                    qdep=list(model.q_dep))
     if isinstance(model, (sympy.Basic, sympy.MatrixBase)):
         raise TypeError("model: a sympy expression; for a Lagrangian use liefi.from_sympy(L, q, qd, constraints), "
                         "or wrap it: liefi.from_mechanics(LagrangesMethod(L, q, nonhol_coneqs=...))")
