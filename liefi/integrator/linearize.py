@@ -505,7 +505,8 @@ def linearize(system, state, qdot=None, *, u=None, symmetries=None, integrals=No
         chart = _holonomic_chart(system, z0) if system.holonomic is not None else _mechanics_chart(system, z0)
     syms = _resolve_symmetries(system, z0, symmetries)
     X, DX, c, r, gens = _steady_rates(system, z0, syms)
-    scale = max(np.linalg.norm(X), np.linalg.norm(DX) * np.linalg.norm(z0) * 1e-3, 1e-300)
+    # |z0| at least 1: an equilibrium at z_0 = 0 (every coordinate zero) has a field of rounding size only
+    scale = max(np.linalg.norm(X), np.linalg.norm(DX) * max(np.linalg.norm(z0), 1.0) * 1e-3, 1e-300)
     res = float(np.linalg.norm(r) / scale)
     if res > STEADY_RTOL:
         big = np.argsort(-np.abs(r))[:3]
@@ -543,11 +544,12 @@ def linearize(system, state, qdot=None, *, u=None, symmetries=None, integrals=No
         if not isinstance(inv, Invariant):
             raise TypeError(f"integrals: expected liefi.Invariant objects, got {inv!r}")
         if inv is ints[0]:
-            w = np.asarray(_core.evaluate(system, z0).dh, float) @ T
+            dI = np.asarray(_core.evaluate(system, z0).dh, float)
         else:
-            w = np.asarray(inv.value_and_grad(z0)[1], float) @ T
-        if np.linalg.norm(w) == 0:
-            continue  # a critical point of I (the energy at an equilibrium at rest)
+            dI = np.asarray(inv.value_and_grad(z0)[1], float)
+        w = dI @ T
+        if np.linalg.norm(w) <= 1e-13 * np.linalg.norm(dI) * np.linalg.norm(T):
+            continue  # a critical point of I on M (the energy at an equilibrium at rest), to rounding
         res_i = float(np.linalg.norm(w @ A) / (nA * np.linalg.norm(w)))
         if res_i > SYMMETRY_RTOL:
             raise ValueError(f"integrals: {inv.name!r} is not conserved by the linearized dynamics "

@@ -36,7 +36,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._kinematics import (MinimalSpeedsError, NonConservativeLoadError, _annihilator, _Checks, _fixed_point,
-                          _kinematics, _restore, _Speeds)
+                          _kinematics, _restore, _speed_coordinates, _Speeds)
 from .sympy_input import _sympy, coordinate_names, lagrangian_data, lambdify_checked
 from . import _mechanics_constraints as _mc
 from .system import NonholonomicSystem
@@ -416,6 +416,9 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
         u = parts["u"] = []
     aux0 = dict.fromkeys(parts["aux"], sympy.S.Zero)  # sympy forms the equations with the auxiliary speeds at zero
     Kq = Ku = None
+    if u and len(u) > n:  # speeds of coordinates the model does not carry (a wheel's spin): those added
+        q, qd, parts["kd"] = _speed_coordinates(sympy, me, parts["kd"], q, qd, u)
+        parts["q"], parts["qd"], n = q, qd, len(q)
     if u:
         Kq, Ku = _kinematics(sympy, parts["kd"], q, qd, u)
     frame, bodies = parts["frame"], parts["bodies"]
@@ -571,6 +574,8 @@ def _kinetic_form(sympy, me, frame, bodies, w, aux0, velocities=None):
     for body in bodies:
         m = body.mass
         ref = body.frame if isinstance(body, me.RigidBody) else frame
+        if ref is not frame and not _oriented(ref, frame):  # a frame given its angular velocity only (a wheel):
+            ref = body.central_inertia.args[0][1].args[0][1] if body.central_inertia.args else frame  # the inertia's
         v = (velocities or {}).get(body)  # a restored (derived) velocity (_restore), or the model's
         parts = [(m * sympy.eye(3), (body.masscenter.vel(frame) if v is None else v).to_matrix(ref))]
         if isinstance(body, me.RigidBody):
@@ -587,6 +592,15 @@ def _kinetic_form(sympy, me, frame, bodies, w, aux0, velocities=None):
                 c += IJ.T * v0
                 T0 += (v0.T * inertia * v0)[0, 0] / 2
     return H, c, T0
+
+
+def _oriented(a, b):
+    """Whether the frame ``a`` has an orientation path to ``b`` (sympy's ``dcm`` raises ``ValueError`` if not)."""
+    try:
+        a.dcm(b)
+    except ValueError:
+        return False
+    return True
 
 
 def _parameters(free, constants):
