@@ -520,3 +520,16 @@ def test_linearize_nonminimal_pendulum_about_the_hanging_state(which):
     np.testing.assert_allclose(lam, [-1j * w, 1j * w], rtol=1e-13)
     with pytest.raises(ValueError, match="off the holonomic constraints"):
         system.linearize([0.0, 0.69], u=[0.0, 0.0]) if which == "kane" else system.linearize([0.69, 0.0], [0.0, 0.0])
+
+
+def test_state_from_the_independent_speeds_solves_the_derivative_of_f_too():
+    """``state(q, u=u_ind)``: the model's independent speeds (``u2``); the dependent ones solve the kept velocity
+    constraints and ``f' = df(q) qdot = 0`` (here ``q1 u1 + q2 u2 = 0``), so the state is on the constraint set."""
+    case = kane_pendulum()
+    system = liefi.from_mechanics(case["model"], case["constants"])
+    q0 = on_constraints(case, [0.3, 0.6], fixed=[0])  # q = (q2, q1)
+    for u in ([0.8], {"u2": 0.8}):
+        speeds = system.generalized_speeds(system.state(q0, u=u))
+        assert list(speeds) == ["u2", "u1"]
+        assert speeds["u2"] == pytest.approx(0.8, rel=1e-15)
+        assert speeds["u1"] == pytest.approx(-q0[0] * 0.8 / q0[1], rel=1e-13)

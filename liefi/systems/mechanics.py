@@ -218,8 +218,8 @@ class MechanicsSystem(NonholonomicSystem):
         ``u`` (Kane models) holds every generalized speed in the model's order ``u_ind + u_dep``
         (:attr:`speeds`, the order :meth:`generalized_speeds` returns them in: an array, or that
         mapping ``{name: value}``), or the independent ones only: the dependent speeds are then
-        solved from the velocity constraints ``k_nh(q) u = 0``, so the state is on the constraint set.
-        ``q`` holds the model's own coordinates, or those and the :attr:`restored_coordinates`
+        solved from the velocity constraints ``k_nh(q) u = 0`` (with configuration constraints: the kept
+        rows and ``f' = df(q) B(q) u = 0``), so the state is on the constraint set.  ``q`` holds the model's own coordinates, or those and the :attr:`restored_coordinates`
         (a model in minimal speeds, :func:`from_mechanics`); their values are ``restored``
         (default 0), and their rates are the model's (its restored rows).
         """
@@ -230,14 +230,15 @@ class MechanicsSystem(NonholonomicSystem):
             if isinstance(u, dict):
                 u = self._speeds_in_order(u)
             u = np.asarray(u, float)
-            m, K = len(self.speeds), self._mech["model_rows"]
+            m, K0 = len(self.speeds), self._mech["model_rows"]
+            K = K0 + (0 if self.holonomic is None else self.holonomic.H)  # with the rows f' = df B(q) u
             if not np.all(np.isfinite(u)) or u.shape[-1:] not in ((m,), (m - K,)) or not self.speeds:
                 want = f"{m} speeds {[str(s.func) for s in self.speeds]}" + (
                     f" (or the {m - K} independent ones)" if K else "")
                 raise ValueError(f"u: expected {want}, finite, got shape {u.shape}" if self.speeds else
                                  "u: a Lagrange model has no generalized speeds; give qdot")
             if K and u.shape[-1:] == (m - K,):
-                A = self._mech["speed_constraints"](q)  # (..., K, m): rows in u
+                A = self._speed_rows(q, m, K0)  # (..., K, m): rows in u
                 dep = np.linalg.solve(A[..., m - K :], -np.einsum("...ij,...j->...i", A[..., : m - K], u)[..., None])[..., 0]
                 batch = np.broadcast_shapes(u.shape[:-1], dep.shape[:-1])
                 u = np.concatenate([np.broadcast_to(u, batch + u.shape[-1:]), np.broadcast_to(dep, batch + (K,))], -1)
@@ -247,6 +248,16 @@ class MechanicsSystem(NonholonomicSystem):
         qdot = np.asarray(qdot, float)
         self._check_shape(qdot, "qdot")
         return np.concatenate(np.broadcast_arrays(q, self.momenta(q, qdot)), -1)
+
+    def _speed_rows(self, q, m, K0):
+        """The velocity constraints in ``u`` at ``q``: the model's kept rows, then ``df(q) B(q)`` (``qdot = B u``)."""
+        rows = [self._mech["speed_constraints"](q)] if K0 else []
+        if self.holonomic is not None:
+            n = q.shape[-1]
+            E = np.broadcast_to(np.eye(m), q.shape[:-1] + (m, m))
+            B = self._mech["qdot_of_u"](np.concatenate([np.broadcast_to(q[..., None, :], q.shape[:-1] + (m, n)), E], -1))
+            rows.append(np.asarray(self.holonomic.differential(q), float) @ np.swapaxes(B, -1, -2))
+        return np.concatenate(rows, -2)
 
     @property
     def restored_coordinates(self):
@@ -278,7 +289,7 @@ class MechanicsSystem(NonholonomicSystem):
         names = [str(s.func) for s in self.speeds]
         keys = {k if isinstance(k, str) else str(getattr(k, "func", k)): v for k, v in u.items()}
         unknown = sorted(set(keys) - set(names))
-        K = self._mech["model_rows"]
+        K = self._mech["model_rows"] + (0 if self.holonomic is None else self.holonomic.H)
         if unknown or not (set(names) <= set(keys) or set(names[: len(names) - K]) == set(keys)):
             raise ValueError(f"u: expected the speeds {names} by name (or the independent ones {names[: len(names) - K]}), "
                              f"got {sorted(keys)}")
