@@ -10,8 +10,13 @@ restored, the wheels' rates ``u3, u6`` get the coordinates ``q_u3, q_u6``; the p
 The upright straight run at speed ``v`` is a steady motion: the rear contact moves forward at ``v`` and
 the wheels turn at ``v / r``; the pitch solves ``f = 0`` (liefi's own ``f``, by Brent).
 
+Then nonlinear runs of the contact-coordinates model from a lean rate of 0.5 rad/s (imex-rk8, dt = 0.01):
+the model's own velocity constraints, its configuration constraint and its energy ``T + U`` held to 1e-12;
+the lean decays at 5 m/s over [0, 10] and grows at 3 m/s.
+
 Slow: sympy's ``kanes_equations`` (~20 s) and the build (~10-20 s) once per model, each linearization
-about 0.5 s (the first ~12 s: the traced Jacobian), and ~80 of them for the two speeds.
+about 0.5 s (the first ~12 s: the traced Jacobian), and ~80 of them for the two speeds; the run
+at 5 m/s ~70 s (numpy backend).
 """
 
 import numpy as np
@@ -119,3 +124,53 @@ def test_liefi_bicycle_weave_and_capsize_speeds(bicycle):
     vc = brentq(capsize, 5.5, 8.0, **kw)
     assert abs(vw - bm.WEAVE_SPEED) <= RTOL * bm.WEAVE_SPEED, vw
     assert abs(vc - bm.CAPSIZE_SPEED) <= RTOL * bm.CAPSIZE_SPEED, vc
+
+
+# --- nonlinear runs of the contact-coordinates bicycle: every declared constraint and the energy held -------
+def declared_residuals(bike, system, sol):
+    """The model's own velocity constraints (m/s), configuration constraint (m) and energy ``T + U`` (J) along
+    ``sol``, evaluated from the model's expressions (``sympy.lambdify``), not from liefi's data."""
+    import sympy
+
+    Y = sol.y.T
+    n = system.space.n
+    names = [str(s) for s in system.space.shape_names]
+    speeds = system.generalized_speeds(Y)
+    X = np.concatenate([Y[:, [names.index(str(s.func)) for s in bike.q]],
+                        np.stack([speeds[str(s.func)] for s in bike.u], -1)], -1)
+    args = list(bike.q) + list(bike.u)
+    out = []
+    for e in (bike.nonholonomic, [bike.holonomic], [bike.energy]):
+        fun = sympy.lambdify(args, sympy.Matrix(e).xreplace(bike.params), "numpy", cse=True)
+        out.append(np.array([np.asarray(fun(*x), float).ravel() for x in X]))
+    assert Y.shape[1] == 2 * n
+    return out[0], out[1][:, 0], out[2][:, 0]
+
+
+@pytest.fixture(scope="module")
+def contact_bicycle():
+    bike = bm.whipple_contact_coordinates()
+    return bike, liefi.from_mechanics(bike.kane, bike.params)
+
+
+@pytest.mark.parametrize("v, t_end", [(5.0, 10.0), (3.0, 1.5)])
+def test_liefi_bicycle_runs_from_a_lean_rate_holding_every_constraint_and_the_energy(contact_bicycle, v, t_end):
+    """From the upright run at ``v`` with a lean rate of 0.5 rad/s: self-stable at 5 m/s (the lean decays), the
+    weave growing at 3 m/s (the bicycle then falls: at t ~ 1.8 s the lean passes -1 rad)."""
+    bike, system = contact_bicycle
+    q, _ = upright(bike, system, v)
+    # the independent speeds (lean rate, rear wheel rate, steer rate); the others solve the constraints and f'
+    z0 = system.state(q, u={"u4": 0.5, "u6": -v / bm.TABLE_1["rR"], "u7": 0.0})
+    sol = liefi.FeedbackIntegrator(system, z0).run(t_end, t_eval=np.linspace(0.0, t_end, int(20 * t_end) + 1),
+                                                   dt=0.01, scheme="imex-rk8", backend="numpy")
+    velocity, f, energy = declared_residuals(bike, system, sol)
+    assert np.abs(velocity).max() < 1e-12  # m/s: the rolling of both wheels
+    assert np.abs(f).max() < 1e-12  # m: the front contact's height
+    assert np.abs(energy - energy[0]).max() < 1e-12 * abs(energy[0])
+    lean = sol.y[[str(s) for s in system.space.shape_names].index("q4")]
+    first = np.abs(lean[sol.t <= 1.0]).max()  # the first swing, ~0.1 rad at 5 m/s, ~0.2 rad at 3 m/s
+    last = np.abs(lean[sol.t >= t_end - 0.3]).max()
+    if v == 5.0:
+        assert last < 0.05 * first
+    else:
+        assert last > 1.5 * first
