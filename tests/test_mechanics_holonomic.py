@@ -518,3 +518,36 @@ def test_state_from_the_independent_speed_of_a_model_with_a_dependent_coordinate
     assert u2 == pytest.approx(0.9, rel=1e-14)
     assert q1 * u1 + q2 * u2 == pytest.approx(0.0, abs=1e-14)  # tangent to the circle
     assert np.abs(system.constraint_momenta(z)).max() < 1e-13
+
+
+# --- linearization on the constraint set with dependent coordinates (issue 27) ----------------------------
+@pytest.mark.parametrize("which", ["kane", "lagrange"])
+def test_linearize_nonminimal_pendulum_about_the_hanging_state(which):
+    """The tangent space of ``{J = 0, f = 0}`` has the rows ``df``: ``A`` in ``(q2, q2')``, ``+-i sqrt(g/L)``."""
+    case = kane_pendulum() if which == "kane" else lagrange_pendulum()
+    system = liefi.from_mechanics(case["model"], case["constants"])
+    if which == "kane":  # q = (q2, q1), u = (u2, u1); the mass hangs along N.x
+        lin = system.linearize([0.0, 0.7], u=[0.0, 0.0])
+        assert lin.coordinates == ("q2", "u2")
+    else:  # q = (q1, q2): q1 dependent (pivoted QR of df at the state)
+        lin = system.linearize([0.7, 0.0], [0.0, 0.0])
+        assert lin.coordinates == ("q2", "q2'")
+    w = np.sqrt(9.81 / 0.7)
+    np.testing.assert_allclose(lin.A, [[0.0, 1.0], [-w ** 2, 0.0]], rtol=0, atol=1e-12 * w ** 2)
+    lam = np.sort_complex(lin.nontrivial_eigenvalues)
+    np.testing.assert_allclose(lam, [-1j * w, 1j * w], rtol=1e-13)
+    with pytest.raises(ValueError, match="off the holonomic constraints"):
+        system.linearize([0.0, 0.69], u=[0.0, 0.0]) if which == "kane" else system.linearize([0.69, 0.0], [0.0, 0.0])
+
+
+def test_state_from_the_independent_speeds_solves_the_derivative_of_f_too():
+    """``state(q, u=u_ind)``: the model's independent speeds (``u2``); the dependent ones solve the kept velocity
+    constraints and ``f' = df(q) qdot = 0`` (here ``q1 u1 + q2 u2 = 0``), so the state is on the constraint set."""
+    case = kane_pendulum()
+    system = liefi.from_mechanics(case["model"], case["constants"])
+    q0 = on_constraints(case, [0.3, 0.6], fixed=[0])  # q = (q2, q1)
+    for u in ([0.8], {"u2": 0.8}):
+        speeds = system.generalized_speeds(system.state(q0, u=u))
+        assert list(speeds) == ["u2", "u1"]
+        assert speeds["u2"] == pytest.approx(0.8, rel=1e-15)
+        assert speeds["u1"] == pytest.approx(-q0[0] * 0.8 / q0[1], rel=1e-13)

@@ -508,3 +508,37 @@ def test_bodies_that_give_their_contact_point_different_velocities_are_named():
                         forcelist=[(Dmc, -m * g * Y.z)])
     with pytest.raises(MinimalSpeedsError, match=r"\['BodyD', 'bead'\] located from C give it different velocities"):
         liefi.from_mechanics(KM, {r: 0.5, m: 1.0, g: 9.81})
+
+
+def test_a_speed_without_a_coordinate_gets_one_and_a_frame_given_its_rate_only_builds():
+    """sympy's bicycle test gives the wheels the rates ``u3, u6`` but no angles, and their frames an angular
+    velocity but no orientation: liefi adds the coordinate ``q_<u>`` (``q_<u>' = u``, ignorable) and forms
+    the kinetic energy in the frame of the body's inertia.  Here a pendulum whose bob is a rotor spinning
+    about the rod: ``((m + m_r) l^2 + I_r) q'' = -(m + m_r) g l sin q`` (the spin's gyroscopic torque is
+    along ``A.y``, taken by the plane), so ``omega^2 = (m + m_r) g l / ((m + m_r) l^2 + I_r)`` at any spin."""
+    q = me.dynamicsymbols("q")
+    u1, u2 = me.dynamicsymbols("u1 u2")
+    m, mr, l, g, Ia, Ir = sympy.symbols("m m_r l g I_a I_r")
+    N = me.ReferenceFrame("N")
+    A = N.orientnew("A", "Axis", [q, N.z])
+    A.set_ang_vel(N, u1 * N.z)
+    W = me.ReferenceFrame("W")  # the rotor: its rate about the rod only
+    W.set_ang_vel(A, u2 * A.x)
+    O = me.Point("O")
+    O.set_vel(N, 0)
+    P = O.locatenew("P", l * A.x)
+    P.v2pt_theory(O, N, A)
+    bodies = [me.Particle("bob", P, m), me.RigidBody("rotor", P, W, mr, (me.inertia(A, Ia, Ir, Ir), P))]
+    kane = me.KanesMethod(N, q_ind=[q], u_ind=[u1, u2], kd_eqs=[q.diff() - u1])
+    kane.kanes_equations(bodies, [(P, (m + mr) * g * N.x)])
+    c = {m: 1.0, mr: 0.5, l: 0.7, g: 9.81, Ia: 0.02, Ir: 0.01}
+    system = liefi.from_mechanics(kane, c)
+    assert tuple(system.space.shape_names) == ("q", "q_u2")
+    lin = system.linearize([0.0, 0.0], u=[0.0, 3.0])
+    w2 = (c[m] + c[mr]) * c[g] * c[l] / ((c[m] + c[mr]) * c[l] ** 2 + c[Ir])
+    np.testing.assert_allclose(np.sort_complex(lin.nontrivial_eigenvalues), [-1j * np.sqrt(w2), 1j * np.sqrt(w2)],
+                               rtol=1e-12)
+    assert "translation of q_u2 (ignorable)" in [mode.name for mode in lin.trivial_modes]
+    z = system.state([0.3, 0.0], u=[0.0, 3.0])  # the rotor's energy counts: I_a u2^2 / 2 at rest
+    U = -(c[m] + c[mr]) * c[g] * c[l] * np.cos(0.3)
+    assert system.hamiltonian(z) == pytest.approx(c[Ia] * 9.0 / 2 + U, rel=1e-13)

@@ -288,8 +288,11 @@ def _probe_points(system, z0, rng):
 
 
 def _manifold_rows(system, z):
-    """Gradients (rows) of ``J`` and of the phase space's Casimirs at ``z``: ``T_z M`` is their kernel."""
+    """Gradients (rows) of ``J``, of the holonomic values ``f`` and of the phase space's Casimirs at ``z``:
+    ``T_z M`` is their kernel (``M = {J = 0, f = 0, C = C(z_0)}``)."""
     rows = [np.asarray(_core.evaluate(system, z).dJ, float).reshape(-1, z.size)]
+    for inv in system.holonomic_invariants:
+        rows.append(np.asarray(inv.grad(z), float)[None])
     for c in system.space.casimirs:
         rows.append(np.asarray(c.value_and_grad(z)[1], float)[None])
     return np.concatenate(rows, 0)
@@ -331,7 +334,7 @@ def _mechanics_chart(system, z0):
         return p if system.vector_potential is None else p + system.vector_potential(q)
 
     if system.speeds:
-        u0 = np.stack(list(system.generalized_speeds(z0).values()), -1).astype(float)  # the model's order
+        u0 = np.array(list(system.generalized_speeds(z0).values()), float)  # {name: value}, in the model's order
         names = [str(s).replace("(t)", "") for s in system.speeds[: n - K]]
 
         def phi(c):
@@ -366,6 +369,62 @@ def _mechanics_chart(system, z0):
         return np.concatenate([q, momenta(q, qdot)], -1)
 
     return phi, np.concatenate([q0, qd0[ind]]), qnames + names
+
+
+def _holonomic_chart(system, z0):
+    r"""``(T, names)``: the basis of ``T_{z_0} M`` in the independent coordinates and speeds of a mechanics model
+    with holonomic constraints ``f(q) = 0``.
+
+    The chart ``c(z) = (q_ind, v_ind(z))`` (the coordinates less the dependent ones -- the model's
+    ``q_dependent``, else a pivoted QR of ``df(q_0)`` -- and the independent speeds ``u_ind = W(q) qdot``
+    (Kane) or velocities, as in :func:`_mechanics_chart`) restricted to ``M`` is a local diffeomorphism;
+    its differential ``L = dc(z_0)`` (complex step) is invertible on ``T_{z_0} M = ker G`` (``G``:
+    :func:`_manifold_rows`, with the rows ``df``).  With an orthonormal basis ``N`` of ``ker G``,
+    ``T = N (L N)^{-1}`` is the basis with ``L T = 1``: ``delta z = T delta c`` on ``M``, no solve of
+    ``f(q) = 0`` needed.
+    """
+    import scipy.linalg
+
+    n, K, H = system.space.n, system.K, system.holonomic.H
+    mech = system._mech
+    q0 = z0[:n]
+    qnames = [str(s) for s in system.space.shape_names]
+    dep = list(mech.get("q_dependent") or [])
+    if len(dep) != H:
+        df = np.asarray(system.holonomic.differential(q0), float).reshape(H, n)
+        dep = sorted(int(k) for k in scipy.linalg.qr(df, pivoting=True)[2][:H])
+    qind = [k for k in range(n) if k not in dep]
+
+    def qdot(z):
+        q, p = z[..., :n], z[..., n:]
+        if system.vector_potential is not None:
+            p = p - system.vector_potential(q)
+        return np.linalg.solve(system.metric(q), p[..., None])[..., 0]
+
+    if system.speeds:
+        vind = list(range(n - K))
+        vnames = [str(s).replace("(t)", "") for s in system.speeds[: n - K]]
+
+        def vel(z):
+            return mech["u_of_qdot"](np.concatenate([z[..., :n], qdot(z)], -1))
+    else:
+        a0 = np.asarray(system.constraints(q0), float) @ np.asarray(system.metric(q0), float)
+        vdep = sorted(int(k) for k in scipy.linalg.qr(a0, pivoting=True)[2][:K])
+        vind = [k for k in range(n) if k not in vdep]
+        vnames = [f"{qnames[k]}'" for k in vind]
+        vel = qdot
+
+    def chart(z):
+        return np.concatenate([z[..., qind], vel(z)[..., vind]], -1)
+
+    L = np.swapaxes(_diff.jacobian(chart, z0, step=_STEP)[1], -1, -2)
+    N = _null_space(_manifold_rows(system, z0), z0.size)
+    LN = L @ N
+    if LN.shape[0] != LN.shape[1] or np.linalg.cond(LN) > 1e12:
+        raise ValueError(f"state: the independent coordinates {[qnames[k] for k in qind]} and speeds {vnames} are no "
+                         "chart of the constraint set there (a singular configuration of f or of the velocity "
+                         "constraints); pass basis=")
+    return N @ np.linalg.inv(LN), [qnames[k] for k in qind] + vnames
 
 
 # --- the linearization ------------------------------------------------------------------------------------
@@ -433,16 +492,21 @@ def linearize(system, state, qdot=None, *, u=None, symmetries=None, integrals=No
             raise ValueError("qdot, u: only a system from liefi.from_mechanics takes its point as (q, qdot or u); "
                              "give the reduced state z")
         z0 = _reduced_state(system, state)
-    if isinstance(system, MechanicsSystem) and basis is None:
-        chart = _mechanics_chart(system, z0)
     J = np.asarray(system.constraint_momenta(z0), float)
     P = np.linalg.norm(z0[system.space.data_dim:])
     if system.K and np.max(np.abs(J)) > 1e-10 * max(P, 1.0):
         raise ValueError(f"state: not on the constraint set (J = {J.tolist()}); project it with system.project(z) "
                          "or build it with the system's own constructor of states")
+    f = [float(inv.fun(z0)) for inv in system.holonomic_invariants]
+    if f and max(abs(v) for v in f) > 1e-10 * max(np.linalg.norm(z0[: system.space.data_dim]), 1.0):
+        raise ValueError(f"state: off the holonomic constraints (f = {f}); solve f(q) = 0 for the dependent "
+                         "coordinates first (e.g. scipy.optimize.brentq or Newton)")
+    if isinstance(system, MechanicsSystem) and basis is None:
+        chart = _holonomic_chart(system, z0) if system.holonomic is not None else _mechanics_chart(system, z0)
     syms = _resolve_symmetries(system, z0, symmetries)
     X, DX, c, r, gens = _steady_rates(system, z0, syms)
-    scale = max(np.linalg.norm(X), np.linalg.norm(DX) * np.linalg.norm(z0) * 1e-3, 1e-300)
+    # |z0| at least 1: an equilibrium at z_0 = 0 (every coordinate zero) has a field of rounding size only
+    scale = max(np.linalg.norm(X), np.linalg.norm(DX) * max(np.linalg.norm(z0), 1.0) * 1e-3, 1e-300)
     res = float(np.linalg.norm(r) / scale)
     if res > STEADY_RTOL:
         big = np.argsort(-np.abs(r))[:3]
@@ -457,6 +521,8 @@ def linearize(system, state, qdot=None, *, u=None, symmetries=None, integrals=No
     if basis is not None:
         T = np.asarray(basis, float)
         coords = tuple(f"b{k + 1}" for k in range(T.shape[1]))
+    elif chart is not None and system.holonomic is not None:
+        T, coords = chart[0], tuple(chart[1])
     elif chart is not None:
         phi, c0, names = chart
         T = np.swapaxes(_diff.jacobian(phi, c0, step=_STEP)[1], -1, -2)
@@ -478,11 +544,12 @@ def linearize(system, state, qdot=None, *, u=None, symmetries=None, integrals=No
         if not isinstance(inv, Invariant):
             raise TypeError(f"integrals: expected liefi.Invariant objects, got {inv!r}")
         if inv is ints[0]:
-            w = np.asarray(_core.evaluate(system, z0).dh, float) @ T
+            dI = np.asarray(_core.evaluate(system, z0).dh, float)
         else:
-            w = np.asarray(inv.value_and_grad(z0)[1], float) @ T
-        if np.linalg.norm(w) == 0:
-            continue  # a critical point of I (the energy at an equilibrium at rest)
+            dI = np.asarray(inv.value_and_grad(z0)[1], float)
+        w = dI @ T
+        if np.linalg.norm(w) <= 1e-13 * np.linalg.norm(dI) * np.linalg.norm(T):
+            continue  # a critical point of I on M (the energy at an equilibrium at rest), to rounding
         res_i = float(np.linalg.norm(w @ A) / (nA * np.linalg.norm(w)))
         if res_i > SYMMETRY_RTOL:
             raise ValueError(f"integrals: {inv.name!r} is not conserved by the linearized dynamics "

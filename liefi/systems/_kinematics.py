@@ -51,6 +51,30 @@ def _kinematics(sympy, kd, q, qd, u):
     return Kq, Ku
 
 
+def _speed_coordinates(sympy, me, kd, q, qd, u):
+    """``(q, qd, kd)`` with a coordinate ``q_<u_j>`` and the equation ``q_<u_j>' - u_j = 0`` for each speed that no
+    kinematic differential equation holds, when there are more speeds than coordinates.
+
+    A Kane model may give a body a rate of a coordinate it does not carry (sympy's bicycle test: the
+    wheels' spins ``u3, u6`` with no wheel angles, which nothing depends on); liefi's velocities are
+    coordinate rates, so that coordinate is added (an ignorable one: no position depends on it).
+    """
+    t = me.dynamicsymbols._t
+    free = [s for s in u if not any(sympy.sympify(e).has(s) for e in kd)]
+    if len(u) <= len(q) or not free:
+        return q, qd, kd
+    taken = {str(getattr(s, "func", s)) for s in q}
+    new = []
+    for s in free:
+        name = f"q_{s.func}"
+        if name in taken:
+            raise ValueError(f"model: a coordinate is named {name!r}, the name liefi gives the coordinate whose "
+                             f"rate is {s.func}; rename the coordinate")
+        new.append(me.dynamicsymbols(name))
+    return (list(q) + new, list(qd) + [c.diff(t) for c in new],
+            list(kd) + [c.diff(t) - s for c, s in zip(new, free)])
+
+
 def _annihilator(sympy, Kq, Ku):
     r"""The rows ``a(q)`` with ``a B = 0``, ``B = -K_qdot^{-1} K_u`` (``n x m``, ``m < n``): ``a . qdot = 0``
     is the velocity constraint that minimal speeds build in (``qdot = B u``).

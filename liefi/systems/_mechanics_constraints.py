@@ -103,7 +103,7 @@ def select_rows(A, keep, K):
 
 
 def holonomic_data(sympy, hol, q, X, A, K, speeds, kw, bind):
-    """``(A, kw)``: the velocity-constraint rows ``A`` (in the model's velocities) less the derivatives of the
+    """``(A, kw, keep)``: the velocity-constraint rows ``A`` (in the model's velocities) less the derivatives of the
     configuration constraints ``hol``, and ``kw`` with ``holonomic=``, ``holonomic_derivative=`` (and a
     generic ``sample`` unless given: ``x = 0`` is often a singular configuration of ``f``).
 
@@ -114,11 +114,13 @@ def holonomic_data(sympy, hol, q, X, A, K, speeds, kw, bind):
     kw = dict(kw)
     if kw.get("sample") is None:
         kw["sample"] = generic_points(n, 1)[0]
+    keep = list(range(K))
     if A is not None:
         Aq = speeds.rows(A) if speeds is not None else A
-        A = select_rows(A, independent_rows(Aq, df, n, generic_points(n)), K)
+        keep = independent_rows(Aq, df, n, generic_points(n))
+        A = select_rows(A, keep, K)
     kw["holonomic"], kw["holonomic_derivative"] = f, df
-    return A, kw
+    return A, kw, keep
 
 
 def regularized_metric(metric, A, kw):

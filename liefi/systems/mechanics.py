@@ -36,7 +36,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._kinematics import (MinimalSpeedsError, NonConservativeLoadError, _annihilator, _Checks, _fixed_point,
-                          _kinematics, _restore, _Speeds)
+                          _kinematics, _restore, _speed_coordinates, _Speeds)
 from .sympy_input import _sympy, coordinate_names, lagrangian_data, lambdify_checked
 from . import _mechanics_constraints as _mc
 from .system import NonholonomicSystem
@@ -218,8 +218,8 @@ class MechanicsSystem(NonholonomicSystem):
         ``u`` (Kane models) holds every generalized speed in the model's order ``u_ind + u_dep``
         (:attr:`speeds`, the order :meth:`generalized_speeds` returns them in: an array, or that
         mapping ``{name: value}``), or the independent ones only: the dependent speeds are then
-        solved from the velocity constraints ``k_nh(q) u = 0``, so the state is on the constraint set.
-        ``q`` holds the model's own coordinates, or those and the :attr:`restored_coordinates`
+        solved from the velocity constraints ``k_nh(q) u = 0`` (with configuration constraints: the kept
+        rows and ``f' = df(q) B(q) u = 0``), so the state is on the constraint set.  ``q`` holds the model's own coordinates, or those and the :attr:`restored_coordinates`
         (a model in minimal speeds, :func:`from_mechanics`); their values are ``restored``
         (default 0), and their rates are the model's (its restored rows).
         """
@@ -230,14 +230,15 @@ class MechanicsSystem(NonholonomicSystem):
             if isinstance(u, dict):
                 u = self._speeds_in_order(u)
             u = np.asarray(u, float)
-            m, K = len(self.speeds), self._mech["model_rows"]
+            m, K0 = len(self.speeds), self._mech["model_rows"]
+            K = K0 + (0 if self.holonomic is None else self.holonomic.H)  # with the rows f' = df B(q) u
             if not np.all(np.isfinite(u)) or u.shape[-1:] not in ((m,), (m - K,)) or not self.speeds:
                 want = f"{m} speeds {[str(s.func) for s in self.speeds]}" + (
                     f" (or the {m - K} independent ones)" if K else "")
                 raise ValueError(f"u: expected {want}, finite, got shape {u.shape}" if self.speeds else
                                  "u: a Lagrange model has no generalized speeds; give qdot")
             if K and u.shape[-1:] == (m - K,):
-                A = self._mech["speed_constraints"](q)  # (..., K, m): rows in u
+                A = self._speed_rows(q, m, K0)  # (..., K, m): rows in u
                 dep = np.linalg.solve(A[..., m - K :], -np.einsum("...ij,...j->...i", A[..., : m - K], u)[..., None])[..., 0]
                 batch = np.broadcast_shapes(u.shape[:-1], dep.shape[:-1])
                 u = np.concatenate([np.broadcast_to(u, batch + u.shape[-1:]), np.broadcast_to(dep, batch + (K,))], -1)
@@ -247,6 +248,16 @@ class MechanicsSystem(NonholonomicSystem):
         qdot = np.asarray(qdot, float)
         self._check_shape(qdot, "qdot")
         return np.concatenate(np.broadcast_arrays(q, self.momenta(q, qdot)), -1)
+
+    def _speed_rows(self, q, m, K0):
+        """The velocity constraints in ``u`` at ``q``: the model's kept rows, then ``df(q) B(q)`` (``qdot = B u``)."""
+        rows = [self._mech["speed_constraints"](q)] if K0 else []
+        if self.holonomic is not None:
+            n = q.shape[-1]
+            E = np.broadcast_to(np.eye(m), q.shape[:-1] + (m, m))
+            B = self._mech["qdot_of_u"](np.concatenate([np.broadcast_to(q[..., None, :], q.shape[:-1] + (m, n)), E], -1))
+            rows.append(np.asarray(self.holonomic.differential(q), float) @ np.swapaxes(B, -1, -2))
+        return np.concatenate(rows, -2)
 
     @property
     def restored_coordinates(self):
@@ -278,7 +289,7 @@ class MechanicsSystem(NonholonomicSystem):
         names = [str(s.func) for s in self.speeds]
         keys = {k if isinstance(k, str) else str(getattr(k, "func", k)): v for k, v in u.items()}
         unknown = sorted(set(keys) - set(names))
-        K = self._mech["model_rows"]
+        K = self._mech["model_rows"] + (0 if self.holonomic is None else self.holonomic.H)
         if unknown or not (set(names) <= set(keys) or set(names[: len(names) - K]) == set(keys)):
             raise ValueError(f"u: expected the speeds {names} by name (or the independent ones {names[: len(names) - K]}), "
                              f"got {sorted(keys)}")
@@ -416,6 +427,9 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
         u = parts["u"] = []
     aux0 = dict.fromkeys(parts["aux"], sympy.S.Zero)  # sympy forms the equations with the auxiliary speeds at zero
     Kq = Ku = None
+    if u and len(u) > n:  # speeds of coordinates the model does not carry (a wheel's spin): those added
+        q, qd, parts["kd"] = _speed_coordinates(sympy, me, parts["kd"], q, qd, u)
+        parts["q"], parts["qd"], n = q, qd, len(q)
     if u:
         Kq, Ku = _kinematics(sympy, parts["kd"], q, qd, u)
     frame, bodies = parts["frame"], parts["bodies"]
@@ -483,16 +497,21 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
     vp = None if all(e == 0 for e in b) else _bound(sympy, X, params, b, (w,), holder, "vector potential")
     A = None if not rows else _bound(sympy, X, params, [e for row in rows for e in row], (len(rows), w), holder,
                                      "constraints")
-    Aw = A  # the rows in w = (qdot, u), the model's own first: its dependent speeds solve them (state(u=...))
+    keep = list(range(len(rows)))
     if hol:  # the values f -> holonomic=, the velocity constraints less the derivatives of f
-        A, kw = _mc.holonomic_data(sympy, hol, parts["q"], X, A, len(rows), speeds if u else None, kw,
-                                   lambda e, shape, what: _bound(sympy, X, params, e, shape, holder, what))
-    k_model, r = len(model_rows), len(extra)
+        A, kw, keep = _mc.holonomic_data(sympy, hol, parts["q"], X, A, len(rows), speeds if u else None, kw,
+                                         lambda e, shape, what: _bound(sympy, X, params, e, shape, holder, what))
+    r = len(extra)
+    k_model = sum(1 for i in keep if i < len(model_rows))  # the model's own rows kept (less the derivatives of f)
+    if r and keep[-r:] != list(range(len(rows) - r, len(rows))):  # pragma: no cover - f holds no restored place
+        raise ValueError("model: a configuration constraint spans a restored contact point's row; "
+                         "state the contact point's coordinates in the model")
     mech = dict(constants=holder, q=q, u=u, qdot_of_u=None, u_of_qdot=None, speed_constraints=None, restored=extra,
-                model_rows=k_model)
+                model_rows=k_model, q_dependent=[q.index(s) for s in parts.get("qdep", ()) if s in q])
     if u:  # the data in qdot: u = W(q) qdot, (qdot, u) = S qdot with S = [1; W]
+        Aw = A  # the rows in w = (qdot, u)
         if r:
-            speeds.restored = lambda x: Aw(x)[..., len(rows) - r:, :]
+            speeds.restored = lambda x: Aw(x)[..., len(keep) - r:, :]
         mech["u_of_qdot"], mech["qdot_of_u"] = speeds.u_of_qdot, speeds.qdot_of_u
         mech["speed_constraints"] = None if not k_model else speeds.rows_in_u(lambda x: Aw(x)[..., :k_model, :])
         metric, vp, A = speeds.metric(metric), speeds.covector(vp), speeds.rows(A)
@@ -529,7 +548,8 @@ def _parts(sympy, me, model):
             cons = list(model._k_nh * model.u + model._f_nh)
         return dict(kind=kind, q=q, qd=[s.diff(t) for s in q], u=u, kd=kd, L=None, frame=model._inertial,
                     bodies=list(model._bodylist or []), loads=list(model._forcelist or []), fixed=None, constraints=cons,
-                    aux=list(model._uaux), actuators=[], potential_energy=False, holonomic=list(model._f_h))
+                    aux=list(model._uaux), actuators=[], potential_energy=False, holonomic=list(model._f_h),
+                    qdep=list(model._qdep))
     if isinstance(model, me.System):
         hol = list(model.holonomic_constraints)  # their derivatives are among velocity_constraints
         q, u = list(model.q), list(model.u)
@@ -541,7 +561,8 @@ def _parts(sympy, me, model):
         return dict(kind=kind, q=q, qd=[s.diff(t) for s in q], u=u, kd=list(model.kdes), L=None, frame=model.frame,
                     bodies=list(model.bodies), loads=list(model.loads), fixed=model.fixed_point,
                     constraints=list(model.velocity_constraints if hol else model.nonholonomic_constraints),
-                    aux=list(model.u_aux), actuators=list(model.actuators), potential_energy=lagrange, holonomic=hol)
+                    aux=list(model.u_aux), actuators=list(model.actuators), potential_energy=lagrange, holonomic=hol,
+                    qdep=list(model.q_dep))
     if isinstance(model, (sympy.Basic, sympy.MatrixBase)):
         raise TypeError("model: a sympy expression; for a Lagrangian use liefi.from_sympy(L, q, qd, constraints), "
                         "or wrap it: liefi.from_mechanics(LagrangesMethod(L, q, nonhol_coneqs=...))")
@@ -564,6 +585,8 @@ def _kinetic_form(sympy, me, frame, bodies, w, aux0, velocities=None):
     for body in bodies:
         m = body.mass
         ref = body.frame if isinstance(body, me.RigidBody) else frame
+        if ref is not frame and not _oriented(ref, frame):  # a frame given its angular velocity only (a wheel):
+            ref = body.central_inertia.args[0][1].args[0][1] if body.central_inertia.args else frame  # the inertia's
         v = (velocities or {}).get(body)  # a restored (derived) velocity (_restore), or the model's
         parts = [(m * sympy.eye(3), (body.masscenter.vel(frame) if v is None else v).to_matrix(ref))]
         if isinstance(body, me.RigidBody):
@@ -580,6 +603,15 @@ def _kinetic_form(sympy, me, frame, bodies, w, aux0, velocities=None):
                 c += IJ.T * v0
                 T0 += (v0.T * inertia * v0)[0, 0] / 2
     return H, c, T0
+
+
+def _oriented(a, b):
+    """Whether the frame ``a`` has an orientation path to ``b`` (sympy's ``dcm`` raises ``ValueError`` if not)."""
+    try:
+        a.dcm(b)
+    except ValueError:
+        return False
+    return True
 
 
 def _parameters(free, constants):
