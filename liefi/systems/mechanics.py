@@ -37,7 +37,7 @@ import numpy as np
 
 from ._kinematics import (MinimalSpeedsError, NonConservativeLoadError, _annihilator, _Checks, _fixed_point,
                           _kinematics, _restore, _speed_coordinates, _Speeds)
-from .sympy_input import _sympy, coordinate_names, lagrangian_data, lambdify_checked
+from .sympy_input import _sympy, coordinate_names, is_zero, lagrangian_data, lambdify_checked
 from . import _mechanics_constraints as _mc
 from .system import NonholonomicSystem
 
@@ -667,7 +667,7 @@ def _load_potential(sympy, me, parts, checks, potential):
         except (TypeError, ValueError):
             raise ValueError(f"model: a load {load!r} is not a (Point or ReferenceFrame, Vector) pair") from None
         moves = where.ang_vel_in(frame) if isinstance(where, me.ReferenceFrame) else where.vel(frame)
-        if aux0 and all(sympy.simplify(e) == 0 for e in moves.to_matrix(frame).xreplace(aux0)):
+        if aux0 and all(is_zero(sympy, e) for e in moves.to_matrix(frame).xreplace(aux0)):
             continue  # moves with the auxiliary speeds only: a constraint force of the auxiliary equations
         W += power(where, vec)
         if isinstance(where, me.ReferenceFrame):

@@ -130,6 +130,69 @@ def lambdify_checked(sympy, args, exprs, what, **kw):
     return sympy.lambdify(args, out, modules="numpy", **kw)
 
 
+def is_zero(sympy, expr):
+    """``sympy.simplify(expr) == 0``, answered without ``simplify`` where a cheaper test is exact.
+
+    ``expr == 0`` first (most zero tests in liefi meet a literal zero after a substitution);
+    then the value at one point (positive non-integer values for the symbols, used only if they fit
+    every assumption of the symbols; every applied function and derivative of the dynamic symbols a
+    value of its own), to 30 digits: a value above ``1e-12`` proves that
+    ``expr`` is not the zero function, so ``simplify`` (which only rewrites it into an equal
+    expression) cannot return ``0`` either.  Only a value that is zero to rounding, or no value,
+    leaves the answer to ``simplify`` itself: the answer is always ``simplify``'s.
+    """
+    e = sympy.sympify(expr)
+    if e == 0:
+        return True
+    if _nonzero_somewhere(sympy, e):
+        return False
+    return sympy.simplify(e) == 0
+
+
+def _nonzero_somewhere(sympy, e):
+    """True if ``e`` has a value of modulus above ``1e-12`` at a fixed point of its symbols (see :func:`is_zero`)."""
+    from sympy.core.function import AppliedUndef
+
+    atoms = e.atoms(sympy.Symbol, sympy.Derivative, AppliedUndef)
+    proxy = sympy.Rational(7, 10)  # a value of the kind drawn: positive, real, rational, not an integer
+    if any(getattr(proxy, f"is_{k}", None) != v for s in atoms if not isinstance(s, sympy.Derivative)
+           for k, v in s.assumptions0.items()):
+        return False  # a symbol those values would not fit (integer, negative, imaginary ...)
+    # distinct, not rational-looking values in (0.5, 1.5): sqrt(2 + k) mod 1 + 0.5
+    point = {s: sympy.Float(((2.0 + k) ** 0.5) % 1.0 + 0.5) for k, s in enumerate(sorted(atoms, key=sympy.default_sort_key))}
+    try:
+        v = e.xreplace(point).evalf(30)
+        return bool(v.is_number and abs(complex(v)) > 1e-12)
+    except (TypeError, ValueError, ArithmeticError):  # no finite value there: inconclusive
+        return False
+
+
+def _degree_at_most(sympy, e, V, k):
+    """True if ``e`` is, as written (no expansion), a polynomial of total degree at most ``k`` in ``V``.
+
+    A structural bound: sums take the largest degree of their terms, products the sum, powers
+    with a positive integer exponent the multiple; a ``V`` under any other function makes it
+    False.  True implies that ``Poly(expand(e), *V)`` exists with ``total_degree() <= k`` (its
+    degree can only be lower); False leaves the question to that test.
+    """
+    V = set(V)
+
+    def deg(x):
+        if not (x.free_symbols & V):
+            return 0
+        if x in V:
+            return 1
+        if x.is_Add:
+            return max(deg(a) for a in x.args)
+        if x.is_Mul:
+            return sum(deg(a) for a in x.args)
+        if x.is_Pow and x.exp.is_Integer and x.exp > 0:
+            return deg(x.base) * int(x.exp)
+        return k + 1
+
+    return deg(e) <= k
+
+
 def _batch_function(sympy, x_syms, exprs, shape, what):
     """``(..., n) -> (..., *shape)`` numpy function of the sympy expressions (complex safe); a
     constant array if none depends on ``x``."""
@@ -198,9 +261,9 @@ def from_sympy(L, q, qd, constraints=(), names=None, *, scaling="unit", **kw):
     X, M, b, U, rows, q = lagrangian_data(sympy, _scalar_lagrangian(sympy, L), q, qd, constraints)
     n = len(q)
     metric = _batch_function(sympy, X, [e for row in M for e in row], (n, n), "metric")
-    potential = None if sympy.simplify(U) == 0 else _batch_function(sympy, X, [U], (), "potential")
+    potential = None if is_zero(sympy, U) else _batch_function(sympy, X, [U], (), "potential")
     vector_potential = None
-    if any(sympy.simplify(e) != 0 for e in b):
+    if not all(is_zero(sympy, e) for e in b):
         vector_potential = _batch_function(sympy, X, b, (n,), "vector potential")
     if names is None:
         names = coordinate_names(sympy, q)
@@ -280,13 +343,13 @@ def lagrangian_data(sympy, L, q, qd, constraints, parameters=(), speeds=()):
 
     Lp = plain(L, "L")
     try:
-        poly = sympy.Poly(sympy.expand(Lp), *V)
+        poly = None if _degree_at_most(sympy, Lp, V, 2) else sympy.Poly(sympy.expand(Lp), *V)
     except sympy.PolynomialError as exc:
         raise NotQuadraticError(
             f"L: not a polynomial in the velocities qd ({exc}); liefi needs a kinetic energy "
             "quadratic in qd, plus terms linear in qd, plus a potential"
         ) from None
-    if poly.total_degree() > 2:
+    if poly is not None and poly.total_degree() > 2:
         raise NotQuadraticError(
             f"L: of degree {poly.total_degree()} in the velocities qd; liefi needs a kinetic energy "
             "quadratic in qd (1/2 qd.M(q) qd), plus terms linear in qd, plus a potential"
@@ -301,16 +364,17 @@ def lagrangian_data(sympy, L, q, qd, constraints, parameters=(), speeds=()):
     rows = []
     for k, c in enumerate(constraints):
         cp = plain(c, f"constraints[{k}]")
+        linear = _degree_at_most(sympy, cp, V, 1)
         try:
-            cpoly = sympy.Poly(sympy.expand(cp), *V)
+            cpoly = None if linear else sympy.Poly(sympy.expand(cp), *V)
         except sympy.PolynomialError:
             cpoly = None
-        if cpoly is None or cpoly.total_degree() > 1:
+        if not linear and (cpoly is None or cpoly.total_degree() > 1):
             raise NonlinearConstraintError(
                 f"constraints[{k}]: {c} is not linear in the velocities qd; liefi treats linear "
                 "nonholonomic constraints a(q) . qd = 0"
             )
-        if sympy.simplify(cp.xreplace(zero)) != 0:
+        if not is_zero(sympy, cp.xreplace(zero)):
             raise NonlinearConstraintError(
                 f"constraints[{k}]: {c} has a term without velocities (affine constraint); liefi "
                 "treats linear homogeneous constraints a(q) . qd = 0"
