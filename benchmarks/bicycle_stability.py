@@ -19,7 +19,6 @@ import sys
 import time
 
 import numpy as np
-from scipy.optimize import brentq
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
@@ -39,7 +38,7 @@ def main(argv=None):
     import matplotlib.pyplot as plt
 
     import bicycle_model as bm
-    from test_bicycle_liefi import eigenvalues, lateral
+    from test_bicycle_liefi import eigenvalues, lateral, weave_and_capsize_speeds
 
     import liefi
 
@@ -51,16 +50,7 @@ def main(argv=None):
     lam = np.array([np.sort_complex(lateral(bike, eigenvalues(bike, system, v))) for v in vs])
     t2 = time.process_time()
 
-    def weave(v):
-        e = lateral(bike, eigenvalues(bike, system, v))
-        return e[np.argmax(e.imag)].real
-
-    def capsize(v):
-        e = lateral(bike, eigenvalues(bike, system, v))
-        return e[e.imag == 0].real.max()
-
-    kw = dict(xtol=1e-14, rtol=1e-15, maxiter=100)
-    vw, vc = brentq(weave, 3.0, 5.0, **kw), brentq(capsize, 5.5, 8.0, **kw)
+    vw, vc = weave_and_capsize_speeds(bike, system)
     print(f"weave speed {vw:.14f} (published {bm.WEAVE_SPEED:.14f}, relative error {abs(vw / bm.WEAVE_SPEED - 1):.1e})")
     print(f"capsize speed {vc:.14f} (published {bm.CAPSIZE_SPEED:.14f}, relative error {abs(vc / bm.CAPSIZE_SPEED - 1):.1e})")
     print(f"CPU s: sympy model and from_mechanics {t1 - t0:.1f}, {len(vs)} linearizations {t2 - t1:.1f}")

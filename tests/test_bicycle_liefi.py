@@ -106,10 +106,8 @@ def lateral(bike, lin):
     return np.linalg.eigvals(lin.A[np.ix_(k, k)])
 
 
-def test_liefi_bicycle_weave_and_capsize_speeds(bicycle):
-    bike, system = bicycle[:2]
-    lin = eigenvalues(bike, system, 5.0)  # the lateral block has the nontrivial eigenvalues
-    np.testing.assert_allclose(np.sort_complex(lateral(bike, lin)), np.sort_complex(lin.nontrivial_eigenvalues), rtol=1e-12)
+def weave_and_capsize_speeds(bike, system):
+    """The weave and capsize speeds: roots (Brent) of the weave pair's real part and of the capsize eigenvalue."""
 
     def weave(v):
         lam = lateral(bike, eigenvalues(bike, system, v))
@@ -120,8 +118,14 @@ def test_liefi_bicycle_weave_and_capsize_speeds(bicycle):
         return lam[lam.imag == 0].real.max()
 
     kw = dict(xtol=1e-14, rtol=1e-15, maxiter=100)
-    vw = brentq(weave, 3.0, 5.0, **kw)
-    vc = brentq(capsize, 5.5, 8.0, **kw)
+    return brentq(weave, 3.0, 5.0, **kw), brentq(capsize, 5.5, 8.0, **kw)
+
+
+def test_liefi_bicycle_weave_and_capsize_speeds(bicycle):
+    bike, system = bicycle[:2]
+    lin = eigenvalues(bike, system, 5.0)  # the lateral block has the nontrivial eigenvalues
+    np.testing.assert_allclose(np.sort_complex(lateral(bike, lin)), np.sort_complex(lin.nontrivial_eigenvalues), rtol=1e-12)
+    vw, vc = weave_and_capsize_speeds(bike, system)
     assert abs(vw - bm.WEAVE_SPEED) <= RTOL * bm.WEAVE_SPEED, vw
     assert abs(vc - bm.CAPSIZE_SPEED) <= RTOL * bm.CAPSIZE_SPEED, vc
 
