@@ -28,22 +28,13 @@ import test_mechanics_minimal as T  # noqa: E402
 
 
 def row(name, make):
-    from scipy.integrate import solve_ivp
-
     t0 = time.perf_counter()
     eom, consts, start, _ = make()
     t_model = time.perf_counter() - t0
     t0 = time.perf_counter()
     system = liefi.from_mechanics(eom, consts)
     t_build = time.perf_counter() - t0
-    q_own, v_own, y0 = T.own_trajectory(eom, consts, start, system)
-    n = len(eom.q)
-    z0 = system.state(y0[:n], u=y0[n:]) if system.speeds else system.state(y0[:n], y0[n:])
-    sol = solve_ivp(lambda _, z: system.constrained_vector_field(z), (0.0, 2.0), z0, method="DOP853", rtol=1e-12,
-                    atol=1e-12)
-    z = sol.y[:, -1]
-    v = np.stack(list(system.generalized_speeds(z).values())) if system.speeds else system.velocities(z)[:n]
-    err = max(np.max(np.abs(z[:n] - q_own)), np.max(np.abs(v - v_own))) / max(1.0, np.max(np.abs(v_own)))
+    err, z0 = T.error_against_own(eom, consts, start, system)
     fi = liefi.FeedbackIntegrator(system, z0)
     run = fi.run(2.0, backend="numpy")
     inv = fi.invariant_values(np.moveaxis(run.y, -1, 0))
