@@ -456,7 +456,6 @@ def own_trajectory(eom, consts, start, system, t_final=2.0):
     return sol.y[:n, -1], sol.y[n:, -1], y0
 
 
-@pytest.mark.slow
 def error_against_own(eom, consts, start, system):
     """``(err, z0)``: liefi's constrained field against the model's own equations at ``t = 2`` (both DOP853 at
     1e-12), the largest difference in ``(q, u)`` (or ``(q, qdot)``) relative to the speeds' size; ``z0`` liefi's start."""
@@ -473,6 +472,7 @@ def error_against_own(eom, consts, start, system):
     return err, z0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(MODELS))
 def test_the_model_runs_as_its_own_equations_and_holds_its_constraints_and_energy(name):
     """Over ``[0, 2]`` liefi's field (DOP853 at 1e-12) agrees with the model's own to 1e-8 in ``(q, u)``; along
