@@ -56,7 +56,7 @@ def rolling_equations(inertia, mass, g, contact):
         Kd1 = K2 * W3 - K3 * W2 + m * (q2 * v3 - q3 * v2) + m * g * (r2 * G3 - r3 * G2)
         Kd2 = K3 * W1 - K1 * W3 + m * (q3 * v1 - q1 * v3) + m * g * (r3 * G1 - r1 * G3)
         Kd3 = K1 * W2 - K2 * W1 + m * (q1 * v2 - q2 * v1) + m * g * (r1 * G2 - r2 * G1)
-        out = np.empty(14)
+        out = np.empty(14, dtype=np.result_type(y, float))  # complex in, complex out (a complex step)
         for i, (a, b_, c) in enumerate(((R11, R12, R13), (R21, R22, R23), (G1, G2, G3))):
             out[3 * i:3 * i + 3] = (b_ * W3 - c * W2, c * W1 - a * W3, a * W2 - b_ * W1)  # R Omega^
         out[9] = -(R11 * v1 + R12 * v2 + R13 * v3)
