@@ -18,10 +18,10 @@ invariant measure), the other has them all in the right.  Two regimes, both repr
   and curvature axes makes the pitching mode grow for one sign of the spin and the rolling mode for the
   other, so *each* direction has a growing mode and the conservative rattleback reverses both ways, at very
   different rates.  Kane & Levinson's body stays in this regime at every spin from 0.5 to 200 rad/s.
-* fast spin (Markeev 1983, reviewed by Borisov & Mamaev, Phys. Usp. 46 (2003) 393; the "steady direction"
-  of Kondo & Nakanishi, Phys. Rev. E 95 (2017) 062207, arXiv:1704.06717): for other bodies the slow
-  (rolling) mode's growth changes sign at a finite spin, and past it one direction is asymptotically stable
-  and the other unstable.
+* fast spin (the "steady direction" in which Kondo & Nakanishi, arXiv:1704.06717 (2017), see the
+  conservative rattleback spin on without reversing): for other bodies the slow (rolling) mode's growth
+  changes sign at a finite spin, and past it one direction is asymptotically stable and the other
+  unstable.
 """
 
 import numpy as np
