@@ -468,8 +468,13 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
         free |= e.free_symbols
     free.discard(t)
     checks = _Checks(sympy, q_all, qd_all, u, frame, aux0)
-    U_loads, power = _load_potential(sympy, me, parts, checks, potential)
+    U_loads, power, forced, power_of = _load_potential(sympy, me, parts, checks, potential)
     free |= (U_loads.free_symbols | power.free_symbols) - {t}
+    if forced:  # non-conservative loads: their generalized forces on w = (qdot, u) (liefi.systems._loads)
+        from . import _loads
+
+        forced = _loads.generalized_forces(sympy, me, forced, power_of, qd_all, list(u), q_all)
+        free |= forced.free_symbols
     params, values = _parameters(free, constants)
     holder = _Constants(params, None)
     holder.values = holder.parse(values) if params else np.zeros((0,))
@@ -485,6 +490,8 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
     checks.params, checks.speeds = params, speeds
     if parts["loads"] or parts["actuators"]:
         checks.power_is_minus_dU_dt(power, U_loads, parts["loads"] + parts["actuators"], potential is not None)
+    if forced:
+        forced = forced.bind(lambda args, e, shape, what: _bound(sympy, args, params, e, shape, holder, what), speeds)
 
     X, M, b, U, rows, q_all = lagrangian_data(sympy, L - U_loads, q_all, qd_all, constraints, params, speeds=u)
     w = len(M)  # n velocities qdot, or n + m: (qdot, u)
@@ -518,10 +525,14 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
     metric = _mc.regularized_metric(metric, A, kw) if hol else metric  # singular on the ambient space: regular off C
     space = CotangentBundle(n + r, names=coordinate_names(sympy, q_all) if names is None else names)
     if A is None:
-        return MechanicsSystem(space, metric, None, pot, vector_potential=vp, mechanics=mech, **kw)
-    return MechanicsSystem.from_velocity_constraints(
-        space, metric, A, pot, scaling=scaling, vector_potential=vp, mechanics=mech, **kw
-    )
+        out = MechanicsSystem(space, metric, None, pot, vector_potential=vp, mechanics=mech, **kw)
+    else:
+        out = MechanicsSystem.from_velocity_constraints(
+            space, metric, A, pot, scaling=scaling, vector_potential=vp, mechanics=mech, **kw
+        )
+    if forced:
+        out.force = forced  # the non-conservative loads: a ForceLaw (liefi.systems.forcing), inputs by name
+    return out
 
 def _parts(sympy, me, model):
     """The model's coordinates, speeds, kinematics, Lagrangian or bodies, loads and constraints."""
@@ -669,7 +680,6 @@ def _load_potential(sympy, me, parts, checks, potential):
         moves = where.ang_vel_in(frame) if isinstance(where, me.ReferenceFrame) else where.vel(frame)
         if aux0 and all(is_zero(sympy, e) for e in moves.to_matrix(frame).xreplace(aux0)):
             continue  # moves with the auxiliary speeds only: a constraint force of the auxiliary equations
-        W += power(where, vec)
         if isinstance(where, me.ReferenceFrame):
             bad.append(load)
             continue
@@ -678,10 +688,9 @@ def _load_potential(sympy, me, parts, checks, potential):
         if me.find_dynamicsymbols(F) or F.has(t) or O is None:
             bad.append(load)
             continue
+        W += power(where, vec)
         U -= vec.dot(where.pos_from(O) + offsets.get(O, 0 * frame.x))  # with a restored place of O
     for act in parts["actuators"]:
-        for where, vec in act.to_loads():
-            W += power(where, vec)
         Ua = None
         if isinstance(act, (me.LinearSpring, getattr(me, "DuffingSpring", me.LinearSpring))):
             d = act.pathway.length - act.equilibrium_length
@@ -693,21 +702,21 @@ def _load_potential(sympy, me, parts, checks, potential):
                 {s: sympy.Dummy() for s in q}).has(t):
             bad.append(act)
             continue
+        for where, vec in act.to_loads():
+            W += power(where, vec)
         U += Ua
     if potential is not None:
         if not isinstance(potential, sympy.Basic):
             raise TypeError(f"potential: expected a sympy expression U(q) (of the model's symbols), got "
                             f"{type(potential).__name__}; liefi does not parse strings")
-        return potential, W
-    if bad:
-        raise NonConservativeLoadError(
-            f"model: liefi does not take non-conservative loads yet (dissipative, driving or time-dependent "
-            f"loads and actuators, inputs): it cannot derive a potential for the load(s) {[str(b) for b in bad]} "
-            "(it derives one for forces constant in the inertial frame at points located from a fixed point, "
-            "such as gravity, and for LinearSpring and DuffingSpring actuators); if they are conservative pass "
-            "potential=U(q)"
-        )
-    return U, W
+        for b in bad:  # the user's potential stands for every load: their power is checked against it
+            for where, vec in (b.to_loads() if hasattr(b, "to_loads") else [b]):
+                W += power(where, vec)
+        return potential, W, [], power
+    # the loads with no potential (dampers, torques, time-dependent and specified loads) become the
+    # system's force (liefi.systems._loads): their generalized forces from the partial velocities
+    pairs = [pair for b in bad for pair in (b.to_loads() if hasattr(b, "to_loads") else [b])]
+    return U, W, pairs, power
 
 
 def _warn_ignored_potential_energy(sympy, parts, bodies):
