@@ -192,3 +192,38 @@ class ForcedFeedbackIntegrator(FeedbackIntegrator):
             y = y.copy()
             y[..., self.n - 1] = t0
         return super().run(span, backend="numpy", y0=y, **kw)
+
+
+def force_contribution(system, force, z, u, t=0.0):
+    """``(XF, DXF, BF)``: the force's part of the reduced constrained field at ``z`` with inputs ``u`` (``(m,)``).
+
+    ``XF`` (``(nz,)``) is :func:`liefi.reduction.core.field_terms` with the force less without it (the
+    projected force on the momentum slots), ``DXF`` (``(nz, nz)``) its ``z``-Jacobian by central differences
+    (to about 1e-9 relative) and ``BF`` (``(nz, m)``) its ``u``-Jacobian by complex step (exact to rounding).
+    The force is read as ``force(t, x, v, u)`` with ``x`` the data point (no group element) and ``v = dh/dP``.
+    Used by :func:`liefi.integrator.linearize.linearize` for its ``B``.
+    """
+    from .. import _diff
+
+    law = as_force_law(force)
+    n = system.space.data_dim
+    z = np.asarray(z, float)
+    u = np.asarray(u, float)
+
+    def XF(zz, uu):
+        terms = _core.evaluate(system, zz)
+        F = np.asarray(law(t, zz[..., :n], terms.dh[..., n:], uu))
+        F = np.broadcast_to(F, terms.dh[..., n:].shape[:-1] + F.shape[-1:])
+        with_force = _core.field_terms(system, zz, kind="constrained", terms=terms, force=F)[0]
+        return with_force - _core.field_terms(system, zz, kind="constrained", terms=terms)[0]
+
+    X0 = np.asarray(XF(z, u)).real
+    h = 1e-6 * np.maximum(1.0, np.abs(z))
+    E = np.diag(h)
+    DXF = ((XF(z + E, u) - XF(z - E, u)).real / (2 * h[:, None])).T
+    if u.size:
+        BF = np.swapaxes(_diff.jacobian(lambda uu: XF(np.broadcast_to(z, uu.shape[:-1] + z.shape), uu), u)[1],
+                         -1, -2)
+    else:
+        BF = np.zeros((z.size, 0))
+    return X0, DXF, np.asarray(BF, float)

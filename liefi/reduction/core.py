@@ -371,8 +371,8 @@ def field_terms(system, z, *, kind="extended", terms=None, data=NUMPY_DATA, forc
     if the caller already has it; ``data``: the accessor passed to :func:`evaluate`.
 
     ``force``: an external generalized force ``F`` (``(..., D)``, a covector on the
-    velocities ``v = (xi, x')``, acting on the momentum slots; ``kind="extended"``
-    only), the one place where a force enters the field.  Lagrange--d'Alembert with
+    velocities ``v = (xi, x')``, acting on the momentum slots; not with
+    ``kind="projected"``), the one place where a force enters the field.  Lagrange--d'Alembert with
     a force: ``z' = B dH + sum_i lambda_i e_i^flat + (0, F)`` with the multipliers
     chosen so that the ``J_i`` stay first integrals,
     ``lambda = C^{-1} ({H, J} - E F)``: the force acts through its projection
@@ -391,8 +391,8 @@ def field_terms(system, z, *, kind="extended", terms=None, data=NUMPY_DATA, forc
     dH = t.dh if kind == "constrained" else t.dht
     lam = _multipliers(system, z_eval, dH, t.dJ, t.Cinv)
     if force is not None:
-        if kind != "extended":
-            raise ValueError(f"force: only with the extended field, got kind={kind!r}")
+        if kind == "projected":
+            raise ValueError("force: not with the projected field (the force is read at z); use 'extended'")
         if system.K:  # lambda = C^{-1} ({H, J} - E F): the J_i stay first integrals
             EF = _sparse.matvec("...ij,...j->...i", t.dJ[..., system.space.data_dim :], force)
             lam = lam - _sparse.matvec("...ij,...j->...i", t.Cinv, EF)
