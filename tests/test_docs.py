@@ -15,7 +15,7 @@ import re
 import pytest
 
 DOCS = pathlib.Path(__file__).resolve().parent.parent / "docs"
-PAGES = ["getting-started.md", "concepts.md", "choosing-a-method.md", "rolling_bodies.md", "gradients.md", *sorted(p.relative_to(DOCS).as_posix() for p in (DOCS / "tutorials").glob("*.md"))]
+PAGES = ["getting-started.md", "concepts.md", "choosing-a-method.md", "rolling_bodies.md", "gradients.md", "inputs.md", *sorted(p.relative_to(DOCS).as_posix() for p in (DOCS / "tutorials").glob("*.md"))]
 
 _BLOCK = re.compile(r"(?:<!--\s*requires:\s*(?P<req>[^>]*?)\s*-->\s*\n)?```python\n(?P<code>.*?)\n```", re.S)
 

@@ -290,8 +290,9 @@ def test_loads_without_a_potential_are_named():
     ball = me.Particle("ball", P, m)
     damper = (P, -c * x.diff() * N.x)
     LM = me.LagrangesMethod(me.Lagrangian(N, ball), [x], forcelist=[damper], frame=N)
-    with pytest.raises(NonConservativeLoadError, match=r"load\(s\) .*c\*Derivative"):
-        liefi.from_mechanics(LM, {m: 1.0, c: 0.1})
+    damped = liefi.from_mechanics(LM, {m: 1.0, c: 0.1})  # no potential: the system's force (issue 28)
+    assert damped.force.inputs == ()
+    np.testing.assert_allclose(damped.force(0.0, np.array([0.3]), np.array([2.0]), None), [-0.2], rtol=1e-15)
     spring = (P, -k * x * N.x)
     LM = me.LagrangesMethod(me.Lagrangian(N, ball), [x], forcelist=[spring], frame=N)
     osc = liefi.from_mechanics(LM, {m: 2.0, k: 3.0}, potential=k * x**2 / 2)

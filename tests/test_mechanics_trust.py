@@ -26,7 +26,6 @@ sympy = pytest.importorskip("sympy")
 me = pytest.importorskip("sympy.physics.mechanics")
 
 import liefi  # noqa: E402
-from liefi.mechanics import NonConservativeLoadError  # noqa: E402
 
 t = me.dynamicsymbols._t
 
@@ -210,20 +209,22 @@ def test_linear_spring_actuator_is_integrated_as_sympy_means_it(l0, q0):
 
 
 @pytest.mark.parametrize("make", ["damper", "torque", "time"])
-def test_non_conservative_actuators_and_loads_are_named(make):
+def test_non_conservative_actuators_and_loads_become_the_systems_force(make):
     system, wall, bob, (m, k), path = spring_particle()
     c = sympy.symbols("c")
     if make == "damper":
         system.add_actuators(me.LinearDamper(c, path))
-        what = "LinearDamper"
     elif make == "torque":
         system.add_actuators(me.TorqueActuator(c, wall.frame.z, wall.frame))
-        what = "TorqueActuator"
     else:
         system.add_loads((bob.masscenter, c * sympy.sin(t) * wall.frame.x))
-        what = "sin"
-    with pytest.raises(NonConservativeLoadError, match=rf"does not take non-conservative loads yet.*{what}"):
-        liefi.from_mechanics(system, {m: 1.0, c: 0.3})
+    s = liefi.from_mechanics(system, {m: 1.0, c: 0.3}, sample=np.array([0.5]))  # was NonConservativeLoadError
+    F = s.force(0.7, np.array([0.5]), np.array([2.0]), None)
+    want = {"damper": -0.3 * 2.0, "torque": 0.0, "time": 0.3 * np.sin(0.7)}[make]  # the wall's frame does not turn
+    np.testing.assert_allclose(F, [want], rtol=1e-14, atol=1e-15)
+    if make == "damper":
+        got = _run_q(system, {m: 1.0, c: 0.3}, 0.5, 2.0, sample=np.array([0.5]))
+        assert abs(got - _sympy_q(system, {m: 1.0, c: 0.3}, 0.5, 2.0)) < 1e-7
 
 
 # --- 3. potential_energy: the model's own meaning -------------------------------------------------

@@ -154,7 +154,20 @@ class FeedbackIntegrator:
     targets : dict, optional
         Target values ``{name: I_j0}`` overriding those taken from ``y0``: a
         number, or for an ensemble one number per member (shape ``y0.shape[:-1]``).
+    force, inputs : optional
+        An external generalized force ``force(t, q, v[, u])`` (or a
+        :class:`liefi.systems.forcing.ForceLaw`; default the system's ``force``, e.g.
+        the loads of :func:`liefi.from_mechanics`) and the signals of its named inputs
+        ``{name: signal}``: the state then gains the work ``W`` and the clock, and ``V``
+        holds the energy balance ``h~ - W`` (:mod:`liefi.integrator.forced`).
     """
+
+    def __new__(cls, system=None, *args, force=None, **kw):
+        if cls is FeedbackIntegrator and (force is not None or getattr(system, "force", None) is not None):
+            from .forced import ForcedFeedbackIntegrator  # a forced run: the work and the clock join the state
+
+            return super().__new__(ForcedFeedbackIntegrator)
+        return super().__new__(cls)
 
     @keywords
     def __init__(
@@ -169,8 +182,12 @@ class FeedbackIntegrator:
         field="extended",
         A=None,
         targets=None,
+        force=None,
+        inputs=None,
         **unknown,
     ):
+        if inputs is not None and force is None:
+            raise ValueError("inputs: given without a force; pass force=... (or a system with loads)")
         if unknown:
             raise unknown_keyword("FeedbackIntegrator", unknown, FeedbackIntegrator.__init__)
         if not isinstance(system, NonholonomicSystem):
@@ -574,7 +591,7 @@ class FeedbackIntegrator:
         g, z = self.split(y)
         sys = self.system
         # the field (at the projection for field="projected") and the terms at z for V
-        zdot, xi, t = _core.field_terms(sys, z, kind=self.field, data=data)
+        zdot, xi, t = self._reduced_field(g, z, data)
 
         V = 0.0
         gz = 0.0
@@ -598,6 +615,10 @@ class FeedbackIntegrator:
         else:
             X, gradV = zdot, gz
         return X, gradV, V
+
+    def _reduced_field(self, g, z, data):
+        """``(zdot, xi, t_z)`` of :func:`liefi.reduction.core.field_terms` (a forced integrator adds its force)."""
+        return _core.field_terms(self.system, z, kind=self.field, data=data)
 
     def lyapunov(self, y):
         """``V(y)`` (shape ``(...)``); zero exactly on the target invariant set."""

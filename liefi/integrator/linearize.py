@@ -107,8 +107,10 @@ class Linearization:
     ----------
     A : ndarray (d, d)
         ``d delta / dt = A delta`` in the minimal coordinates ``delta`` (:attr:`coordinates`).
-    B : None
-        The input matrix, for systems with inputs (none yet).
+    B : ndarray (d, m) or None
+        The input matrix ``d delta / dt = A delta + B delta_u`` for a system with a force with inputs
+        (``force=``, or the loads of :func:`liefi.from_mechanics`; columns in the order of :attr:`inputs`),
+        as sympy's ``linearize`` gives it; ``None`` without a force.
     basis : ndarray (nz, d)
         ``T``: ``delta z = T delta`` (columns in the reduced state ``z``).
     coordinates : tuple of str
@@ -142,6 +144,7 @@ class Linearization:
     nontrivial_eigenvalues: np.ndarray
     residual: float
     symmetries: tuple = field(default=(), repr=False)
+    inputs: tuple = ()  #: the names of the inputs (the columns of ``B``)
 
     @property
     def spectral_abscissa(self):
@@ -430,9 +433,11 @@ def _holonomic_chart(system, z0):
 # --- the linearization ------------------------------------------------------------------------------------
 
 
-def _steady_rates(system, z0, syms):
-    """``(X(z_0), DX(z_0), c, residual, generator values, their Jacobians)``."""
+def _steady_rates(system, z0, syms, forced=None):
+    """``(X(z_0), DX(z_0), c, residual, generator values, their Jacobians)``; ``forced``: the force's ``(XF, DXF)``."""
     X, DX = field_and_jacobian(system, z0)
+    if forced is not None:
+        X, DX = X + forced[0], DX + forced[1]
     gens = [_generator(s, z0) for s in syms]
     V = np.stack([g[0] for g in gens], -1) if gens else np.zeros((z0.size, 0))
     c = np.linalg.lstsq(V, X, rcond=None)[0] if gens else np.zeros(0)
@@ -451,7 +456,8 @@ def _resolve_symmetries(system, z0, symmetries):
     return tuple(s for s in candidate_symmetries(system) if _commutes(system, s, points))
 
 
-def linearize(system, state, qdot=None, *, u=None, symmetries=None, integrals=None, basis=None):
+def linearize(system, state, qdot=None, *, u=None, symmetries=None, integrals=None, basis=None, force=None,
+              inputs=None, t=0.0):
     r"""The linearized constrained dynamics at the steady motion ``state`` (module docstring).
 
     Parameters
@@ -471,6 +477,11 @@ def linearize(system, state, qdot=None, *, u=None, symmetries=None, integrals=No
     basis : array_like (nz, d), optional
         A basis of ``T_{z_0} M`` (default: orthonormal, or the independent coordinates and speeds of a
         mechanics model).
+    force, inputs, t : optional
+        A force law (default the system's ``force``, e.g. the loads of :func:`liefi.from_mechanics`), the
+        inputs' values at the steady motion ``{name: u0}`` (default 0) and the time it is read at.  ``A``
+        then includes the force's state dependence (a damper) and ``B = T^+ dX/du``
+        (:func:`liefi.integrator.forced.force_contribution`).
 
     Returns
     -------
@@ -504,7 +515,17 @@ def linearize(system, state, qdot=None, *, u=None, symmetries=None, integrals=No
     if isinstance(system, MechanicsSystem) and basis is None:
         chart = _holonomic_chart(system, z0) if system.holonomic is not None else _mechanics_chart(system, z0)
     syms = _resolve_symmetries(system, z0, symmetries)
-    X, DX, c, r, gens = _steady_rates(system, z0, syms)
+    law = force if force is not None else getattr(system, "force", None)
+    forced = BF = None
+    if law is not None:
+        from ..systems.forcing import as_force_law
+        from .forced import force_contribution
+
+        law = as_force_law(law)
+        u0 = _input_point(law, inputs)
+        XF, DXF, BF = force_contribution(system, law, z0, u0, t)
+        forced = (XF, DXF)
+    X, DX, c, r, gens = _steady_rates(system, z0, syms, forced)
     # |z0| at least 1: an equilibrium at z_0 = 0 (every coordinate zero) has a field of rounding size only
     scale = max(np.linalg.norm(X), np.linalg.norm(DX) * max(np.linalg.norm(z0), 1.0) * 1e-3, 1e-300)
     res = float(np.linalg.norm(r) / scale)
@@ -539,11 +560,12 @@ def linearize(system, state, qdot=None, *, u=None, symmetries=None, integrals=No
     A = Tp @ DY @ T
     nA = max(np.linalg.norm(A), 1e-300)
     modes, W = [], []
-    ints = [Invariant("energy", system.hamiltonian)] + list(integrals or ())
+    damped = forced is not None and np.any(forced[1] != 0)  # a state-dependent force: no energy integral
+    ints = ([] if damped else [Invariant("energy", system.hamiltonian)]) + list(integrals or ())
     for inv in ints:
         if not isinstance(inv, Invariant):
             raise TypeError(f"integrals: expected liefi.Invariant objects, got {inv!r}")
-        if inv is ints[0]:
+        if inv.name == "energy" and not damped and inv is ints[0]:
             dI = np.asarray(_core.evaluate(system, z0).dh, float)
         else:
             dI = np.asarray(inv.value_and_grad(z0)[1], float)
@@ -560,8 +582,22 @@ def linearize(system, state, qdot=None, *, u=None, symmetries=None, integrals=No
     S = _trivial_span(A, nA, Tp, T, syms, gens, Wn, np.array(W).reshape(-1, A.shape[0]), modes)
     lam, vec = np.linalg.eig(A)
     order = np.lexsort((-lam.imag, -lam.real))
-    return Linearization(A, None, T, coords, z0, {s.name: float(ck) for s, ck in zip(syms, c)}, lam[order],
-                         vec[:, order], tuple(modes), _quotient_eigenvalues(A, S, Wn), res, syms)
+    B = None if BF is None else Tp @ BF
+    return Linearization(A, B, T, coords, z0, {s.name: float(ck) for s, ck in zip(syms, c)}, lam[order],
+                         vec[:, order], tuple(modes), _quotient_eigenvalues(A, S, Wn), res, syms,
+                         () if law is None else law.inputs)
+
+
+def _input_point(law, inputs):
+    """The inputs' values ``(m,)`` at the steady motion from ``{name: value}`` (default 0), named errors."""
+    inputs = {} if inputs is None else dict(inputs)
+    unknown = [k for k in inputs if k not in law.inputs]
+    if unknown:
+        raise ValueError(f"inputs: {unknown} are not inputs of the force; its inputs are {list(law.inputs)}")
+    u0 = np.array([float(inputs.get(k, 0.0)) for k in law.inputs])
+    if not np.all(np.isfinite(u0)):
+        raise ValueError("inputs: the values at the steady motion contain non-finite numbers")
+    return u0
 
 
 def _off_span(v, S):
@@ -664,14 +700,14 @@ def steady_motion(system, guess, *, symmetries=None, tol=1e-13, max_iter=50):
                      f"{np.linalg.norm(F):.3g}); start nearer to one, or pass the symmetries= it uses")
 
 
-def _system_linearize(self, state, qdot=None, *, u=None, symmetries=None, integrals=None, basis=None):
+def _system_linearize(self, state, qdot=None, *, u=None, symmetries=None, integrals=None, basis=None, **forcing):
     """The linearized constrained dynamics at a steady motion: :func:`~liefi.integrator.linearize.linearize` ``(self, ...)``.
 
     ``system.linearize(z)`` (a reduced state, with or without the configuration), or for a system from
     :func:`liefi.from_mechanics` ``system.linearize(q, qdot)`` / ``system.linearize(q, u=u)`` as its
     ``state`` takes them.
     """
-    return linearize(self, state, qdot, u=u, symmetries=symmetries, integrals=integrals, basis=basis)
+    return linearize(self, state, qdot, u=u, symmetries=symmetries, integrals=integrals, basis=basis, **forcing)
 
 
 # every system gets the method (systems/ may not import the engine whose trace this needs)

@@ -186,7 +186,7 @@ def evaluate(system, z, *, data=NUMPY_DATA, derivatives=True) -> Terms:
             )
     elif z.dtype != object:
         z = z.astype(float, copy=False)
-    x, P = z[..., :n], z[..., n:]
+    x, P = z[..., :n], z[..., n : n + D]  # (a forced run's state carries W and the clock after P)
     batch = z.shape[:-1]
 
     def read(datum):
@@ -355,12 +355,13 @@ def _project_with(system, z, t):
     if not system.K:
         return z
     n = system.space.data_dim
+    D = system.space.D
     w = np.einsum("...kl,...l->...k", t.Cinv, t.J)
-    P = z[..., n:] - np.einsum("...k,...kj->...j", w, t.Eflat)
-    return np.concatenate([z[..., :n], P], -1)
+    P = z[..., n : n + D] - np.einsum("...k,...kj->...j", w, t.Eflat)
+    return np.concatenate([z[..., :n], P, z[..., n + D :]], -1)
 
 
-def field_terms(system, z, *, kind="extended", terms=None, data=NUMPY_DATA):
+def field_terms(system, z, *, kind="extended", terms=None, data=NUMPY_DATA, force=None):
     """The reduced field and the body velocity in one pass: ``(zdot, xi, t_z)``.
 
     ``kind``: ``"extended"``, ``"constrained"`` or ``"projected"`` (the extended
@@ -368,6 +369,16 @@ def field_terms(system, z, *, kind="extended", terms=None, data=NUMPY_DATA):
     Lyapunov function needs), so a caller evaluates the system once for the
     extended field and twice for the projected one.  ``terms``: ``evaluate(system, z)``
     if the caller already has it; ``data``: the accessor passed to :func:`evaluate`.
+
+    ``force``: an external generalized force ``F`` (``(..., D)``, a covector on the
+    velocities ``v = (xi, x')``, acting on the momentum slots; not with
+    ``kind="projected"``), the one place where a force enters the field.  Lagrange--d'Alembert with
+    a force: ``z' = B dH + sum_i lambda_i e_i^flat + (0, F)`` with the multipliers
+    chosen so that the ``J_i`` stay first integrals,
+    ``lambda = C^{-1} ({H, J} - E F)``: the force acts through its projection
+    ``F - E^flat^T C^{-1} E F`` onto the annihilator of the constraint forces, and
+    ``dh~/dt = <dh~/dP, F>`` exactly (``E^flat dh~/dP = J - C C^{-1} J = 0``), the
+    power ``F . v`` on the constraint set (:mod:`liefi.integrator.forced`).
     """
     if kind not in ("extended", "constrained", "projected"):
         raise ValueError(f"kind: expected 'extended', 'constrained' or 'projected', got {kind!r}")
@@ -379,8 +390,16 @@ def field_terms(system, z, *, kind="extended", terms=None, data=NUMPY_DATA):
         z_eval, t = z, t_z
     dH = t.dh if kind == "constrained" else t.dht
     lam = _multipliers(system, z_eval, dH, t.dJ, t.Cinv)
+    if force is not None:
+        if kind == "projected":
+            raise ValueError("force: not with the projected field (the force is read at z); use 'extended'")
+        if system.K:  # lambda = C^{-1} ({H, J} - E F): the J_i stay first integrals
+            EF = _sparse.matvec("...ij,...j->...i", t.dJ[..., system.space.data_dim :], force)
+            lam = lam - _sparse.matvec("...ij,...j->...i", t.Cinv, EF)
     zdot = _field(system, z_eval, dH, lam, t.Eflat)
     n, d = system.space.data_dim, system.space.d
+    if force is not None:
+        zdot = np.concatenate([zdot[..., :n], zdot[..., n:] + force], -1)
     return zdot, dH[..., n : n + d], t_z
 
 

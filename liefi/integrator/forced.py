@@ -1,0 +1,229 @@
+r"""A feedback integrator under external forces and controls: the energy balance ``h~ - W`` is the held invariant.
+
+With a generalized force ``F(t, q, v; u)`` (:mod:`liefi.systems.forcing`) the
+Lagrange--d'Alembert equations read, in the reduced variables,
+
+.. math:: \dot z = B\, dH + \sum_i \lambda_i e_i^\flat + (0, F), \qquad
+          \lambda = C^{-1} (\{H, J\} - E F)
+
+(:func:`liefi.reduction.core.field_terms`, the one place where the force
+enters): the constraint forces absorb the part of ``F`` along the forbidden
+directions, the constraints ``J_i`` stay first integrals of the extended
+field (``E (F - E^{\flat T} C^{-1} E F) = 0``), and the feedback term is
+unchanged.  Energy is no longer conserved:
+
+.. math:: \frac{d\tilde h}{dt} = \langle d\tilde h/dP, F \rangle = F \cdot v
+          \quad (\text{on } J = 0),
+
+exactly, off the constraint set too, since ``E^flat dh~/dP = J - C C^{-1} J = 0``.
+The state therefore carries **one** extra number, the work done,
+
+.. math:: \dot W = \langle d\tilde h/dP, F \rangle, \qquad W(t_0) = 0,
+
+and the held invariant is the **energy balance** ``h~ - W`` (or ``h - W`` with
+``energy="original"``), a first integral of the extended forced field; ``V``
+penalizes ``(h~ - W - c)^2`` in place of ``(h~ - c)^2``, with gradient
+``(dh~, -1)`` in ``(z, W)``.  The schemes step an autonomous field, so the time
+the force reads is carried by a clock ``time' = 1`` after ``W`` (every
+Runge--Kutta tableau integrates it exactly: a stage sees ``t_n + c_i dt``); the
+clock is no invariant and the feedback never moves it.  The state is
+``y = (g, z, W, time)`` (:attr:`FeedbackIntegrator.names` ends in ``"W", "time"``);
+a conservative system's runs are untouched (no force: no extra states).
+
+Forced runs use the numpy path (``backend="numpy"``; the compiled engine cannot
+trace a user's force) and have no sensitivities yet: ``backend="numba"`` and
+``sensitivities=`` get a ``ValueError`` saying so.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .._data import as_float_array
+from ..reduction import core as _core
+from ..systems.forcing import as_force_law, bind_inputs
+from .feedback import FeedbackIntegrator, per_member
+
+#: the names of the two states a forced run appends: the work done and the clock
+EXTRA_NAMES = ("W", "time")
+
+
+class ForcedFeedbackIntegrator(FeedbackIntegrator):
+    """:class:`~liefi.FeedbackIntegrator` with an external force (module docstring); built by
+    ``FeedbackIntegrator(system, y0, force=..., inputs=...)``.
+
+    ``y0``: the state ``(g, z)`` (then ``W = 0`` and the clock at the run's start) or
+    ``(g, z, W, time)``.
+    """
+
+    def __init__(self, system, y0, *, force=None, inputs=None, field="extended", configuration=True,
+                 targets=None, **kw):
+        law = as_force_law(force if force is not None else getattr(system, "force", None))
+        if field != "extended":
+            raise ValueError(f"field: a forced system runs the extended field (the force enters it), got {field!r}")
+        self.force_law = law
+        self.signals = bind_inputs(law, inputs)
+        sp = system.space
+        nb = (sp.group.config_dim if configuration and sp.group.config_dim > 0 else 0) + sp.nz
+        y0 = as_float_array(y0, "y0")
+        extras = np.zeros(y0.shape[:-1] + (2,))
+        if y0.shape[-1:] == (nb + 2,):
+            y0, extras = y0[..., :nb], y0[..., nb:]
+            if not np.all(np.isfinite(extras)):
+                raise ValueError("y0: contains non-finite numbers")
+        self.nb = nb  # the state without W and the clock
+        super().__init__(system, y0, field=field, configuration=configuration, targets=targets, **kw)
+        self.n = self.nb + 2
+        self.names = tuple(self.names) + EXTRA_NAMES
+        self.y0 = np.concatenate([self.y0, extras], -1)
+        self.generalized_force(self.y0)  # a wrong shape or NaN from the force is named now, not mid-run
+        if self.use_energy and "energy" not in (targets or {}):  # the balance h~ - W at the start
+            self.targets["energy"] = per_member(self.invariant_values(self.y0)["energy"], self.batch, "h~ - W at y0")
+            self.energy_target = self.targets["energy"]
+            self._parameters = None
+
+    # --- the force -------------------------------------------------------------------------
+    def input_values(self, t):
+        """The inputs at the times ``t`` (any shape): ``(..., m)`` in the order of ``force_law.inputs``."""
+        t = np.asarray(t)
+        if not self.signals:
+            return np.zeros(t.shape + (0,))
+        return np.stack([np.broadcast_to(s(t), t.shape) for s in self.signals.values()], -1)
+
+    def generalized_force(self, y, v=None):
+        """The force ``F(t, q, v, u)`` at full states ``y`` (``(..., n)``), shape ``(..., D)``.
+
+        ``v``: the velocities ``dh~/dP`` if already at hand.  A force of the wrong shape or
+        non-finite at a finite state is a ``ValueError`` naming ``force``.
+        """
+        y = _core.as_real(y)
+        sp = self.system.space
+        g, z = y[..., : self.nc], y[..., self.nc : self.nb]
+        if v is None:
+            v = _core.evaluate(self.system, z).dht[..., sp.data_dim :]
+        return self._force(y[..., self.nb + 1], np.concatenate([g, z[..., : sp.data_dim]], -1), v)
+
+    def _force(self, t, q, v):
+        D = self.system.space.D
+        try:
+            F = np.asarray(self.force_law(t, q, v, self.input_values(t)))
+        except (ValueError, TypeError, IndexError) as exc:
+            raise ValueError(f"force: calling it with t {np.shape(t)}, q {np.shape(q)}, v {np.shape(v)} "
+                             f"(and inputs u) failed: {exc!r}") from exc
+        if F.shape[-1:] != (D,) or np.broadcast_shapes(F.shape, v.shape) != v.shape:
+            raise ValueError(f"force: expected a generalized force of shape (..., {D}) (one component per "
+                             f"velocity {self.system.space.momentum_names}), got shape {F.shape}")
+        if F.dtype.kind not in "fciu":
+            raise ValueError(f"force: expected numbers, got dtype {F.dtype}")
+        if not np.all(np.isfinite(F)) and np.all(np.isfinite(q)) and np.all(np.isfinite(v)):
+            raise ValueError(f"force: non-finite values (NaN or inf) at the finite state with t = "
+                             f"{np.asarray(t).real.ravel()[:3]}; check the force and its inputs")
+        return np.broadcast_to(F, v.shape)
+
+    # --- the field and the invariants ---------------------------------------------------------
+    def _reduced_field(self, g, z, data):
+        """The extended field with the force, then ``W' = <dh~/dP, F>`` and ``time' = 1`` (module docstring)."""
+        if _core.is_traced(z) or _core.is_traced(g):
+            raise ValueError("force: a forced run is not compiled (the engine cannot trace the force); "
+                             "use backend='numpy'")
+        sp = self.system.space
+        nz, n = sp.nz, sp.data_dim
+        zb, tail = z[..., :nz], z.shape[-1] > nz
+        t = _core.evaluate(self.system, zb, data=data)
+        v = t.dht[..., n:]  # dh~/dP: the velocity, equal to dh/dP on J = 0
+        clock = z[..., nz + 1] if tail else np.zeros(z.shape[:-1])
+        F = self._force(clock, np.concatenate([g, zb[..., :n]], -1), v)
+        zdot, xi, t = _core.field_terms(self.system, zb, kind="extended", terms=t, data=data, force=F)
+        if tail:
+            power = np.einsum("...i,...i->...", v, F)
+            zdot = np.concatenate([zdot, power[..., None], np.ones_like(power)[..., None]], -1)
+        return zdot, xi, t
+
+    def invariant_terms(self, z, t, params, data=_core.NUMPY_DATA):
+        """The terms of :meth:`FeedbackIntegrator.invariant_terms` with the energy balance ``h~ - W``: its
+        residual less ``W`` and its gradient ``(dh~, -1, 0)`` in ``(z, W, time)``; the others' gradients padded."""
+        nz = self.system.space.nz
+        pad = z.shape[-1] - nz
+        out = super().invariant_terms(z[..., :nz], t, params, data)
+        if not pad:
+            return out
+        batch = z.shape[:-1]
+        W = z[..., nz]
+        tail = np.zeros(batch + (pad,))
+        res = []
+        for name, r, grad, k in out:
+            if name == "energy":
+                r = r - W
+            if grad is not None:
+                extra = tail
+                if name == "energy":
+                    extra = tail.copy()
+                    extra[..., 0] = -1.0
+                grad = np.concatenate([np.broadcast_to(grad, batch + (nz,)), extra], -1)
+            res.append((name, r, grad, k))
+        return res
+
+    def invariant_values(self, y):
+        """:meth:`FeedbackIntegrator.invariant_values` with ``energy`` the balance ``h~ - W`` and ``W`` itself."""
+        y = np.asarray(y, float)
+        out = super().invariant_values(y[..., : self.nb])
+        if y.shape[-1] > self.nb:
+            W = y[..., self.nb]
+            out["energy"] = out["energy"] - W
+            out["W"] = W
+        return out
+
+    # --- running ------------------------------------------------------------------------------
+    def run(self, t_span=None, *more, backend=None, sensitivities=None, y0=None, **kw):
+        """:meth:`FeedbackIntegrator.run` on the numpy path, the clock started at the span's start."""
+        from .run import positional_span
+
+        if backend not in (None, "auto", "numpy"):
+            raise ValueError(f"backend: a forced run (force=, inputs=) runs on the numpy path only, got "
+                             f"{backend!r}; use backend='numpy' (or leave it out)")
+        if sensitivities is not None:
+            raise ValueError("sensitivities: not available for a forced run (force=, inputs=) yet")
+        span = positional_span(t_span, more, scheme=kw.get("scheme"))
+        t0 = float(span[0]) if np.ndim(span) == 1 and len(span) == 2 else 0.0
+        y = self.y0 if y0 is None else as_float_array(y0, "y0")
+        if y.shape[-1:] == (self.nb,):
+            y = np.concatenate([y, np.zeros(y.shape[:-1] + (2,))], -1)
+        if y.shape[-1:] == (self.n,):
+            y = y.copy()
+            y[..., self.n - 1] = t0
+        return super().run(span, backend="numpy", y0=y, **kw)
+
+
+def force_contribution(system, force, z, u, t=0.0):
+    """``(XF, DXF, BF)``: the force's part of the reduced constrained field at ``z`` with inputs ``u`` (``(m,)``).
+
+    ``XF`` (``(nz,)``) is :func:`liefi.reduction.core.field_terms` with the force less without it (the
+    projected force on the momentum slots), ``DXF`` (``(nz, nz)``) its ``z``-Jacobian by central differences
+    (to about 1e-9 relative) and ``BF`` (``(nz, m)``) its ``u``-Jacobian by complex step (exact to rounding).
+    The force is read as ``force(t, x, v, u)`` with ``x`` the data point (no group element) and ``v = dh/dP``.
+    Used by :func:`liefi.integrator.linearize.linearize` for its ``B``.
+    """
+    from .. import _diff
+
+    law = as_force_law(force)
+    n = system.space.data_dim
+    z = np.asarray(z, float)
+    u = np.asarray(u, float)
+
+    def XF(zz, uu):
+        terms = _core.evaluate(system, zz)
+        F = np.asarray(law(t, zz[..., :n], terms.dh[..., n:], uu))
+        F = np.broadcast_to(F, terms.dh[..., n:].shape[:-1] + F.shape[-1:])
+        with_force = _core.field_terms(system, zz, kind="constrained", terms=terms, force=F)[0]
+        return with_force - _core.field_terms(system, zz, kind="constrained", terms=terms)[0]
+
+    X0 = np.asarray(XF(z, u)).real
+    h = 1e-6 * np.maximum(1.0, np.abs(z))
+    E = np.diag(h)
+    DXF = ((XF(z + E, u) - XF(z - E, u)).real / (2 * h[:, None])).T
+    if u.size:
+        BF = np.swapaxes(_diff.jacobian(lambda uu: XF(np.broadcast_to(z, uu.shape[:-1] + z.shape), uu), u)[1],
+                         -1, -2)
+    else:
+        BF = np.zeros((z.size, 0))
+    return X0, DXF, np.asarray(BF, float)

@@ -1,0 +1,179 @@
+r"""External forces and controls on a nonholonomic system: force laws and input signals.
+
+A **force law** is a generalized force ``F(t, q, v; u)`` on the velocities
+``v = (xi, x')`` (body angular/linear velocity on the group part, ``x'`` on the
+shape part): a covector, shape ``(D,)``, so that its power is ``F . v``.  It
+acts on the momentum slots of the reduced state, as the constraint forces do
+(Lagrange--d'Alembert with a force, :func:`liefi.reduction.core.field_terms`):
+
+.. math:: \dot P = \dots + \sum_i \lambda_i e_i^\flat + F, \qquad
+          \lambda = C^{-1} (\{H, J\} - E F),
+
+so the force enters through its component that does work on the allowed
+velocities and every constraint ``J_i`` stays a first integral.  ``q`` is the
+configuration part of the state (the group's stored numbers when the
+configuration is integrated, then the shape ``x``, in the order of
+:attr:`liefi.FeedbackIntegrator.names`); ``u`` are the named **inputs** (controls,
+specified forces ``F(t)``), given by the user when the integrator is built
+(``FeedbackIntegrator(system, y0, force=law, inputs={"T": signal})``).
+
+A **signal** is a function of time: a number (constant), a callable ``s(t)``,
+:func:`piecewise_constant` or :func:`spline` over a time grid (what an optimizer
+hands over).  Signals are evaluated at real ``t``; a complex ``t`` (a complex
+step through the clock) gets the signal's derivative on its imaginary part.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .._data import as_float_array
+
+
+class Signal:
+    """A scalar or vector function of time ``s(t)``; see :func:`piecewise_constant`, :func:`spline`, :func:`as_signal`."""
+
+    def __init__(self, value, derivative, shape, what):
+        self._value, self._derivative, self.shape, self.what = value, derivative, shape, what
+
+    def __call__(self, t):
+        t = np.asarray(t)
+        if np.iscomplexobj(t):  # a complex step through the clock: s(Re t) + i Im t s'(Re t)
+            tr, ti = t.real, t.imag
+            d = np.asarray(self._derivative(tr))
+            return np.asarray(self._value(tr)) + 1j * np.reshape(ti, ti.shape + (1,) * len(self.shape)) * d
+        return np.asarray(self._value(t), float)
+
+    def __repr__(self):
+        return f"Signal({self.what}, shape={self.shape})"
+
+
+def _grid(t_grid, values, name, min_points):
+    t_grid = as_float_array(t_grid, f"{name}: t_grid")
+    values = as_float_array(values, f"{name}: values")
+    if t_grid.ndim != 1 or t_grid.size < min_points or not np.all(np.isfinite(t_grid)):
+        raise ValueError(f"{name}: t_grid must be {min_points} or more finite times, got shape {t_grid.shape}")
+    if np.any(np.diff(t_grid) <= 0):
+        raise ValueError(f"{name}: t_grid must be strictly increasing")
+    if not np.all(np.isfinite(values)):
+        raise ValueError(f"{name}: values contain non-finite numbers (NaN or inf)")
+    return t_grid, values
+
+
+def piecewise_constant(t_grid, values, *, name="signal"):
+    """``s(t) = values[k]`` for ``t_grid[k] <= t < t_grid[k + 1]`` (the last value after the last node).
+
+    ``t_grid``: ``N + 1`` increasing times (the intervals' ends) or ``N`` (their
+    starts); ``values``: ``(N,)`` or ``(N, m)``.  Before ``t_grid[0]`` the first
+    value holds.  The derivative is zero (a complex step through the clock sees none).
+    """
+    t_grid, values = _grid(t_grid, values, name, 1)
+    N = values.shape[0] if values.ndim else 0
+    if values.ndim == 0 or t_grid.size not in (N, N + 1):
+        raise ValueError(f"{name}: values must have one row per interval of t_grid ({t_grid.size - 1} or "
+                         f"{t_grid.size}), got shape {values.shape}")
+    starts = t_grid[:N]
+
+    def value(t):
+        k = np.clip(np.searchsorted(starts, t, side="right") - 1, 0, N - 1)
+        return values[k]
+
+    def derivative(t):
+        return np.zeros(np.shape(t) + values.shape[1:])
+
+    return Signal(value, derivative, values.shape[1:], f"piecewise constant over {N} intervals")
+
+
+def spline(t_grid, values, *, name="signal", bc_type="not-a-knot"):
+    """A cubic spline through ``(t_grid[k], values[k])`` (``scipy.interpolate.CubicSpline``); ``values`` ``(N,)`` or
+    ``(N, m)``.  Outside the grid the end polynomials extrapolate."""
+    from scipy.interpolate import CubicSpline
+
+    t_grid, values = _grid(t_grid, values, name, 2)
+    if values.ndim == 0 or values.shape[0] != t_grid.size:
+        raise ValueError(f"{name}: values must have one row per node of t_grid ({t_grid.size}), got shape "
+                         f"{values.shape}")
+    cs = CubicSpline(t_grid, values, axis=0, bc_type=bc_type)
+    return Signal(cs, cs.derivative(), values.shape[1:], f"cubic spline through {t_grid.size} nodes")
+
+
+def as_signal(s, name):
+    """``s`` as a :class:`Signal`: a Signal, a finite number or array (constant), or a callable ``s(t)``."""
+    if isinstance(s, Signal):
+        return s
+    if callable(s):
+        try:
+            probe = np.asarray(s(0.0))
+        except Exception as exc:  # noqa: BLE001 -- user code: say which input failed
+            raise ValueError(f"inputs: the signal {name!r} failed at t = 0: {exc!r}") from exc
+        if probe.dtype.kind not in "biuf" or not np.all(np.isfinite(probe)):
+            raise ValueError(f"inputs: the signal {name!r} must return finite real numbers, got {probe!r} at t = 0")
+
+        def derivative(t, f=s):  # a callable: its derivative by central difference (for a complex step only)
+            h = 1e-6 * np.maximum(1.0, np.abs(t))
+            return (np.asarray(f(t + h), float) - np.asarray(f(t - h), float)) / (2 * h)
+
+        return Signal(s, derivative, probe.shape, "a function of t")
+    value = as_float_array(s, f"inputs: {name!r}")
+    if not np.all(np.isfinite(value)):
+        raise ValueError(f"inputs: the signal {name!r} contains non-finite numbers (NaN or inf)")
+    return Signal(lambda t: np.broadcast_to(value, np.shape(t) + value.shape),
+                  lambda t: np.zeros(np.shape(t) + value.shape), value.shape, "constant")
+
+
+class ForceLaw:
+    """A generalized force ``F(t, q, v, u)`` with named inputs ``u`` (module docstring).
+
+    Parameters
+    ----------
+    fun : callable
+        ``fun(t, q, v)`` (no inputs) or ``fun(t, q, v, u)`` with ``u`` of shape
+        ``(..., m)`` in the order of ``inputs``; returns ``(..., D)`` (or ``(D,)``):
+        the force's components on the velocities ``v = (xi, x')``.  Batch-first and,
+        for the feedback's gains and ``linearize``'s ``B``, complex-step safe in ``q``,
+        ``v`` and ``u``.
+    inputs : sequence of str
+        The names of the inputs (each a scalar signal), given with the integrator's ``inputs=``.
+    """
+
+    def __init__(self, fun, inputs=()):
+        if not callable(fun):
+            raise TypeError(f"force: expected a callable force(t, q, v) or force(t, q, v, u), got {fun!r}")
+        if isinstance(inputs, str):
+            inputs = (inputs,)
+        self.fun, self.inputs = fun, tuple(inputs)
+        if len(set(self.inputs)) != len(self.inputs) or not all(isinstance(s, str) for s in self.inputs):
+            raise ValueError(f"inputs: expected distinct names, got {self.inputs!r}")
+
+    def __call__(self, t, q, v, u):
+        return self.fun(t, q, v, u) if self.inputs else self.fun(t, q, v)
+
+    def __repr__(self):
+        return f"ForceLaw({getattr(self.fun, '__name__', 'force')}, inputs={self.inputs})"
+
+
+def as_force_law(force):
+    """``force`` as a :class:`ForceLaw` (a callable ``force(t, q, v)`` has no inputs)."""
+    return force if isinstance(force, ForceLaw) else ForceLaw(force)
+
+
+def bind_inputs(law, inputs):
+    """``{name: Signal}`` for every input of ``law``, from the user's ``inputs`` mapping (named errors)."""
+    inputs = {} if inputs is None else inputs
+    if not isinstance(inputs, dict):
+        raise TypeError(f"inputs: expected a dict {{name: signal}}, got {type(inputs).__name__}")
+    missing = [s for s in law.inputs if s not in inputs]
+    unknown = [s for s in inputs if s not in law.inputs]
+    if missing:
+        raise ValueError(f"inputs: no signal for {missing}; the force's inputs are {list(law.inputs)}: pass "
+                         f"inputs={{{', '.join(repr(s) + ': ...' for s in missing)}}} (a number, a function of t, "
+                         "liefi.systems.forcing.piecewise_constant or spline)")
+    if unknown:
+        raise ValueError(f"inputs: {unknown} are not inputs of the force; its inputs are {list(law.inputs)}")
+    out = {}
+    for s in law.inputs:
+        sig = as_signal(inputs[s], s)
+        if sig.shape != ():
+            raise ValueError(f"inputs: the signal {s!r} must be scalar (one number per time), got shape {sig.shape}")
+        out[s] = sig
+    return out
