@@ -31,8 +31,9 @@ clock is no invariant and the feedback never moves it.  The state is
 a conservative system's runs are untouched (no force: no extra states).
 
 Forced runs use the numpy path (``backend="numpy"``; the compiled engine cannot
-trace a user's force) and have no sensitivities yet: ``backend="numba"`` and
-``sensitivities=`` get a ``ValueError`` saying so.
+trace a user's force): ``backend="numba"`` gets a ``ValueError`` saying so.  Their
+sensitivities are those with respect to the values of an input over its grid
+(``sensitivities=("tau",)``, :mod:`liefi.integrator._forced_sensitivity`).
 """
 
 from __future__ import annotations
@@ -181,8 +182,15 @@ class ForcedFeedbackIntegrator(FeedbackIntegrator):
         if backend not in (None, "auto", "numpy"):
             raise ValueError(f"backend: a forced run (force=, inputs=) runs on the numpy path only, got "
                              f"{backend!r}; use backend='numpy' (or leave it out)")
-        if sensitivities is not None:
-            raise ValueError("sensitivities: not available for a forced run (force=, inputs=) yet")
+        names = ()
+        if sensitivities is not None:  # d y / d (an input's values): liefi.integrator._forced_sensitivity
+            from . import _forced_sensitivity as _fs
+
+            names = _fs.check(self, sensitivities, t_eval=kw.get("t_eval"), events=kw.get("events"),
+                              dense_output=kw.get("dense_output", False))
+            if kw.get("dt") is None:
+                raise ValueError("sensitivities: give the step (dt=): the sensitivities of a forced run are those of "
+                                 "its fixed steps")
         span = positional_span(t_span, more, scheme=kw.get("scheme"))
         t0 = float(span[0]) if np.ndim(span) == 1 and len(span) == 2 else 0.0
         y = self.y0 if y0 is None else as_float_array(y0, "y0")
@@ -191,7 +199,12 @@ class ForcedFeedbackIntegrator(FeedbackIntegrator):
         if y.shape[-1:] == (self.n,):
             y = y.copy()
             y[..., self.n - 1] = t0
-        return super().run(span, backend="numpy", y0=y, **kw)
+        sol = super().run(span, backend="numpy", y0=y, **kw)
+        if names:
+            from . import _forced_sensitivity as _fs
+
+            _fs.attach(sol, self, names, scheme=sol.scheme, dt=float(kw["dt"]), t0=t0)
+        return sol
 
 
 def force_contribution(system, force, z, u, t=0.0):

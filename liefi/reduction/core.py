@@ -174,14 +174,14 @@ def evaluate(system, z, *, data=NUMPY_DATA, derivatives=True) -> Terms:
     if np.iscomplexobj(z):
         # A complex step through liefi's own functions (e.g. an Invariant built from
         # system.extended_hamiltonian): exact when the data do not depend on x; with
-        # x-dependent data it would nest two complex steps, which is not exact.
-        if n and not (
-            system.constant and system.potential.constant
-            and (system.vector_potential is None or system.vector_potential.constant)
-        ):
+        # x-dependent data it would nest two complex steps, which is not exact (unless
+        # every x-dependent datum carries its analytic derivative: then nothing is nested).
+        data_ = (system.metric, system.constraints, system.potential, system.vector_potential)
+        if n and not all(f is None or f.constant or getattr(f, "_derivative", None) is not None for f in data_):
             raise TypeError(
                 "z: complex input (a complex step through liefi's functions) is supported "
-                "only for systems whose data do not depend on x; give the Invariant an "
+                "only for systems whose data do not depend on x or carry analytic derivatives "
+                "(metric_derivative=, constraints_derivative=, ...); give the Invariant an "
                 "explicit grad= instead"
             )
     elif z.dtype != object:

@@ -73,7 +73,10 @@ class RollerRacer(Scene):
     phi0 = np.pi / 4
     momenta0 = {"Pi_theta": 1.0, "p_phi": 0.5}
 
-    def build_system(self):
+    def build_system(self, *, analytic_derivatives=False):
+        """The system; ``analytic_derivatives=True`` gives the constraints their derivative in ``phi`` in closed
+        form (``constraints_derivative=``), so that a complex step through a run is exact (the sensitivities of a
+        forced run, :mod:`liefi.integrator._forced_sensitivity`); the default differentiates them by complex step."""
         m, I1, I2, d1, d2 = self.m, self.I1, self.I2, self.d1, self.d2
         metric = np.array(
             [[I1 + I2, 0.0, 0.0, I2], [0.0, m, 0.0, 0.0], [0.0, 0.0, m, 0.0], [I2, 0.0, 0.0, I2]]
@@ -88,7 +91,22 @@ class RollerRacer(Scene):
             e2 = np.stack([zero, zero, one, zero], -1) / np.sqrt(m)
             return np.stack([e1, e2], -2)
 
+        def constraints_derivative(x):
+            # e_1 = a / N: d e_1 = a' / N - a N' / N^2, N N' = sin cos (1/m - d_1^2/I_1); e_2 constant
+            phi = x[..., 0]
+            c, s = np.cos(phi), np.sin(phi)
+            zero = np.zeros_like(phi)
+            norm = np.sqrt(s**2 / m + d1**2 * c**2 / I1 + d2**2 / I2)
+            a = np.stack([d1 * c / I1, -s / m, zero, -d1 * c / I1 + d2 / I2], -1)
+            da = np.stack([-d1 * s / I1, -c / m, zero, d1 * s / I1], -1)
+            dnorm = s * c * (1 / m - d1**2 / I1) / norm
+            de1 = da / norm[..., None] - a * (dnorm / norm**2)[..., None]
+            return np.stack([de1, np.zeros_like(de1)], -2)[..., None, :, :]
+
         space = TrivialPrincipalBundle(SE2(S1()), 1, names=("phi",))
+        if analytic_derivatives:
+            return NonholonomicSystem(space, metric, constraints, sample=[self.phi0], orthonormalize=False,
+                                      constraints_derivative=constraints_derivative)
         return NonholonomicSystem(space, metric, constraints, sample=[self.phi0])
 
     def needs_configuration(self):

@@ -33,6 +33,9 @@ from .._data import as_float_array
 class Signal:
     """A scalar or vector function of time ``s(t)``; see :func:`piecewise_constant`, :func:`spline`, :func:`as_signal`."""
 
+    #: ``"piecewise"`` or ``"spline"`` for a signal over a grid (then ``t_grid``, ``values`` are set), else None
+    grid_kind = None
+
     def __init__(self, value, derivative, shape, what):
         self._value, self._derivative, self.shape, self.what = value, derivative, shape, what
 
@@ -81,7 +84,9 @@ def piecewise_constant(t_grid, values, *, name="signal"):
     def derivative(t):
         return np.zeros(np.shape(t) + values.shape[1:])
 
-    return Signal(value, derivative, values.shape[1:], f"piecewise constant over {N} intervals")
+    sig = Signal(value, derivative, values.shape[1:], f"piecewise constant over {N} intervals")
+    sig.grid_kind, sig.t_grid, sig.values = "piecewise", t_grid, values  # for sensitivities to the values
+    return sig
 
 
 def spline(t_grid, values, *, name="signal", bc_type="not-a-knot"):
@@ -94,7 +99,9 @@ def spline(t_grid, values, *, name="signal", bc_type="not-a-knot"):
         raise ValueError(f"{name}: values must have one row per node of t_grid ({t_grid.size}), got shape "
                          f"{values.shape}")
     cs = CubicSpline(t_grid, values, axis=0, bc_type=bc_type)
-    return Signal(cs, cs.derivative(), values.shape[1:], f"cubic spline through {t_grid.size} nodes")
+    sig = Signal(cs, cs.derivative(), values.shape[1:], f"cubic spline through {t_grid.size} nodes")
+    sig.grid_kind, sig.t_grid, sig.values, sig.bc_type = "spline", t_grid, values, bc_type
+    return sig
 
 
 def as_signal(s, name):
