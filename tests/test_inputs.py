@@ -247,8 +247,10 @@ def test_bad_inputs_get_named_errors():
     fi = FI(system, z0, force=knife_force(), inputs={"tau": 1.0})
     with pytest.raises(ValueError, match="backend: a forced run .* numpy path only"):
         fi.run(0.1, dt=1e-2, backend="numba")
-    with pytest.raises(ValueError, match="sensitivities: not available for a forced run"):
+    with pytest.raises(ValueError, match=r"sensitivities: \['y0'\] are not inputs of this forced run"):
         fi.run(0.1, dt=1e-2, sensitivities=("y0",))
+    with pytest.raises(ValueError, match="the input 'tau' is constant; sensitivities are taken with respect to"):
+        fi.run(0.1, dt=1e-2, sensitivities=("tau",))
     with pytest.raises(ValueError, match=r"inputs: \['x'\] are not inputs of the force"):
         liefi.linearize(Chaplygin().build_system(), np.array([0.0, 0.7, 0.0]), symmetries=(),
                         force=knife_force(), inputs={"x": 1.0})
