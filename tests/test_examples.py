@@ -50,3 +50,19 @@ def test_from_mechanics_example_rolls_and_sweeps(capsys):
     assert out["sweep"].y.shape == (5, 6, 101)
     assert np.all(np.diff(out["theta"]) < 0)  # heavier sleigh (I fixed): larger I + m a^2, slower turn
     assert "rolling disk: built in" in capsys.readouterr().out
+
+
+@pytest.mark.slow  # about 20 s on a loaded 2-core machine (a dozen forced runs with sensitivities)
+def test_steering_example_improves_the_distance_and_holds_the_constraints_on_every_iterate(capsys):
+    """The roller racer steered by minimize(jac=liefi's forced-run sensitivities): the loss drops from the start,
+    the gradient is that of the loss (central differences of whole runs), and every iterate's run keeps both
+    constraints and the energy balance h~ - W within 1e-12."""
+    mod = load("steering")
+    out = mod.main(T=1.0, n=5, dt=0.05, maxiter=3, compare=False)
+    res, racer = out["exact"], out["racer"]
+    tau0 = 0.2 * np.sin(4 * np.pi * np.arange(racer.n) / racer.n)
+    assert res.fun < racer.loss(tau0) - 1e-3
+    assert len(res.drift) == res.nit + 1 and max(res.drift) <= 1e-12
+    e, w = 1e-4, np.linspace(1.0, -0.5, racer.n)
+    fd = (racer.loss(res.x + e * w, False) - racer.loss(res.x - e * w, False)) / (2 * e)
+    assert abs(racer.gradient(res.x) @ w - fd) <= 1e-6 * max(1.0, abs(fd))
