@@ -17,12 +17,12 @@ def steering_torque(t, q, v, u):
     return F
 
 
-def racer(signal, analytic=True):
+def racer(signal, analytic=True, gains=100.0):
     scene = RollerRacer()
     system = scene.build_system(analytic_derivatives=analytic)
     y0 = np.concatenate([np.zeros(3), system.complete_momenta([scene.phi0], scene.momenta0)])
     return liefi.FeedbackIntegrator(system, y0, force=ForceLaw(steering_torque, inputs=("tau",)),
-                                    inputs={"tau": signal}, configuration=True, gains=100.0)
+                                    inputs={"tau": signal}, configuration=True, gains=gains)
 
 
 def make(kind, values):
@@ -30,19 +30,22 @@ def make(kind, values):
     return piecewise_constant(grid, values) if kind == "piecewise" else spline(grid[:N], values)
 
 
-@pytest.mark.parametrize("kind", ["piecewise", "spline"])
-def test_forced_sensitivities_match_whole_run_differences(kind):
-    """d y(t) / d tau_j of the imex-rk4 run (feedback step included), against 4th-order central differences of
-    whole runs along a random combination of the N directions: 1e-10 relative."""
+@pytest.mark.parametrize("kind, scheme, gains", [("piecewise", "imex-rk4", 100.0), ("spline", "imex-rk4", 100.0),
+                                                 ("spline", "rk4", 10.0), ("piecewise", "imex-rk4", "auto")])
+def test_forced_sensitivities_match_whole_run_differences(kind, scheme, gains):
+    """d y(t) / d tau_j of the run (the split scheme's feedback step, the explicit feedback field, the gains that
+    "auto" chose held), against 4th-order central differences of whole runs along a random combination of the
+    N directions: 1e-10 relative."""
     vals = 0.4 * np.cos(np.arange(N))
-    sol = racer(make(kind, vals)).run(T, dt=DT, scheme="imex-rk4", sensitivities=("tau",))
+    sol = racer(make(kind, vals), gains=gains).run(T, dt=DT, scheme=scheme, sensitivities=("tau",))
     S = sol.sensitivities["tau"]
     assert S.shape == (10, N, sol.t.size)
     assert np.all(S[..., 0] == 0) and np.all(S[-1] == 0)  # y0 and the clock do not move
     w = np.random.default_rng(1).normal(size=N)
+    held = gains if gains != "auto" else {"J_2": 1.0, **sol.stability.gains}  # "auto"'s choice (J_2 is kept exactly)
 
     def y(e):
-        return racer(make(kind, vals + e * w)).run(T, dt=DT, scheme="imex-rk4").y
+        return racer(make(kind, vals + e * w), gains=held).run(T, dt=DT, scheme=scheme).y
 
     e = 2e-3
     fd = (8 * (y(e) - y(-e)) - (y(2 * e) - y(-2 * e))) / (12 * e)

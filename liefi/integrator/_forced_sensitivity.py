@@ -121,9 +121,11 @@ def attach(sol, fi, names, *, scheme, dt, t0):
     if np.any(np.abs(steps - saved) > 1e-9 * np.maximum(1.0, saved)):
         raise ValueError("sensitivities: the run ended with a step shortened to reach t_final (dt does not divide the "
                          "span); take a dt that divides it")
-    run_fi = fi
+    run_fi = fi  # the integrator that ran: the invariants it left out of V (kept exactly), its resolved gains
+    if getattr(sol, "dropped", None):
+        run_fi = fi.without({d["name"]: d["reason"] for d in sol.dropped})
     if rep is not None and getattr(rep, "gains", None) and getattr(fi, "gains_mode", "fixed") != "fixed":
-        run_fi = fi.with_gains(rep.gains)
+        run_fi = run_fi.with_gains(rep.gains)
     sch = registry.get(scheme).bind(run_fi) if hasattr(registry.get(scheme), "bind") else registry.get(scheme)
     sens = {}
     n_steps = int(saved[-1])
