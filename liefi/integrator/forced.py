@@ -176,7 +176,12 @@ class ForcedFeedbackIntegrator(FeedbackIntegrator):
 
     # --- running ------------------------------------------------------------------------------
     def run(self, t_span=None, *more, backend=None, sensitivities=None, y0=None, **kw):
-        """:meth:`FeedbackIntegrator.run` on the numpy path, the clock started at the span's start."""
+        """:meth:`FeedbackIntegrator.run` on the numpy path, the clock started at the span's start.
+
+        ``sensitivities=("tau", ...)``: names of inputs given as ``piecewise_constant`` or ``spline``;
+        ``sol.sensitivities[name]`` of shape ``(n, N, n_t)`` is ``d y_i(t_k) / d values_j`` (``dt=`` required;
+        :mod:`liefi.integrator._forced_sensitivity`).
+        """
         from .run import positional_span
 
         if backend not in (None, "auto", "numpy"):
