@@ -98,3 +98,15 @@ def test_bicycle_iftomm_manoeuvre_against_sympys_own_equations(bicycle):
     for name in ("q4", "q7", "q1", "q2", "q3"):  # lean, steer, the rear contact, the heading
         ref = sol.y[q.index(name)]
         assert np.abs(r[name] - ref).max() < 1e-8 * max(1.0, np.abs(ref).max()), name
+
+
+def test_liefi_list_verbose_does_not_build_the_bicycle(capsys):
+    """``liefi list -v`` shows every scene's ``--gains`` order by building its integrator; the bicycle's build
+    (sympy's ``kanes_equations`` and ``from_mechanics``, about 12 CPU s) is left to its first run."""
+    from liefi.cli import main
+
+    sc = scenes.get("bicycle")
+    assert main(["list", "-v"]) in (0, None)
+    out = capsys.readouterr().out
+    assert "known once built (sympy's kanes_equations" in out and "--gains order: J_1,energy" in out
+    assert "_model" not in vars(sc) and "system" not in vars(sc)

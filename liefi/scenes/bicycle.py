@@ -373,6 +373,9 @@ class BenchmarkBicycle(Scene):
             self.__dict__["_model"] = whipple_contact_coordinates()
         return self.__dict__["_model"]
 
+    def costly_build(self):
+        return "sympy's kanes_equations and from_mechanics, about 12 CPU s"
+
     def build_system(self):
         from ..systems.mechanics import from_mechanics
 
@@ -416,7 +419,6 @@ def lean_steer_figure(runs, fig=None, *, tag=""):
     a1.set_title(f"steer{tag}", fontsize=10)
     a2.set_title(f"lean, log scale{tag}", fontsize=10)
     a2.legend(fontsize=8)
-    fig.tight_layout()
     return fig
 
 
@@ -436,7 +438,6 @@ def contacts_figure(runs, fig=None, *, tag=""):
         ax.set_title(f"{label}, {v:g} m/s, $t \\leq {r.t[-1]:g}$ s{tag}", fontsize=9)
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=8)
-    fig.tight_layout()
     return fig
 
 
