@@ -78,26 +78,36 @@ def test_bicycle_runs_hold_every_declared_constraint_and_the_energy(bicycle, var
         assert abs(rate - 0.143) < 0.05 * 0.143, rate
 
 
-@pytest.mark.slow
-def test_bicycle_iftomm_manoeuvre_against_sympys_own_equations(bicycle):
-    """4.6 m/s, 0.5 rad/s (IFToMM M2) over [0, 10]: liefi's lean and steer against DOP853 at 1e-12 on
-    ``mass_matrix_full x' = forcing_full`` of the same ``KanesMethod`` (the PyDy peer's numerics)."""
+def against_sympys_equations(bicycle, r, names=("q4", "q7", "q1", "q2", "q3")):
+    """``{name: max |liefi - reference|}`` over the run ``r`` of ``bicycle``: the reference is DOP853 at 1e-12 on
+    ``mass_matrix_full x' = forcing_full`` of the same ``KanesMethod``, from the same start (the PyDy peer's
+    numerics, ``benchmarks/bicycle_peer.py``), at ``r.t``.  Also used by ``benchmarks/bicycle_runs.py``."""
     import os
 
     from scipy.integrate import solve_ivp
 
-    sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "benchmarks"))
+    here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    if os.path.join(here, "benchmarks") not in sys.path:
+        sys.path.insert(0, os.path.join(here, "benchmarks"))
     import bicycle_peer as bp
 
     bike = bicycle.model
     rhs, _ = bp.numeric_model(bike)
     _, initial = bp.monitors_of(bike)
-    r = bicycle.run(variant="iftomm", t_final=10.0, save_every=20)  # every 0.1 s
-    sol = solve_ivp(rhs, (0.0, 10.0), initial(4.6, 0.5), method="DOP853", rtol=1e-12, atol=1e-12, t_eval=r.t)
+    o = bicycle.variant(r.variant).options
+    sol = solve_ivp(rhs, (0.0, float(r.t[-1])), initial(o["speed"], o["lean_rate"]), method="DOP853", rtol=1e-12,
+                    atol=1e-12, t_eval=r.t)
     q = [str(s.func) for s in bike.kane.q]
-    for name in ("q4", "q7", "q1", "q2", "q3"):  # lean, steer, the rear contact, the heading
-        ref = sol.y[q.index(name)]
-        assert np.abs(r[name] - ref).max() < 1e-8 * max(1.0, np.abs(ref).max()), name
+    return {n: (float(np.abs(r[n] - sol.y[q.index(n)]).max()), float(np.abs(sol.y[q.index(n)]).max())) for n in names}
+
+
+@pytest.mark.slow
+def test_bicycle_iftomm_manoeuvre_against_sympys_own_equations(bicycle):
+    """4.6 m/s, 0.5 rad/s (IFToMM M2) over [0, 10]: liefi's lean, steer, rear contact and heading against DOP853
+    at 1e-12 on sympy's own equations of the same model (:func:`against_sympys_equations`)."""
+    r = bicycle.run(variant="iftomm", t_final=10.0, save_every=20)  # every 0.1 s
+    for name, (diff, size) in against_sympys_equations(bicycle, r).items():
+        assert diff < 1e-8 * max(1.0, size), (name, diff, size)
 
 
 def test_liefi_list_verbose_does_not_build_the_bicycle(capsys):
