@@ -28,7 +28,8 @@ the dependent speeds solving the constraints):
 * ``iftomm``: 4.6 m/s, 0.5 rad/s: the "uncontrolled bicycle" manoeuvre M2 of the IFToMM
   multibody benchmark library (also PyDy's Carvallo-Whipple example's run).
 
-What ``V`` penalizes: the four rolling rows, the front contact's height ``f`` and the energy.
+What ``V`` penalizes: the constraint momenta ``J_1 .. J_5`` (the four rolling rows and liefi's own
+``f' = df B(q) u``), the front contact's height ``f_1`` and the energy.
 The reference is numerical: DOP853 on liefi's constrained field at 1e-12 (no closed form).
 
 Cost: sympy's ``kanes_equations`` (about 7 CPU s) and ``from_mechanics`` (about 5 CPU s) when
@@ -342,7 +343,7 @@ def contact_paths(bike, system, y, names):
     return {"rear": (Q[q.index(x)], Q[q.index(yy)]), "front": (front[0], front[1])}
 
 
-#: (forward speed m/s, lean rate rad/s) of each variant
+#: variant -> (forward speed m/s, lean rate rad/s, description)
 RUNS = {
     "self-stable": (5.0, 0.5, "5 m/s, lean rate 0.5 rad/s: inside the self-stable range, the lean decays"),
     "weave": (3.0, 1e-8, "3 m/s, lean rate 1e-8 rad/s: below the weave speed, the weave grows"),
