@@ -212,8 +212,12 @@ def cmd_list(args):
         rows.append((name, s.title, s.paper, ", ".join(s.variants)))
         if args.verbose:
             try:
-                order = ",".join(gain_names(s))
-                order_cfg = ",".join(gain_names(s, configuration=True))
+                costly = s.costly_build()
+                if costly:  # the listing does not pay for it: the order is known once the system is built
+                    order = order_cfg = f"known once built ({costly}; `liefi run {name} --json` prints the gains)"
+                else:
+                    order = ",".join(gain_names(s))
+                    order_cfg = ",".join(gain_names(s, configuration=True))
             except Exception as exc:  # noqa: BLE001 - listing must not die on one scene
                 order = order_cfg = f"? ({exc})"
             extra = f", also {','.join(s.extra_schemes)}" if s.extra_schemes else ""

@@ -17,7 +17,8 @@ benchmark and review", Proc. R. Soc. A 463 (2007) 1955-1982, Table 1:
   speeds, and the front contact's height as a configuration constraint with the pitch
   dependent.  Frames, points and parameters after PyDy's Carvallo-Whipple example
   (github.com/pydy/pydy, ``docs/examples/carvallo-whipple.rst``; Moore 2012), whose
-  constants are Table 1 converted by Moore.
+  constants are Table 1 converted by Moore.  It is the model of the scene ``bicycle`` and lives
+  with it, in ``liefi/scenes/bicycle.py``; this module re-exports it.
 
 Imported only by tests and benchmarks.  Each builder returns a :class:`Bicycle`
 holding the ``KanesMethod`` after ``kanes_equations`` (about a minute of sympy for the
@@ -28,23 +29,10 @@ The published eigenvalues (Table 2 of the paper) and the weave and capsize speed
 :data:`BENCHMARK_EIGENVALUES`, :data:`WEAVE_SPEED` and :data:`CAPSIZE_SPEED`.
 """
 
-from dataclasses import dataclass, field
-import math
-
-#: Table 1 of Meijaard et al. (2007), SI units, in the paper's own axes (x forward,
-#: z down): the values are exact (the paper says "no round-off").
-TABLE_1 = {
-    "w": 1.02,  # wheel base
-    "c": 0.08,  # trail
-    "lam": math.pi / 10,  # steer axis tilt (pi/2 - head angle)
-    "g": 9.81,
-    "rR": 0.3, "mR": 2.0, "IRxx": 0.0603, "IRyy": 0.12,
-    "xB": 0.3, "zB": -0.9, "mB": 85.0,
-    "IBxx": 9.2, "IByy": 11.0, "IBzz": 2.8, "IBxz": 2.4,
-    "xH": 0.9, "zH": -0.7, "mH": 4.0,
-    "IHxx": 0.05892, "IHyy": 0.06, "IHzz": 0.00708, "IHxz": -0.00756,
-    "rF": 0.35, "mF": 3.0, "IFxx": 0.1405, "IFyy": 0.28,
-}
+# The bicycle as the scene builds it (liefi.scenes.bicycle: the model's one home): Table 1, the conversion to
+# Moore's frames, the contact-coordinates model and the Bicycle record.  sympy's test model stays here, as
+# sympy's test writes it: a second, independent user's model of the same bicycle.
+from liefi.scenes.bicycle import TABLE_1, Bicycle, moore_parameters, whipple_contact_coordinates  # noqa: F401
 
 #: Table 2 of Meijaard et al. (2007): eigenvalues of the benchmark bicycle, by speed (m/s).
 BENCHMARK_EIGENVALUES = {
@@ -69,54 +57,6 @@ def _sympy():
     except ImportError as exc:  # pragma: no cover - sympy is installed with the test extras
         raise ImportError("bicycle_model: sympy is needed to build the bicycle; pip install sympy") from exc
     return sympy, me
-
-
-@dataclass
-class Bicycle:
-    """A built bicycle: the ``KanesMethod`` and what a peer needs around it.
-
-    Attributes
-    ----------
-    kane : sympy.physics.mechanics.KanesMethod
-        After ``kanes_equations``.
-    q, u : list
-        All coordinates and all speeds in the ``KanesMethod``'s order (independent
-        first), the order of ``mass_matrix_full`` / ``forcing_full``.
-    params : dict
-        Numeric values of the model's constants (symbol -> float).
-    holonomic : sympy expression
-        The configuration constraint (front contact height above the ground, m).
-    nonholonomic : list
-        The velocity constraints as the model declares them (m/s).
-    energy : sympy expression
-        Kinetic plus gravitational energy (J).
-    lean, steer, lean_rate, steer_rate, yaw, pitch : symbols
-        The benchmark's coordinates in this model (sign as the model defines them).
-    speed_of : callable
-        ``speed_of(v)``: the operating point ``{speed symbol: value}`` of the upright
-        straight run at forward speed ``v`` (all other speeds zero).
-    pitch0 : float
-        The pitch of the upright configuration (solves the holonomic constraint).
-    extra : dict
-        Model-specific symbols (contact coordinates, ...).
-    """
-
-    kane: object
-    q: list
-    u: list
-    params: dict
-    holonomic: object
-    nonholonomic: list
-    energy: object
-    lean: object
-    steer: object
-    lean_rate: object
-    steer_rate: object
-    yaw: object
-    pitch: object
-    speed_of: object
-    pitch0: float
-    extra: dict = field(default_factory=dict)
 
 
 def whipple_sympy_test():
@@ -253,162 +193,6 @@ def whipple_sympy_test():
         speed_of=lambda v: {u3: v / PaperRadRear, u6: v / PaperRadFront},
         pitch0=0.0,
         extra={"frames": {"N": N, "Y": Y}, "points": {"rear_contact": WR_cont, "front_contact": WF_cont}},
-    )
-
-
-def moore_parameters():
-    """Table 1 converted to the frames of Moore (2012) used by PyDy's Carvallo-Whipple example.
-
-    The rear frame ``C`` is the roll frame pitched by the steer axis tilt ``lam`` (``c3``
-    along the steer axis, ``z`` down as in the paper), so with ``C1 = cos(lam) B1 - sin(lam) B3``,
-    ``C3 = sin(lam) B1 + cos(lam) B3``:
-
-    * ``d1 = cos(lam) (c + w - rR tan(lam))``, ``d3 = -cos(lam) (c - rF tan(lam))``,
-      ``d2 = (rR + d1 sin(lam) - rF + d3 sin(lam)) / cos(lam)``;
-    * ``(l1, l2)``: the rear body's mass centre from the rear wheel centre,
-      ``(xB, zB + rR)`` in the paper's axes, in ``C``; ``(l3, l4)``: the front assembly's
-      mass centre from the front wheel centre, ``(xH - w, zH + rF)``, in ``C``;
-    * the inertias ``I_C = R^T I R`` with ``R = [C1 C2 C3]`` in the paper's axes.
-
-    These reproduce the constants printed in PyDy's example to the last digit or so.
-    Returns a dict of floats keyed by the names ``rf, rr, d1, d2, d3, l1..l4, mc, md, me,
-    mf, id11, id22, if11, if22, ic11, ic22, ic33, ic31, ie11, ie22, ie33, ie31, g``.
-    """
-    T = TABLE_1
-    lam = T["lam"]
-    cl, sl = math.cos(lam), math.sin(lam)
-    d1 = cl * (T["c"] + T["w"] - T["rR"] * math.tan(lam))
-    d3 = -cl * (T["c"] - T["rF"] * math.tan(lam))
-    d2 = (T["rR"] + d1 * sl - T["rF"] + d3 * sl) / cl
-
-    def in_c(x, z):
-        return x * cl - z * sl, x * sl + z * cl
-
-    def inertia_c(ixx, iyy, izz, ixz):
-        c11 = cl * cl * ixx - 2 * sl * cl * ixz + sl * sl * izz
-        c33 = sl * sl * ixx + 2 * sl * cl * ixz + cl * cl * izz
-        c31 = sl * cl * (ixx - izz) + (cl * cl - sl * sl) * ixz
-        return c11, iyy, c33, c31
-
-    l1, l2 = in_c(T["xB"], T["zB"] + T["rR"])
-    l3, l4 = in_c(T["xH"] - T["w"], T["zH"] + T["rF"])
-    ic11, ic22, ic33, ic31 = inertia_c(T["IBxx"], T["IByy"], T["IBzz"], T["IBxz"])
-    ie11, ie22, ie33, ie31 = inertia_c(T["IHxx"], T["IHyy"], T["IHzz"], T["IHxz"])
-    return {"rf": T["rF"], "rr": T["rR"], "d1": d1, "d2": d2, "d3": d3,
-            "l1": l1, "l2": l2, "l3": l3, "l4": l4,
-            "mc": T["mB"], "md": T["mR"], "me": T["mH"], "mf": T["mF"],
-            "id11": T["IRxx"], "id22": T["IRyy"], "if11": T["IFxx"], "if22": T["IFyy"],
-            "ic11": ic11, "ic22": ic22, "ic33": ic33, "ic31": ic31,
-            "ie11": ie11, "ie22": ie22, "ie33": ie33, "ie31": ie31, "g": T["g"]}
-
-
-def whipple_contact_coordinates():
-    """The Whipple bicycle written with the contact points' coordinates (Moore 2012 frames).
-
-    Coordinates ``q1, q2`` (rear contact on the ground, along ``N1``, ``N2``), ``q3`` yaw,
-    ``q4`` roll (lean), ``q5`` pitch (dependent), ``q6`` rear wheel angle, ``q7`` steer,
-    ``q8`` front wheel angle; every speed ``u_i = q_i'``.  ``z`` points down.
-
-    Constraints as a Kane user declares them:
-
-    * holonomic: the front contact's height above the ground,
-      ``f(q4, q5, q7) = r_{fn/dn} . A3 = 0``, pitch ``q5`` dependent;
-    * rolling of the rear wheel: the velocity of the wheel's material point at the
-      contact, along ``N1`` and ``N2`` (2 rows); rolling of the front wheel: the velocity
-      of its material point at the contact along ``A3``, ``A2``, ``A1`` (3 rows; the
-      ``A3`` row is ``f'``).  Dependent speeds ``u1, u2, u5, u3, u8`` in that order, so
-      that sympy's LU solve pivots on entries that do not vanish on the upright run
-      (``u3``'s coefficient along ``A1`` is proportional to the steer angle: PyDy's example
-      pivots on it and divides by zero at zero steer).
-
-    Returns
-    -------
-    Bicycle
-    """
-    sympy, me = _sympy()
-    q1, q2, q3, q4, q5, q6, q7, q8 = me.dynamicsymbols('q1:9')
-    u1, u2, u3, u4, u5, u6, u7, u8 = me.dynamicsymbols('u1:9')
-    t = me.dynamicsymbols._t
-    rf, rr, d1, d2, d3 = sympy.symbols('rf rr d1 d2 d3')
-    l1, l2, l3, l4, g = sympy.symbols('l1 l2 l3 l4 g')
-    mc, md, me_, mf = sympy.symbols('mc md me mf')
-    ic11, ic22, ic33, ic31 = sympy.symbols('ic11 ic22 ic33 ic31')
-    id11, id22 = sympy.symbols('id11 id22')
-    ie11, ie22, ie33, ie31 = sympy.symbols('ie11 ie22 ie33 ie31')
-    if11, if22 = sympy.symbols('if11 if22')
-
-    N, A, B, C, D, E, F = (me.ReferenceFrame(n) for n in "NABCDEF")
-    A.orient(N, 'Axis', (q3, N.z))
-    B.orient(A, 'Axis', (q4, A.x))
-    C.orient(B, 'Axis', (q5, B.y))
-    E.orient(C, 'Axis', (q7, C.z))
-    D.orient(C, 'Axis', (q6, C.y))
-    F.orient(E, 'Axis', (q8, E.y))
-    A.set_ang_vel(N, u3 * N.z)
-    B.set_ang_vel(A, u4 * A.x)
-    C.set_ang_vel(B, u5 * B.y)
-    D.set_ang_vel(C, u6 * C.y)
-    E.set_ang_vel(C, u7 * C.z)
-    F.set_ang_vel(E, u8 * E.y)
-
-    O = me.Point('O')
-    O.set_vel(N, 0)
-    dn = O.locatenew('dn', q1 * N.x + q2 * N.y)  # rear contact (geometric point)
-    dn.set_vel(N, u1 * N.x + u2 * N.y)
-    do = dn.locatenew('do', -rr * B.z)  # rear wheel centre
-    do.set_vel(B, 0)
-    do.v1pt_theory(dn, N, B)
-    co = do.locatenew('co', l1 * C.x + l2 * C.z)
-    ce = do.locatenew('ce', d1 * C.x)
-    fo = ce.locatenew('fo', d2 * E.z + d3 * E.x)
-    eo = fo.locatenew('eo', l3 * E.x + l4 * E.z)
-    fn = fo.locatenew('fn', rf * E.y.cross(A.z).cross(E.y).normalize())
-    dw = do.locatenew('dw', rr * B.z)  # the rear wheel's material point at the contact
-    co.v2pt_theory(do, N, C)
-    ce.v2pt_theory(do, N, C)
-    fo.v2pt_theory(ce, N, E)
-    eo.v2pt_theory(fo, N, E)
-    fn.v2pt_theory(fo, N, F)
-    dw.v2pt_theory(do, N, D)
-
-    holonomic = fn.pos_from(dn).dot(A.z)
-    nonholonomic = [dw.vel(N).dot(N.x), dw.vel(N).dot(N.y),
-                    fn.vel(N).dot(A.z), fn.vel(N).dot(A.y), fn.vel(N).dot(A.x)]
-    kd = [qi.diff(t) - ui for qi, ui in zip([q1, q2, q3, q4, q5, q6, q7, q8],
-                                             [u1, u2, u3, u4, u5, u6, u7, u8])]
-
-    bodies = [me.RigidBody('rear frame', co, C, mc, (me.inertia(C, ic11, ic22, ic33, 0, 0, ic31), co)),
-              me.RigidBody('rear wheel', do, D, md, (me.inertia(C, id11, id22, id11), do)),
-              me.RigidBody('front frame', eo, E, me_, (me.inertia(E, ie11, ie22, ie33, 0, 0, ie31), eo)),
-              me.RigidBody('front wheel', fo, F, mf, (me.inertia(E, if11, if22, if11), fo))]
-    loads = [(co, mc * g * A.z), (do, md * g * A.z), (eo, me_ * g * A.z), (fo, mf * g * A.z)]
-
-    kane = me.KanesMethod(N, q_ind=[q1, q2, q3, q4, q6, q7, q8], u_ind=[u4, u6, u7], kd_eqs=kd,
-                          q_dependent=[q5], configuration_constraints=[holonomic],
-                          u_dependent=[u1, u2, u5, u3, u8], velocity_constraints=nonholonomic)
-    kane.kanes_equations(bodies, loads)
-
-    values = moore_parameters()
-    names = {"rf": rf, "rr": rr, "d1": d1, "d2": d2, "d3": d3, "l1": l1, "l2": l2, "l3": l3, "l4": l4,
-             "mc": mc, "md": md, "me": me_, "mf": mf, "id11": id11, "id22": id22, "if11": if11,
-             "if22": if22, "ic11": ic11, "ic22": ic22, "ic33": ic33, "ic31": ic31, "ie11": ie11,
-             "ie22": ie22, "ie33": ie33, "ie31": ie31, "g": g}
-    params = {names[k]: float(v) for k, v in values.items()}
-
-    ke = sum(b.kinetic_energy(N) for b in bodies)
-    pe = sum(-force.dot(N.z) * P.pos_from(O).dot(N.z) for P, force in loads)
-    # The upright pitch solves f(0, q5, 0) = 0 (it is the steer axis tilt up to rounding).
-    f0 = sympy.lambdify(q5, holonomic.subs({q4: 0, q7: 0}).xreplace(params), "math")
-    from scipy.optimize import brentq
-    pitch0 = brentq(f0, 0.0, 1.0, xtol=1e-16, rtol=1e-15)
-    return Bicycle(
-        kane=kane, q=list(kane.q), u=list(kane.u), params=params,
-        holonomic=holonomic, nonholonomic=nonholonomic, energy=ke + pe,
-        lean=q4, steer=q7, lean_rate=u4, steer_rate=u7, yaw=q3, pitch=q5,
-        speed_of=lambda v: {u1: v, u6: -v / values["rr"], u8: -v / values["rf"]},
-        pitch0=pitch0,
-        extra={"rear_contact": (q1, q2), "frames": {"N": N, "A": A},
-               "points": {"rear_contact": dn, "front_contact": fn}},
     )
 
 

@@ -26,6 +26,7 @@ from scipy.optimize import brentq
 import bicycle_model as bm
 
 import liefi
+from liefi.scenes.bicycle import upright  # the upright straight run at v: one home, with the scene
 
 pytestmark = pytest.mark.slow
 RTOL = 1e-10
@@ -47,25 +48,6 @@ def bicycle(request):
     bike = build()
     system = liefi.from_mechanics(bike.kane, bike.params)
     return bike, system, coordinates, ignorable
-
-
-def upright(bike, system, v):
-    """``(q, u)`` of the upright straight run at ``v``: every coordinate 0 but the pitch, which solves ``f = 0``."""
-    names = [str(s) for s in system.space.shape_names]
-    k = names.index(str(bike.pitch.func))
-
-    def f(pitch):
-        q = np.zeros(len(names))
-        q[k] = pitch
-        return float(np.asarray(system.holonomic.values(q)).ravel()[0])
-
-    q = np.zeros(len(names))
-    q[k] = brentq(f, 0.0, 1.0, xtol=1e-16, rtol=1e-15)
-    speeds = [str(s.func) for s in system.speeds]
-    u = np.zeros(len(speeds))
-    for s, value in bike.speed_of(v).items():
-        u[speeds.index(str(s.func))] = value
-    return q, u
 
 
 def eigenvalues(bike, system, v):

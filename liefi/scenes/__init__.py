@@ -29,6 +29,7 @@ REGISTRY = {
     "perturbed-kepler": "kepler",
     "rattleback": "rattleback",
     "rolling-disk": "rolling_disk",
+    "bicycle": "bicycle",
 }
 
 

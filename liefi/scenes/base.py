@@ -233,6 +233,14 @@ class Scene:
     #: (:func:`liefi.experiments.battery.stiff_work_precision`: explicit, split and implicit schemes)
     stiff_study: bool = False
 
+    def costly_build(self):
+        """Why building this scene's system takes long (a phrase, e.g. sympy's derivation), or ``None``.
+
+        ``liefi list -v`` builds every other scene to show the order of ``--gains``; it does not build one
+        that says it is costly, and prints this instead.
+        """
+        return None
+
     def stability_case(self, case):
         """``(scene, variant, has_reference)`` of one of :attr:`stability_cases` (a modified copy of the scene)."""
         raise ValueError(f"case: scene {self.name!r} has no stability case {case!r}")
