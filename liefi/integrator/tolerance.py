@@ -123,6 +123,7 @@ from .tolerance_check import (  # noqa: F401 -- re-exported: liefi.integrator.to
     _global_check, _measure, _samples, _verify_longer,
 )
 from ..schemes.registry import REGISTRY as _SCHEMES
+from ._check_runs import CheckRuns
 
 #: The scheme :meth:`liefi.FeedbackIntegrator.run` and ``liefi run`` run unless told otherwise when ``dt`` is
 #: given; without ``dt`` it names the kind, and the order is chosen for the tolerance (:data:`ORDER_CANDIDATES`).
@@ -210,8 +211,9 @@ def chosen_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=
         raise ValueError(f"atol: expected a number or {fi.n} numbers {fi.names}, got shape {atol.shape}")
     backend = default_backend() if backend is None else backend
     f = unforced_field(fi, Y, backend)
+    ev = _unforced_eigenvalues(fi, Y)  # once: the guard's test at every step tried (resolved_step)
     if choose_order:
-        sch, C, h, costs = _cheapest_order(fi, sch, Y, T, rtol, atol, f)
+        sch, C, h, costs = _cheapest_order(fi, sch, Y, T, rtol, atol, f, ev)
         tab = _tableau(sch)
         p = int(tab.order)
     else:
@@ -220,9 +222,10 @@ def chosen_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=
     dt_local = min(_local_step(C / TARGET, T, p, h), T)
     dt_est, chk, safe, verified, drift_cap, unmeasured = dt_local, None, False, None, math.inf, False
     if check and C > 0 and math.isfinite(C):
-        dt0, _ = resolved_step(fi, tab, Y, dt_local, T, rtol)
+        dt0, _ = resolved_step(fi, tab, Y, dt_local, T, rtol, eigenvalues=ev)
+        runs = CheckRuns(fi, sch, np.asarray(y0, float), backend)  # one set-up for all the check's runs
         chk = (None if T / dt0 > MAX_RUN_STEPS else
-               _check_plan(fi, sch, tab, np.asarray(y0, float), float(t0), T, dt0, rtol, atol, p, backend))
+               _check_plan(fi, sch, tab, np.asarray(y0, float), float(t0), T, dt0, rtol, atol, p, backend, runs))
         # a run long enough to be checked whose check could not be made (its coarse runs diverged or left the
         # data's domain): the step is the local model's alone, and the run says so (LiefiToleranceWarning)
         unmeasured = chk is None and CHECK_MIN_STEPS <= T / dt0 <= MAX_RUN_STEPS
@@ -241,7 +244,7 @@ def chosen_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=
             elif e * CHECK_GROWTH ** p < TARGET and drift_cap == math.inf:
                 # the tolerance allows a step past the measured one: run it and measure its error directly
                 verified = _verify_longer(fi, sch, np.asarray(y0, float), float(t0), T, chk, rtol, atol, p,
-                                          backend)
+                                          backend, runs)
                 if verified is not None:
                     dt_est = max(dt_est, verified[0])
     # the measured step resolves the motion only where the check compared the runs at every coarse step (a
@@ -250,7 +253,7 @@ def chosen_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=
     if verified is not None and verified[2]:
         measured = max(measured or 0.0, verified[0])
     wanted = min(dt_est, T)
-    dt_est, limit = resolved_step(fi, tab, Y, wanted, T, rtol, measured)
+    dt_est, limit = resolved_step(fi, tab, Y, wanted, T, rtol, measured, ev)
     resolved = min(dt_est, T)
     dt_est, dt_stable = stable_step(fi, sch, Y, min(dt_est, T), T)
     n = max(1, math.ceil(T / min(dt_est, T) - 1e-9))
@@ -317,7 +320,7 @@ def _binding(chk, verified, safe, wanted, resolved, stable, dt_local, drift_cap,
     return "the measured global error (the check's runs)"
 
 
-def _cheapest_order(fi, sch, Y, T, rtol, atol, f=None):
+def _cheapest_order(fi, sch, Y, T, rtol, atol, f=None, eigenvalues=None):
     """``(scheme, C, h, costs)``: the candidate of ``sch``'s kind with the least predicted cost.
 
     The cost of a candidate is its evaluations per step (:attr:`stages`) times ``T / dt`` at the step of
@@ -333,7 +336,8 @@ def _cheapest_order(fi, sch, Y, T, rtol, atol, f=None):
     for name, cand in zip(names, ORDER_SCHEMES[sch.kind]):
         tab = _tableau(cand)
         C, h, _ = _local_estimate(fi, tab, Y, T, rtol, atol, f)
-        dt, _ = resolved_step(fi, tab, Y, min(_local_step(C / TARGET, T, int(tab.order), h), T), T, rtol)
+        dt, _ = resolved_step(fi, tab, Y, min(_local_step(C / TARGET, T, int(tab.order), h), T), T, rtol,
+                              eigenvalues=eigenvalues)
         costs[name] = cand.stages * math.ceil(T / dt - 1e-9)
         if best is None or costs[name] < best[0]:
             best = (costs[name], cand, C, h)
@@ -392,7 +396,7 @@ def _mode_error(tab):
     return th, err
 
 
-def resolved_step(fi, tab, Y, dt, T=None, rtol=None, measured=None):
+def resolved_step(fi, tab, Y, dt, T=None, rtol=None, measured=None, eigenvalues=None):
     """``(dt, limit)``: ``dt`` shortened until it resolves the unforced motion (the stability guard's test).
 
     The guard (:func:`liefi.integrator.stability.estimate`) warns past ``dt omega > limit`` and refuses when the
@@ -400,25 +404,57 @@ def resolved_step(fi, tab, Y, dt, T=None, rtol=None, measured=None):
     ``limit``: :func:`resolution_limit` for the horizon ``T`` and ``rtol`` when both are given (the run
     passes it to the guard), else :data:`~liefi.integrator.stability.RESOLUTION_LIMIT`.  ``measured``: a step at
     which the run's global error was measured in the asymptotic regime (the check): up to it the motion
-    is resolved by measurement, whatever the bound.
+    is resolved by measurement, whatever the bound.  ``eigenvalues``: those of ``dX/dy`` at the start
+    (:func:`_unforced_eigenvalues`), computed once by the caller; the guard's test is theirs at every ``dt``
+    (the rate ``dt max |mu|`` and the growth ``max |R(dt mu)|``, as the estimate at the start computes them).
     """
-    from .stability import RESOLUTION_LIMIT, estimate
+    from .stability import RESOLUTION_LIMIT
 
+    if eigenvalues is None:
+        eigenvalues = _unforced_eigenvalues(fi, Y)
     limit = RESOLUTION_LIMIT
     for _ in range(60):
-        with np.errstate(all="ignore"):
-            est = estimate(fi, dt, tab, y0=Y.reshape(fi.batch + (fi.n,)) if fi.batch else Y[0])
-        if T is not None and rtol is not None and est.rate > 0:
+        rate, unresolvable = _rate_and_growth(tab, dt, eigenvalues)
+        if T is not None and rtol is not None and rate > 0:
             # never below the guard's fixed limit: shortening the step for accuracy is the measured error's
             # job (the bound takes the fastest rate as lasting the whole run: Kepler's pericentre does not)
-            limit = max(resolution_limit(tab, T, est.rate / dt, rtol), RESOLUTION_LIMIT)
+            limit = max(resolution_limit(tab, T, rate / dt, rtol), RESOLUTION_LIMIT)
             if measured:
-                limit = max(limit, est.rate / dt * measured * (1 + 1e-9))
-        if not (est.rate > limit or est.unresolvable):
+                limit = max(limit, rate / dt * measured * (1 + 1e-9))
+        if not (rate > limit or unresolvable):
             break
         # the rate scales with dt: straight to just inside its limit; past the growth limit 0.8x a time
-        dt *= 0.8 if est.unresolvable or not est.rate > 0 else min(0.98, 0.98 * limit / est.rate)
+        dt *= 0.8 if unresolvable or not rate > 0 else min(0.98, 0.98 * limit / rate)
     return dt, limit
+
+
+def _unforced_eigenvalues(fi, Y):
+    """The eigenvalues of ``dX/dy`` at the start ``Y`` (a few members of a batch), as
+    :func:`liefi.integrator.stability.estimate` at the start takes them; ``None`` where they cannot be evaluated."""
+    from .stability import RESOLUTION_MEMBERS, _members, dynamics_eigenvalues
+
+    try:
+        with np.errstate(all="ignore"):
+            fm = fi.members() if fi.batch else fi
+            return dynamics_eigenvalues(fm, _members(Y.reshape(-1, fi.n), RESOLUTION_MEMBERS))
+    except Exception:  # noqa: BLE001 -- as the estimate's: no rate, no limit from it
+        return None
+
+
+def _rate_and_growth(tab, dt, eigenvalues):
+    """``(rate, unresolvable)`` of :func:`liefi.integrator.stability.estimate` at ``dt`` from the eigenvalues of the
+    start: ``dt max |mu|`` and whether ``tab`` amplifies a mode by more than the guard's growth limit."""
+    from .stability import GROWTH_LIMIT, dynamics_growth
+
+    if eigenvalues is None:
+        return math.nan, False
+    with np.errstate(all="ignore"):
+        try:
+            rate = dt * float(np.max(np.abs(eigenvalues), initial=0.0))
+            growth = dynamics_growth(tab, dt, eigenvalues)
+        except Exception:  # noqa: BLE001 -- as the estimate's
+            return math.nan, False
+    return rate, math.isfinite(growth) and growth > GROWTH_LIMIT
 
 
 def stable_step(fi, sch, Y, dt, T):

@@ -13,6 +13,7 @@ import math
 
 import numpy as np
 
+from ._check_runs import CheckRuns
 from .tolerance_local import TARGET, _size
 from .tolerance_drift import _drift_cap, _run_drift
 
@@ -50,7 +51,7 @@ WIDEN_FACTOR = 4.0
 CHECK_GROWTH = 2.0
 
 
-def _check_plan(fi, sch, tab, y0, t0, T, dt0, rtol, atol, p, backend):
+def _check_plan(fi, sch, tab, y0, t0, T, dt0, rtol, atol, p, backend, runs=None):
     """The check of step 5 over the whole horizon, or ``None`` for a run of too few steps to protect.
 
     The three runs cost at most :data:`CHECK_BUDGET` of the run ``dt0`` predicts, or, compiled,
@@ -72,14 +73,14 @@ def _check_plan(fi, sch, tab, y0, t0, T, dt0, rtol, atol, p, backend):
     spent, chk = 0.0, None
     while spent + 7.0 * T / H <= CHECK_TRIES_BUDGET * budget or chk is None:
         spent += 7.0 * T / H
-        chk = _global_check(fi, sch, y0, t0, T, H, T, rtol, atol, p, backend)
+        chk = _global_check(fi, sch, y0, t0, T, H, T, rtol, atol, p, backend, runs=runs)
         if chk is None or chk[4]:
             break
         H /= 2.0  # outside the asymptotic regime: halve the coarse step while the budget allows
     return chk
 
 
-def _global_check(fi, sch, y0, t0, T, H, tau, rtol, atol, p, backend):
+def _global_check(fi, sch, y0, t0, T, H, tau, rtol, atol, p, backend, runs=None):
     """The measured global error over ``[t0, t0 + tau]`` (step 5 of the module docstring), or ``None``.
 
     Three runs of the scheme itself, at ``H``, ``H/2`` and ``H/4``, compared at every coarse step while
@@ -103,14 +104,13 @@ def _global_check(fi, sch, y0, t0, T, H, tau, rtol, atol, p, backend):
     m = max(1, n // max(CHECK_SAMPLES, _samples(y0)))
     n = m * int(math.ceil(n / m))
     H = tau / n
-    kw = dict(scheme=sch, progress=False, check_stability=False, backend=backend, drop_exact=True)
+    runs = CheckRuns(fi, sch, y0, backend) if runs is None else runs
     try:
         import warnings
 
         with warnings.catch_warnings(), np.errstate(all="ignore"):
             warnings.simplefilter("ignore")
-            ys = [np.moveaxis(np.asarray(fi.run((t0, t0 + tau), dt=H / k, save_every=k * m, y0=y0, **kw).y), -1, 0)
-                  for k in (1, 2, 4)]
+            ys = [runs(t0, tau, H / k, k * m) for k in (1, 2, 4)]
     except (IntegrationError, ArithmeticError, np.linalg.LinAlgError, ValueError, RuntimeError):
         return None
     if any(y.shape != ys[0].shape or not np.all(np.isfinite(y)) for y in ys):
@@ -132,7 +132,7 @@ def _samples(y0):
     return max(1, int(CHECK_BYTES // (8 * max(1, np.asarray(y0).size))))
 
 
-def _verify_longer(fi, sch, y0, t0, T, chk, rtol, atol, p, backend):
+def _verify_longer(fi, sch, y0, t0, T, chk, rtol, atol, p, backend, runs=None):
     r"""``(dt, e, dense)``: a step longer than the trusted check's coarse step, with its run's measured error
     ``e`` (in units of the tolerance, ``e <= 1``), or ``None``.
 
@@ -159,7 +159,7 @@ def _verify_longer(fi, sch, y0, t0, T, chk, rtol, atol, p, backend):
         cand = min(prop, hi, WIDEN_FACTOR * lo, T / 64)
         if not cand > 1.05 * lo:
             break
-        got = _measure(fi, sch, y0, t0, T, cand, h, E, rtol, atol, p, backend)
+        got = _measure(fi, sch, y0, t0, T, cand, h, E, rtol, atol, p, backend, runs=runs)
         if got is None:
             break
         e, dense, cand, drift, floor = got
@@ -171,7 +171,7 @@ def _verify_longer(fi, sch, y0, t0, T, chk, rtol, atol, p, backend):
     return best
 
 
-def _measure(fi, sch, y0, t0, T, dt, h, E, rtol, atol, p, backend):
+def _measure(fi, sch, y0, t0, T, dt, h, E, rtol, atol, p, backend, runs=None):
     """``(e, dense, dt, drift, floor)``: the error of the run at ``dt`` (rounded to ``T/N``) against the run at
     ``dt/q <= h`` whose error is at most ``E (dt / (q h))^p`` (:func:`_verify_longer`), and the invariants' drift
     of the two runs (:func:`_run_drift`), or ``None`` when a run fails."""
@@ -182,14 +182,13 @@ def _measure(fi, sch, y0, t0, T, dt, h, E, rtol, atol, p, backend):
     N = m * int(math.ceil(N / m))
     dt = T / N
     q = max(1, int(math.ceil(dt / h - 1e-9)))
-    kw = dict(scheme=sch, progress=False, check_stability=False, backend=backend, drop_exact=True)
+    runs = CheckRuns(fi, sch, y0, backend) if runs is None else runs
     try:
         import warnings
 
         with warnings.catch_warnings(), np.errstate(all="ignore"):
             warnings.simplefilter("ignore")
-            ys = [np.moveaxis(np.asarray(fi.run((t0, t0 + T), dt=dt / k, save_every=k * m, y0=y0, **kw).y), -1, 0)
-                  for k in (1, q)]
+            ys = [runs(t0, T, dt / k, k * m) for k in (1, q)]
     except (IntegrationError, ArithmeticError, np.linalg.LinAlgError, ValueError, RuntimeError):
         return None
     if ys[0].shape != ys[1].shape or not all(np.all(np.isfinite(y)) for y in ys):
