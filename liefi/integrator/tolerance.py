@@ -120,7 +120,8 @@ from .tolerance_local import (  # noqa: F401 -- re-exported: liefi.integrator.to
 from .tolerance_check import (  # noqa: F401 -- re-exported: liefi.integrator.tolerance.X as before the split
     CHECK_BUDGET, CHECK_BYTES, CHECK_COARSEST, CHECK_ERROR, CHECK_FLOOR, CHECK_GROWTH, CHECK_MIN_STEPS,
     CHECK_PART_FLOOR, CHECK_SAMPLES, CHECK_TRIES_BUDGET, CHECK_TRUST, CHECK_WIDEN, WIDEN_FACTOR, _check_plan,
-    _global_check, _measure, _samples, _verify_longer,
+    _global_check, _measure, _samples, _verify_longer, CHECK_MIN_COARSE, CHECK_MIN_STEPS_COMPILED, check_min_steps,
+    coarse_steps, measured_order,
 )
 from ..schemes.registry import REGISTRY as _SCHEMES
 from ._check_runs import CheckRuns
@@ -228,23 +229,24 @@ def chosen_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=
                _check_plan(fi, sch, tab, np.asarray(y0, float), float(t0), T, dt0, rtol, atol, p, backend, runs))
         # a run long enough to be checked whose check could not be made (its coarse runs diverged or left the
         # data's domain): the step is the local model's alone, and the run says so (LiefiToleranceWarning)
-        unmeasured = chk is None and CHECK_MIN_STEPS <= T / dt0 <= MAX_RUN_STEPS
+        unmeasured = chk is None and check_min_steps(backend) <= T / dt0 <= MAX_RUN_STEPS
         if chk is not None:
             E, E_safe, H, _tau, trusted, _dense = chk[:6]
             # the measured error at H scaled to the target by the order; up to CHECK_GROWTH x H the coarse run
             # measured it; without the asymptotic regime the conservative bound, never longer than the local
             # model's step
             e = E if trusted else E_safe
-            dt_est = H * CHECK_GROWTH if e <= 0 else min(H * (TARGET / e) ** (1.0 / p), CHECK_GROWTH * H)
+            q = measured_order(chk, p) if trusted else p  # up to CHECK_GROWTH x H the error's measured order
+            dt_est = H * CHECK_GROWTH if e <= 0 else min(H * (TARGET / e) ** (1.0 / q), CHECK_GROWTH * H)
             # the invariants at rounding: the coarse run's drift, against the finest run's (rounding's floor)
             drift_cap = _drift_cap(CHECK_GROWTH * H, chk[6], chk[7], p)
             dt_est = min(dt_est, drift_cap)
             if not trusted:
                 dt_est, safe = min(dt_est, dt_local), True
-            elif e * CHECK_GROWTH ** p < TARGET and drift_cap == math.inf:
+            elif e * CHECK_GROWTH ** q < TARGET and drift_cap == math.inf:
                 # the tolerance allows a step past the measured one: run it and measure its error directly
                 verified = _verify_longer(fi, sch, np.asarray(y0, float), float(t0), T, chk, rtol, atol, p,
-                                          backend, runs)
+                                          backend, runs, coarse_steps(T, dt0))
                 if verified is not None:
                     dt_est = max(dt_est, verified[0])
     # the measured step resolves the motion only where the check compared the runs at every coarse step (a
@@ -258,7 +260,8 @@ def chosen_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=
     dt_est, dt_stable = stable_step(fi, sch, Y, min(dt_est, T), T)
     n = max(1, math.ceil(T / min(dt_est, T) - 1e-9))
     dt = T / n
-    binding = _binding(chk, verified, safe, wanted, resolved, min(dt_est, T), dt_local, drift_cap, T, dt)
+    binding = _binding(chk, verified, safe, wanted, resolved, min(dt_est, T), dt_local, drift_cap, T, dt,
+                       check_min_steps(backend))
     if chk is None:
         est = (T * C * dt ** p) if C > 0 else 0.0
     else:
@@ -293,7 +296,7 @@ def chosen_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=
     return dt, info, sch
 
 
-def _binding(chk, verified, safe, wanted, resolved, stable, dt_local, drift_cap, T, dt):
+def _binding(chk, verified, safe, wanted, resolved, stable, dt_local, drift_cap, T, dt, min_steps=CHECK_MIN_STEPS):
     """What set the step :func:`chosen_step` chose (``info["binding"]``, said by :func:`describe`): the step
     is the shortest of the tolerance's (local model, measured check or verified longer step, drift rule), the
     resolution limit's and the explicit feedback's stability, rounded down to ``T/N``."""
@@ -303,17 +306,20 @@ def _binding(chk, verified, safe, wanted, resolved, stable, dt_local, drift_cap,
         return "the resolution limit of the unforced motion (dt times its fastest rate)"
     if wanted >= T * (1 - 1e-12) and dt == T:
         return "the span: one step"
-    if chk is None and math.ceil(T / dt - 1e-9) >= CHECK_MIN_STEPS:
+    if chk is None and math.ceil(T / dt - 1e-9) >= min_steps:
         return "the local error model alone (the check's runs could not be made)"
     if chk is None:
         return (f"the local error model alone, an upper bound (local errors adding up linearly in t): a run of "
-                f"{math.ceil(T / dt - 1e-9)} steps, fewer than {CHECK_MIN_STEPS}, is not checked, so its error "
+                f"{math.ceil(T / dt - 1e-9)} steps, fewer than {min_steps}, is not checked, so its error "
                 "can be far below rtol")
     if drift_cap < math.inf and wanted >= drift_cap * (1 - 1e-12):
         return "the drift rule (the invariants kept at rounding)"
     if safe:
         return "the conservative bound of an untrusted check"
     if verified is not None and wanted >= verified[0] * (1 - 1e-12):
+        if len(verified) > 3 and verified[3]:
+            return ("the drift rule (the invariants kept at rounding): a longer step within the tolerance drifted "
+                    "above rounding")
         return "a longer step run and measured within the tolerance"
     if wanted >= CHECK_GROWTH * chk[2] * (1 - 1e-12):
         return f"the measured error's range: at most {CHECK_GROWTH:g} x the check's coarse step"
