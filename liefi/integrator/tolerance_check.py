@@ -58,10 +58,10 @@ WIDEN_FACTOR = 4.0
 CHECK_GROWTH = 2.0
 
 
-def check_min_steps(backend):
-    """The fewest steps of a run that is checked on ``backend`` (:data:`CHECK_MIN_STEPS`, compiled
-    :data:`CHECK_MIN_STEPS_COMPILED`)."""
-    return CHECK_MIN_STEPS if backend == "numpy" else CHECK_MIN_STEPS_COMPILED
+def check_min_steps(backend, batch=False):
+    """The fewest steps of a run that is checked on ``backend`` (:data:`CHECK_MIN_STEPS`; compiled, one
+    trajectory, :data:`CHECK_MIN_STEPS_COMPILED`: an ensemble's check runs through the run loop)."""
+    return CHECK_MIN_STEPS if backend == "numpy" or batch else CHECK_MIN_STEPS_COMPILED
 
 
 def coarse_steps(T, dt0):
@@ -83,7 +83,7 @@ def _check_plan(fi, sch, tab, y0, t0, T, dt0, rtol, atol, p, backend, runs=None)
     a check outside the asymptotic regime is repeated at half the step while all the tries cost at most
     :data:`CHECK_TRIES_BUDGET` budgets, and the last gives the conservative bound.
     """
-    if T / dt0 < check_min_steps(backend):
+    if T / dt0 < check_min_steps(backend, np.ndim(y0) > 1):
         return None
     n_min = coarse_steps(T, dt0)
     # the floor is a few milliseconds of compiled loop; on numpy (an evaluation costs ~1000x) only the fraction
