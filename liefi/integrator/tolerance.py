@@ -26,7 +26,8 @@ invariant set the split step's error is the error of its tableau on ``X``
    below :data:`FIRST_ERROR` relative and in the asymptotic regime (``h/4``
    has an error about ``4^{p+1}`` times smaller: no step aliases with a period
    of the motion), enlarged until the local error is well above rounding;
-3. a pilot of :data:`PILOT_STEPS` steps of the tableau from ``y_0`` (on the
+3. a pilot of :data:`PILOT_STEPS` steps (:data:`PILOT_STEPS_CHECKED` where the check of step 5 follows: it
+   sets the step, the pilot plans it) of the tableau from ``y_0`` (on the
    compiled ``X`` when there is one), each with a step-doubling estimate
    ``e = |Phi_h(y) - Phi_{h/2}^2(y)| / (1 - 2^{-p}) = C h^{p+1}``, ``C`` the
    largest over the pilot;
@@ -124,8 +125,8 @@ from .tolerance_drift import (  # noqa: F401 -- re-exported: liefi.integrator.to
     DRIFT_AIM, DRIFT_FLOOR_RATIO, DRIFT_LEVEL, _drift_cap, _run_drift,
 )
 from .tolerance_local import (  # noqa: F401 -- re-exported: liefi.integrator.tolerance.X as before the split
-    FIRST_ERROR, PART_FLOOR, PILOT_STEPS, TARGET, _local_estimate, _local_step, _parts, _size, _tableau,
-    unforced_field,
+    FIRST_ERROR, PART_FLOOR, PILOT_STEPS, PILOT_STEPS_CHECKED, TARGET, _local_estimate, _local_step, _parts, _size,
+    _tableau, unforced_field,
 )
 from .tolerance_check import (  # noqa: F401 -- re-exported: liefi.integrator.tolerance.X as before the split
     CHECK_BUDGET, CHECK_BYTES, CHECK_COARSEST, CHECK_ERROR, CHECK_FLOOR, CHECK_GROWTH, CHECK_MIN_STEPS,
@@ -223,12 +224,14 @@ def chosen_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=
     backend = default_backend() if backend is None else backend
     f = unforced_field(fi, Y, backend)
     ev = _unforced_eigenvalues(fi, Y)  # once: the guard's test at every step tried (resolved_step)
+    # a shorter pilot where the measured check follows (it sets the step; the pilot plans it)
+    steps = PILOT_STEPS_CHECKED if check and backend != "numpy" and np.ndim(y0) == 1 else PILOT_STEPS
     if choose_order:
-        sch, C, h, costs = _cheapest_order(fi, sch, Y, T, rtol, atol, f, ev)
+        sch, C, h, costs = _cheapest_order(fi, sch, Y, T, rtol, atol, f, ev, steps)
         tab = _tableau(sch)
         p = int(tab.order)
     else:
-        C, h, _ = _local_estimate(fi, tab, Y, T, rtol, atol, f)
+        C, h, _ = _local_estimate(fi, tab, Y, T, rtol, atol, f, steps)
         costs = None
     dt_local = min(_local_step(C / TARGET, T, p, h), T)
     dt_est, chk, safe, verified, drift_cap, unmeasured = dt_local, None, False, None, math.inf, False
@@ -336,7 +339,7 @@ def _binding(chk, verified, safe, wanted, resolved, stable, dt_local, drift_cap,
     return "the measured global error (the check's runs)"
 
 
-def _cheapest_order(fi, sch, Y, T, rtol, atol, f=None, eigenvalues=None):
+def _cheapest_order(fi, sch, Y, T, rtol, atol, f=None, eigenvalues=None, steps=None):
     """``(scheme, C, h, costs)``: the candidate of ``sch``'s kind with the least predicted cost.
 
     The cost of a candidate is its evaluations per step (:attr:`stages`) times ``T / dt`` at the step of
@@ -346,12 +349,12 @@ def _cheapest_order(fi, sch, Y, T, rtol, atol, f=None, eigenvalues=None):
     """
     names = ORDER_CANDIDATES.get(sch.kind, ())
     if sch.name not in names:
-        C, h, _ = _local_estimate(fi, _tableau(sch), Y, T, rtol, atol, f)
+        C, h, _ = _local_estimate(fi, _tableau(sch), Y, T, rtol, atol, f, steps)
         return sch, C, h, None
     best, costs = None, {}
     for name, cand in zip(names, ORDER_SCHEMES[sch.kind]):
         tab = _tableau(cand)
-        C, h, _ = _local_estimate(fi, tab, Y, T, rtol, atol, f)
+        C, h, _ = _local_estimate(fi, tab, Y, T, rtol, atol, f, steps)
         dt, _ = resolved_step(fi, tab, Y, min(_local_step(C / TARGET, T, int(tab.order), h), T), T, rtol,
                               eigenvalues=eigenvalues)
         costs[name] = cand.stages * math.ceil(T / dt - 1e-9)
