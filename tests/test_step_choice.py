@@ -87,3 +87,24 @@ def test_the_measured_order_is_at_least_the_schemes():
     assert tol.measured_order((1.0, 0, 0, 0, True, True, 0, 0, 2.0 ** 10), 8) == pytest.approx(10.0)
     assert tol.measured_order((1.0, 0, 0, 0, True, True, 0, 0, 2.0 ** 5), 8) == 8.0
     assert tol.measured_order((1.0, 0, 0, 0, True, True, 0, 0), 8) == 8.0
+
+
+def test_scene_run_fi_run_and_the_cli_choose_the_same_on_the_compiled_backend(capsys):
+    """The short run now checked on the compiled backend (Suslov over ``[0, 20]`` at ``1e-6``) gets the same scheme
+    and step whichever way it is asked: ``Scene.run``, ``fi.run`` and ``liefi run``."""
+    import json
+
+    from liefi.cli import main
+
+    sc = scenes.get("suslov")
+    sc.__dict__.pop("_stepcache", None)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        r = sc.run(t_final=20.0, rtol=1e-6, backend="auto")
+        sol = sc.integrator(sc.variant(), gains="auto").run(20.0, rtol=1e-6, backend="auto", progress=False)
+    sc.__dict__.pop("_stepcache", None)
+    assert main(["run", "suslov", "--rtol", "1e-6", "--t-final", "20", "--backend", "auto", "--json"]) in (0, None)
+    cli = json.loads(capsys.readouterr().out)["method"]
+    assert r.method["scheme"] == sol.method["scheme"] == cli["scheme"]
+    assert r.method["dt"] == sol.method["dt"] == cli["dt"]
+    assert "checked by two short runs" in cli["why"]
