@@ -26,7 +26,8 @@ invariant set the split step's error is the error of its tableau on ``X``
    below :data:`FIRST_ERROR` relative and in the asymptotic regime (``h/4``
    has an error about ``4^{p+1}`` times smaller: no step aliases with a period
    of the motion), enlarged until the local error is well above rounding;
-3. a pilot of :data:`PILOT_STEPS` steps of the tableau from ``y_0`` (on the
+3. a pilot of :data:`PILOT_STEPS` steps (:data:`PILOT_STEPS_CHECKED` where the check of step 5 follows: it
+   sets the step, the pilot plans it) of the tableau from ``y_0`` (on the
    compiled ``X`` when there is one), each with a step-doubling estimate
    ``e = |Phi_h(y) - Phi_{h/2}^2(y)| / (1 - 2^{-p}) = C h^{p+1}``, ``C`` the
    largest over the pilot;
@@ -42,8 +43,18 @@ invariant set the split step's error is the error of its tableau on ``X``
 5. **the check** (:func:`_check_plan`, :func:`_global_check`): the scheme itself -- the split step,
    compiled -- is run at a coarse step ``H``, at ``H/2`` and ``H/4`` over the *whole* horizon, and the
    Richardson error ``|y_{H/2} - y_{H/4}| / (1 - 2^{-p})`` is compared at every coarse step while the
-   saved states take at most :data:`CHECK_BYTES` (else at :data:`CHECK_SAMPLES` common times or more), in
-   a norm that floors a component at :data:`CHECK_PART_FLOOR` of its part's largest size over the run.  ``H`` is the asymptotic one (relative error
+   saved states take at most :data:`CHECK_BYTES` (else at :data:`CHECK_SAMPLES` common times or more; the runs at
+   ``H/2`` and ``H/4`` at every step of the run at ``H/2`` where the states allow: an error that peaks between two
+   coarse steps, Kepler's pericentre, is seen), in
+   a norm that floors a component at :data:`CHECK_PART_FLOOR` of its part's largest size over the run.
+   On a compiled backend the runs are single calls of the compiled loop with the run's gains and invariants,
+   set up once (:class:`liefi.integrator._check_runs.CheckRuns`: no run's set-up each, a run made is not made
+   again by the next try), so a run of :data:`CHECK_MIN_STEPS_COMPILED` steps or more is checked, its coarse
+   runs of at least :func:`coarse_steps` steps; on numpy only a run of :data:`CHECK_MIN_STEPS` or more.
+   Between ``H/2`` and ``H`` the step is interpolated by the *measured* order (:func:`measured_order`,
+   ``log2`` of the errors at ``H`` and ``H/2``, at least ``p``): before the asymptotic regime the error falls
+   faster than ``h^p`` (Kepler over ``[0, 20]``, ``imex-rk8``: ``h^{10}``), and the order alone extrapolated
+   to 3.6 ``rtol``.  ``H`` is the asymptotic one (relative error
    :data:`CHECK_ERROR` by the local model) when the three runs cost at most :data:`CHECK_BUDGET` of
    the run (or :data:`CHECK_FLOOR` evaluations), else the finest the budget affords.  Trusted when
    halving divides the difference by ``>= 2^{p-1}``: then ``dt = H (TARGET / E)^{1/p}``, at most
@@ -114,15 +125,17 @@ from .tolerance_drift import (  # noqa: F401 -- re-exported: liefi.integrator.to
     DRIFT_AIM, DRIFT_FLOOR_RATIO, DRIFT_LEVEL, _drift_cap, _run_drift,
 )
 from .tolerance_local import (  # noqa: F401 -- re-exported: liefi.integrator.tolerance.X as before the split
-    FIRST_ERROR, PART_FLOOR, PILOT_STEPS, TARGET, _local_estimate, _local_step, _parts, _size, _tableau,
-    unforced_field,
+    FIRST_ERROR, PART_FLOOR, PILOT_STEPS, PILOT_STEPS_CHECKED, TARGET, _local_estimate, _local_step, _parts, _size,
+    _tableau, unforced_field,
 )
 from .tolerance_check import (  # noqa: F401 -- re-exported: liefi.integrator.tolerance.X as before the split
     CHECK_BUDGET, CHECK_BYTES, CHECK_COARSEST, CHECK_ERROR, CHECK_FLOOR, CHECK_GROWTH, CHECK_MIN_STEPS,
     CHECK_PART_FLOOR, CHECK_SAMPLES, CHECK_TRIES_BUDGET, CHECK_TRUST, CHECK_WIDEN, WIDEN_FACTOR, _check_plan,
-    _global_check, _measure, _samples, _verify_longer,
+    _global_check, _measure, _samples, _verify_longer, CHECK_MIN_COARSE, CHECK_MIN_STEPS_COMPILED, check_min_steps,
+    coarse_steps, measured_order,
 )
 from ..schemes.registry import REGISTRY as _SCHEMES
+from ._check_runs import CheckRuns
 
 #: The scheme :meth:`liefi.FeedbackIntegrator.run` and ``liefi run`` run unless told otherwise when ``dt`` is
 #: given; without ``dt`` it names the kind, and the order is chosen for the tolerance (:data:`ORDER_CANDIDATES`).
@@ -210,38 +223,43 @@ def chosen_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=
         raise ValueError(f"atol: expected a number or {fi.n} numbers {fi.names}, got shape {atol.shape}")
     backend = default_backend() if backend is None else backend
     f = unforced_field(fi, Y, backend)
+    ev = _unforced_eigenvalues(fi, Y)  # once: the guard's test at every step tried (resolved_step)
+    # a shorter pilot where the measured check follows (it sets the step; the pilot plans it)
+    steps = PILOT_STEPS_CHECKED if check and backend != "numpy" and np.ndim(y0) == 1 else PILOT_STEPS
     if choose_order:
-        sch, C, h, costs = _cheapest_order(fi, sch, Y, T, rtol, atol, f)
+        sch, C, h, costs = _cheapest_order(fi, sch, Y, T, rtol, atol, f, ev, steps)
         tab = _tableau(sch)
         p = int(tab.order)
     else:
-        C, h, _ = _local_estimate(fi, tab, Y, T, rtol, atol, f)
+        C, h, _ = _local_estimate(fi, tab, Y, T, rtol, atol, f, steps)
         costs = None
     dt_local = min(_local_step(C / TARGET, T, p, h), T)
     dt_est, chk, safe, verified, drift_cap, unmeasured = dt_local, None, False, None, math.inf, False
     if check and C > 0 and math.isfinite(C):
-        dt0, _ = resolved_step(fi, tab, Y, dt_local, T, rtol)
+        dt0, _ = resolved_step(fi, tab, Y, dt_local, T, rtol, eigenvalues=ev)
+        runs = CheckRuns(fi, sch, np.asarray(y0, float), backend)  # one set-up for all the check's runs
         chk = (None if T / dt0 > MAX_RUN_STEPS else
-               _check_plan(fi, sch, tab, np.asarray(y0, float), float(t0), T, dt0, rtol, atol, p, backend))
+               _check_plan(fi, sch, tab, np.asarray(y0, float), float(t0), T, dt0, rtol, atol, p, backend, runs))
         # a run long enough to be checked whose check could not be made (its coarse runs diverged or left the
         # data's domain): the step is the local model's alone, and the run says so (LiefiToleranceWarning)
-        unmeasured = chk is None and CHECK_MIN_STEPS <= T / dt0 <= MAX_RUN_STEPS
+        unmeasured = chk is None and check_min_steps(backend, np.ndim(y0) > 1) <= T / dt0 <= MAX_RUN_STEPS
         if chk is not None:
             E, E_safe, H, _tau, trusted, _dense = chk[:6]
             # the measured error at H scaled to the target by the order; up to CHECK_GROWTH x H the coarse run
             # measured it; without the asymptotic regime the conservative bound, never longer than the local
             # model's step
             e = E if trusted else E_safe
-            dt_est = H * CHECK_GROWTH if e <= 0 else min(H * (TARGET / e) ** (1.0 / p), CHECK_GROWTH * H)
+            q = measured_order(chk, p) if trusted else p  # up to CHECK_GROWTH x H the error's measured order
+            dt_est = H * CHECK_GROWTH if e <= 0 else min(H * (TARGET / e) ** (1.0 / q), CHECK_GROWTH * H)
             # the invariants at rounding: the coarse run's drift, against the finest run's (rounding's floor)
             drift_cap = _drift_cap(CHECK_GROWTH * H, chk[6], chk[7], p)
             dt_est = min(dt_est, drift_cap)
             if not trusted:
                 dt_est, safe = min(dt_est, dt_local), True
-            elif e * CHECK_GROWTH ** p < TARGET and drift_cap == math.inf:
+            elif e * CHECK_GROWTH ** q < TARGET and drift_cap == math.inf:
                 # the tolerance allows a step past the measured one: run it and measure its error directly
                 verified = _verify_longer(fi, sch, np.asarray(y0, float), float(t0), T, chk, rtol, atol, p,
-                                          backend)
+                                          backend, runs, coarse_steps(T, dt0))
                 if verified is not None:
                     dt_est = max(dt_est, verified[0])
     # the measured step resolves the motion only where the check compared the runs at every coarse step (a
@@ -250,12 +268,13 @@ def chosen_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=
     if verified is not None and verified[2]:
         measured = max(measured or 0.0, verified[0])
     wanted = min(dt_est, T)
-    dt_est, limit = resolved_step(fi, tab, Y, wanted, T, rtol, measured)
+    dt_est, limit = resolved_step(fi, tab, Y, wanted, T, rtol, measured, ev)
     resolved = min(dt_est, T)
     dt_est, dt_stable = stable_step(fi, sch, Y, min(dt_est, T), T)
     n = max(1, math.ceil(T / min(dt_est, T) - 1e-9))
     dt = T / n
-    binding = _binding(chk, verified, safe, wanted, resolved, min(dt_est, T), dt_local, drift_cap, T, dt)
+    binding = _binding(chk, verified, safe, wanted, resolved, min(dt_est, T), dt_local, drift_cap, T, dt,
+                       check_min_steps(backend, np.ndim(y0) > 1))
     if chk is None:
         est = (T * C * dt ** p) if C > 0 else 0.0
     else:
@@ -290,7 +309,7 @@ def chosen_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=
     return dt, info, sch
 
 
-def _binding(chk, verified, safe, wanted, resolved, stable, dt_local, drift_cap, T, dt):
+def _binding(chk, verified, safe, wanted, resolved, stable, dt_local, drift_cap, T, dt, min_steps=CHECK_MIN_STEPS):
     """What set the step :func:`chosen_step` chose (``info["binding"]``, said by :func:`describe`): the step
     is the shortest of the tolerance's (local model, measured check or verified longer step, drift rule), the
     resolution limit's and the explicit feedback's stability, rounded down to ``T/N``."""
@@ -300,24 +319,27 @@ def _binding(chk, verified, safe, wanted, resolved, stable, dt_local, drift_cap,
         return "the resolution limit of the unforced motion (dt times its fastest rate)"
     if wanted >= T * (1 - 1e-12) and dt == T:
         return "the span: one step"
-    if chk is None and math.ceil(T / dt - 1e-9) >= CHECK_MIN_STEPS:
+    if chk is None and math.ceil(T / dt - 1e-9) >= min_steps:
         return "the local error model alone (the check's runs could not be made)"
     if chk is None:
         return (f"the local error model alone, an upper bound (local errors adding up linearly in t): a run of "
-                f"{math.ceil(T / dt - 1e-9)} steps, fewer than {CHECK_MIN_STEPS}, is not checked, so its error "
+                f"{math.ceil(T / dt - 1e-9)} steps, fewer than {min_steps}, is not checked, so its error "
                 "can be far below rtol")
     if drift_cap < math.inf and wanted >= drift_cap * (1 - 1e-12):
         return "the drift rule (the invariants kept at rounding)"
     if safe:
         return "the conservative bound of an untrusted check"
     if verified is not None and wanted >= verified[0] * (1 - 1e-12):
+        if len(verified) > 3 and verified[3]:
+            return ("the drift rule (the invariants kept at rounding): a longer step within the tolerance drifted "
+                    "above rounding")
         return "a longer step run and measured within the tolerance"
     if wanted >= CHECK_GROWTH * chk[2] * (1 - 1e-12):
         return f"the measured error's range: at most {CHECK_GROWTH:g} x the check's coarse step"
     return "the measured global error (the check's runs)"
 
 
-def _cheapest_order(fi, sch, Y, T, rtol, atol, f=None):
+def _cheapest_order(fi, sch, Y, T, rtol, atol, f=None, eigenvalues=None, steps=None):
     """``(scheme, C, h, costs)``: the candidate of ``sch``'s kind with the least predicted cost.
 
     The cost of a candidate is its evaluations per step (:attr:`stages`) times ``T / dt`` at the step of
@@ -327,13 +349,14 @@ def _cheapest_order(fi, sch, Y, T, rtol, atol, f=None):
     """
     names = ORDER_CANDIDATES.get(sch.kind, ())
     if sch.name not in names:
-        C, h, _ = _local_estimate(fi, _tableau(sch), Y, T, rtol, atol, f)
+        C, h, _ = _local_estimate(fi, _tableau(sch), Y, T, rtol, atol, f, steps)
         return sch, C, h, None
     best, costs = None, {}
     for name, cand in zip(names, ORDER_SCHEMES[sch.kind]):
         tab = _tableau(cand)
-        C, h, _ = _local_estimate(fi, tab, Y, T, rtol, atol, f)
-        dt, _ = resolved_step(fi, tab, Y, min(_local_step(C / TARGET, T, int(tab.order), h), T), T, rtol)
+        C, h, _ = _local_estimate(fi, tab, Y, T, rtol, atol, f, steps)
+        dt, _ = resolved_step(fi, tab, Y, min(_local_step(C / TARGET, T, int(tab.order), h), T), T, rtol,
+                              eigenvalues=eigenvalues)
         costs[name] = cand.stages * math.ceil(T / dt - 1e-9)
         if best is None or costs[name] < best[0]:
             best = (costs[name], cand, C, h)
@@ -392,7 +415,7 @@ def _mode_error(tab):
     return th, err
 
 
-def resolved_step(fi, tab, Y, dt, T=None, rtol=None, measured=None):
+def resolved_step(fi, tab, Y, dt, T=None, rtol=None, measured=None, eigenvalues=None):
     """``(dt, limit)``: ``dt`` shortened until it resolves the unforced motion (the stability guard's test).
 
     The guard (:func:`liefi.integrator.stability.estimate`) warns past ``dt omega > limit`` and refuses when the
@@ -400,25 +423,57 @@ def resolved_step(fi, tab, Y, dt, T=None, rtol=None, measured=None):
     ``limit``: :func:`resolution_limit` for the horizon ``T`` and ``rtol`` when both are given (the run
     passes it to the guard), else :data:`~liefi.integrator.stability.RESOLUTION_LIMIT`.  ``measured``: a step at
     which the run's global error was measured in the asymptotic regime (the check): up to it the motion
-    is resolved by measurement, whatever the bound.
+    is resolved by measurement, whatever the bound.  ``eigenvalues``: those of ``dX/dy`` at the start
+    (:func:`_unforced_eigenvalues`), computed once by the caller; the guard's test is theirs at every ``dt``
+    (the rate ``dt max |mu|`` and the growth ``max |R(dt mu)|``, as the estimate at the start computes them).
     """
-    from .stability import RESOLUTION_LIMIT, estimate
+    from .stability import RESOLUTION_LIMIT
 
+    if eigenvalues is None:
+        eigenvalues = _unforced_eigenvalues(fi, Y)
     limit = RESOLUTION_LIMIT
     for _ in range(60):
-        with np.errstate(all="ignore"):
-            est = estimate(fi, dt, tab, y0=Y.reshape(fi.batch + (fi.n,)) if fi.batch else Y[0])
-        if T is not None and rtol is not None and est.rate > 0:
+        rate, unresolvable = _rate_and_growth(tab, dt, eigenvalues)
+        if T is not None and rtol is not None and rate > 0:
             # never below the guard's fixed limit: shortening the step for accuracy is the measured error's
             # job (the bound takes the fastest rate as lasting the whole run: Kepler's pericentre does not)
-            limit = max(resolution_limit(tab, T, est.rate / dt, rtol), RESOLUTION_LIMIT)
+            limit = max(resolution_limit(tab, T, rate / dt, rtol), RESOLUTION_LIMIT)
             if measured:
-                limit = max(limit, est.rate / dt * measured * (1 + 1e-9))
-        if not (est.rate > limit or est.unresolvable):
+                limit = max(limit, rate / dt * measured * (1 + 1e-9))
+        if not (rate > limit or unresolvable):
             break
         # the rate scales with dt: straight to just inside its limit; past the growth limit 0.8x a time
-        dt *= 0.8 if est.unresolvable or not est.rate > 0 else min(0.98, 0.98 * limit / est.rate)
+        dt *= 0.8 if unresolvable or not rate > 0 else min(0.98, 0.98 * limit / rate)
     return dt, limit
+
+
+def _unforced_eigenvalues(fi, Y):
+    """The eigenvalues of ``dX/dy`` at the start ``Y`` (a few members of a batch), as
+    :func:`liefi.integrator.stability.estimate` at the start takes them; ``None`` where they cannot be evaluated."""
+    from .stability import RESOLUTION_MEMBERS, _members, dynamics_eigenvalues
+
+    try:
+        with np.errstate(all="ignore"):
+            fm = fi.members() if fi.batch else fi
+            return dynamics_eigenvalues(fm, _members(Y.reshape(-1, fi.n), RESOLUTION_MEMBERS))
+    except Exception:  # noqa: BLE001 -- as the estimate's: no rate, no limit from it
+        return None
+
+
+def _rate_and_growth(tab, dt, eigenvalues):
+    """``(rate, unresolvable)`` of :func:`liefi.integrator.stability.estimate` at ``dt`` from the eigenvalues of the
+    start: ``dt max |mu|`` and whether ``tab`` amplifies a mode by more than the guard's growth limit."""
+    from .stability import GROWTH_LIMIT, dynamics_growth
+
+    if eigenvalues is None:
+        return math.nan, False
+    with np.errstate(all="ignore"):
+        try:
+            rate = dt * float(np.max(np.abs(eigenvalues), initial=0.0))
+            growth = dynamics_growth(tab, dt, eigenvalues)
+        except Exception:  # noqa: BLE001 -- as the estimate's
+            return math.nan, False
+    return rate, math.isfinite(growth) and growth > GROWTH_LIMIT
 
 
 def stable_step(fi, sch, Y, dt, T):

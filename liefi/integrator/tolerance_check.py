@@ -13,6 +13,7 @@ import math
 
 import numpy as np
 
+from ._check_runs import CheckRuns
 from .tolerance_local import TARGET, _size
 from .tolerance_drift import _drift_cap, _run_drift
 
@@ -24,8 +25,15 @@ CHECK_PART_FLOOR = 1e-3
 CHECK_ERROR = 1e-3
 #: ... and is at most this many local-model steps.
 CHECK_COARSEST = 64.0
-#: A run of fewer steps than this is not checked (the local model alone: the check would cost more than the run).
+#: A run of fewer steps than this is not checked on numpy (the local model alone: the check would cost more than
+#: the run).
 CHECK_MIN_STEPS = 256
+#: ... and on a compiled backend, where the check's runs (:class:`liefi.integrator._check_runs.CheckRuns`: one call
+#: of the compiled loop each, no run's set-up) cost microseconds a step: a short run is checked too (before it
+#: was not, and its local model's step left the error 1e-4 to 4e-2 of ``rtol``: Suslov, Kepler over ``[0, 20]``).
+CHECK_MIN_STEPS_COMPILED = 8
+#: The fewest coarse steps of a short run's check (a run of ``CHECK_MIN_STEPS`` steps or more: 64).
+CHECK_MIN_COARSE = 8
 #: The check's two runs cost at most this fraction of the run the local model predicts.
 CHECK_BUDGET = 0.25
 #: ... or at most this many field evaluations when that is more (a few milliseconds of compiled loop; compiled
@@ -38,19 +46,32 @@ CHECK_SAMPLES = 4096
 #: step measures the error of the whole run: its step counts as resolved, :func:`resolved_step`).
 CHECK_BYTES = 2**25
 #: A check whose two runs differ by more than this (relative) is not trusted (not asymptotic).
-CHECK_TRUST = 1e-2
+CHECK_TRUST = 5e-2
 #: An untrusted check is repeated at half the coarse step while all its tries cost at most this many budgets.
 CHECK_TRIES_BUDGET = 4.0
 #: Longer steps tried, each run and measured, where a trusted check allows more than its coarse step
 #: (:func:`_verify_longer`).
-CHECK_WIDEN = 3
+CHECK_WIDEN = 4
 #: ... each at most this many times the longest step measured so far.
 WIDEN_FACTOR = 4.0
 #: The step is at most this many times the check's coarse step (where the error was measured).
 CHECK_GROWTH = 2.0
 
 
-def _check_plan(fi, sch, tab, y0, t0, T, dt0, rtol, atol, p, backend):
+def check_min_steps(backend, batch=False):
+    """The fewest steps of a run that is checked on ``backend`` (:data:`CHECK_MIN_STEPS`; compiled, one
+    trajectory, :data:`CHECK_MIN_STEPS_COMPILED`: an ensemble's check runs through the run loop)."""
+    return CHECK_MIN_STEPS if backend == "numpy" or batch else CHECK_MIN_STEPS_COMPILED
+
+
+def coarse_steps(T, dt0):
+    """The fewest coarse steps of the check of a run of ``T / dt0`` steps: 64, or for a shorter run than
+    :data:`CHECK_MIN_STEPS`, a quarter of its steps (at least :data:`CHECK_MIN_COARSE`), so that its coarse
+    step is within a few of its own."""
+    return int(min(64, max(CHECK_MIN_COARSE, math.ceil(T / dt0 / 4 - 1e-9))))
+
+
+def _check_plan(fi, sch, tab, y0, t0, T, dt0, rtol, atol, p, backend, runs=None):
     """The check of step 5 over the whole horizon, or ``None`` for a run of too few steps to protect.
 
     The three runs cost at most :data:`CHECK_BUDGET` of the run ``dt0`` predicts, or, compiled,
@@ -62,24 +83,26 @@ def _check_plan(fi, sch, tab, y0, t0, T, dt0, rtol, atol, p, backend):
     a check outside the asymptotic regime is repeated at half the step while all the tries cost at most
     :data:`CHECK_TRIES_BUDGET` budgets, and the last gives the conservative bound.
     """
-    if T / dt0 < CHECK_MIN_STEPS:
+    if T / dt0 < check_min_steps(backend, np.ndim(y0) > 1):
         return None
+    n_min = coarse_steps(T, dt0)
     # the floor is a few milliseconds of compiled loop; on numpy (an evaluation costs ~1000x) only the fraction
     floor = CHECK_FLOOR / max(1, int(getattr(sch, "stages", 1))) if backend != "numpy" else 0.0
     budget = max(CHECK_BUDGET * T / dt0, floor)
     H = dt0 * min(max(1.0, (CHECK_ERROR / rtol) ** (1.0 / p)), CHECK_COARSEST)
-    H = min(max(H, 7.0 * T / budget), T / 64)
+    H = min(max(H, 7.0 * T / budget), T / n_min)
     spent, chk = 0.0, None
     while spent + 7.0 * T / H <= CHECK_TRIES_BUDGET * budget or chk is None:
         spent += 7.0 * T / H
-        chk = _global_check(fi, sch, y0, t0, T, H, T, rtol, atol, p, backend)
+        chk = _global_check(fi, sch, y0, t0, T, H, T, rtol, atol, p, backend, runs=runs, n_min=n_min)
         if chk is None or chk[4]:
             break
-        H /= 2.0  # outside the asymptotic regime: halve the coarse step while the budget allows
+        H = chk[2]  # outside the asymptotic regime: halve the coarse step while the budget allows (the runs at
+        # the two finer steps are made: CheckRuns keeps them)
     return chk
 
 
-def _global_check(fi, sch, y0, t0, T, H, tau, rtol, atol, p, backend):
+def _global_check(fi, sch, y0, t0, T, H, tau, rtol, atol, p, backend, runs=None, n_min=64):
     """The measured global error over ``[t0, t0 + tau]`` (step 5 of the module docstring), or ``None``.
 
     Three runs of the scheme itself, at ``H``, ``H/2`` and ``H/4``, compared at every coarse step while
@@ -99,32 +122,48 @@ def _global_check(fi, sch, y0, t0, T, H, tau, rtol, atol, p, backend):
     """
     from ..schemes.core import IntegrationError
 
-    n = max(64, int(math.ceil(tau / H)))
+    n = max(n_min, int(math.ceil(tau / H - 1e-9)))
     m = max(1, n // max(CHECK_SAMPLES, _samples(y0)))
     n = m * int(math.ceil(n / m))
     H = tau / n
-    kw = dict(scheme=sch, progress=False, check_stability=False, backend=backend, drop_exact=True)
+    runs = CheckRuns(fi, sch, y0, backend) if runs is None else runs
     try:
         import warnings
 
         with warnings.catch_warnings(), np.errstate(all="ignore"):
             warnings.simplefilter("ignore")
-            ys = [np.moveaxis(np.asarray(fi.run((t0, t0 + tau), dt=H / k, save_every=k * m, y0=y0, **kw).y), -1, 0)
-                  for k in (1, 2, 4)]
+            # the runs at H/2 and H/4 compared at every step of the run at H/2 where the saved states allow (an
+            # error that peaks between two coarse steps, Kepler's pericentre, is seen), the run at H at its own
+            fine = 2 if m == 1 and 2 * n <= _samples(y0) else 1
+            ys = [runs(t0, tau, H / k, k * m // fine if k > 1 else m) for k in (1, 2, 4)]
     except (IntegrationError, ArithmeticError, np.linalg.LinAlgError, ValueError, RuntimeError):
         return None
-    if any(y.shape != ys[0].shape or not np.all(np.isfinite(y)) for y in ys):
+    if any(y.shape[1:] != ys[0].shape[1:] or not np.all(np.isfinite(y)) for y in ys) or ys[1].shape != ys[2].shape:
         return None
     size = _size(fi, np.max(np.abs(ys[2]), axis=0), CHECK_PART_FLOOR)
-    d1 = float(np.max(np.abs(ys[0] - ys[2]) / size))
-    d2 = float(np.max(np.abs(ys[1] - ys[2]) / size))
+    d1 = float(np.max(np.abs(ys[0] - ys[2][::fine]) / size))
+    d2 = float(np.max(np.abs(ys[1][::fine] - ys[2][::fine]) / size))
     diff = np.abs(ys[1] - ys[2]) / (atol + rtol * size)
     E = float(np.max(diff)) / (1.0 - 2.0 ** -p) * (T / tau)
     E_safe = float(np.max(diff)) * 2.0 ** p * (T / tau)
+    E1 = float(np.max(np.abs(ys[0] - ys[2][::fine]) / (atol + rtol * size))) * (T / tau)
     if not (math.isfinite(E) and math.isfinite(E_safe)):
         return None
     trusted = d1 <= CHECK_TRUST and not (d2 > 1e3 * np.finfo(float).eps and d1 < 2.0 ** (p - 1) * d2)
-    return E, E_safe, H / 2, tau, trusted, m == 1, _run_drift(fi, ys[0]), _run_drift(fi, ys[2])
+    return E, E_safe, H / 2, tau, trusted, m == 1, _run_drift(fi, ys[0]), _run_drift(fi, ys[2][::fine]), E1
+
+
+def measured_order(chk, p):
+    r"""The order by which the check's error grows from its step ``H/2`` to ``H``: ``log2(E_1 / E)``, ``E_1`` the
+    run at ``H``'s difference from the run at ``H/4`` (its error, measured), at least ``p``.
+
+    Before the asymptotic regime the error falls faster than ``h^p`` (Kepler over ``[0, 20]`` with ``imex-rk8``:
+    ``h^{10}`` between 36 and 72 steps); a step extrapolated from ``H/2`` up to ``H`` by ``p`` alone then
+    misses the tolerance (there: 3.6 ``rtol``).  The error at ``H`` is measured, so the step between is
+    interpolated by the measured order."""
+    if len(chk) < 9 or not (chk[0] > 0 and chk[8] > chk[0]):
+        return float(p)
+    return max(float(p), math.log2(chk[8] / chk[0]))
 
 
 def _samples(y0):
@@ -132,9 +171,10 @@ def _samples(y0):
     return max(1, int(CHECK_BYTES // (8 * max(1, np.asarray(y0).size))))
 
 
-def _verify_longer(fi, sch, y0, t0, T, chk, rtol, atol, p, backend):
-    r"""``(dt, e, dense)``: a step longer than the trusted check's coarse step, with its run's measured error
-    ``e`` (in units of the tolerance, ``e <= 1``), or ``None``.
+def _verify_longer(fi, sch, y0, t0, T, chk, rtol, atol, p, backend, runs=None, n_min=64):
+    r"""``(dt, e, dense, drift_bound)``: a step longer than the trusted check's coarse step, with its run's measured
+    error ``e`` (in units of the tolerance, ``e <= 1``), or ``None``; ``drift_bound``: a longer step within the
+    tolerance was refused for its drift (:func:`liefi.integrator.tolerance_drift._drift_cap`).
 
     The check measured the error up to its coarse step ``H``; past it the error is not known to follow
     ``h^p`` (the asymptotic regime may end there).  So a longer step ``dt`` is *run*, over the whole
@@ -152,26 +192,33 @@ def _verify_longer(fi, sch, y0, t0, T, chk, rtol, atol, p, backend):
     not by a model.
     """
     E, _E_safe, h = chk[0], chk[1], chk[2]
-    lo, e_lo = CHECK_GROWTH * h, E * CHECK_GROWTH ** p
+    lo, e_lo = CHECK_GROWTH * h, E * CHECK_GROWTH ** measured_order(chk, p)
     best, hi = None, math.inf  # hi: the least step cut for its drift so far (no later candidate past it)
+    refused = math.inf  # the least step within the tolerance refused for its drift
     prop = lo * (TARGET / e_lo) ** (1.0 / p) if e_lo > 0 else math.inf
     for _ in range(CHECK_WIDEN):
-        cand = min(prop, hi, WIDEN_FACTOR * lo, T / 64)
+        cand = min(prop, hi, WIDEN_FACTOR * lo, T / n_min)
         if not cand > 1.05 * lo:
             break
-        got = _measure(fi, sch, y0, t0, T, cand, h, E, rtol, atol, p, backend)
+        got = _measure(fi, sch, y0, t0, T, cand, h, E, rtol, atol, p, backend, runs=runs)
         if got is None:
             break
         e, dense, cand, drift, floor = got
         cap = _drift_cap(cand, drift, floor, p)
+        # the order of the error's growth between the longest accepted step and this one, measured (at least p)
+        q = max(float(p), math.log(e / e_lo) / math.log(cand / lo)) if e > e_lo > 0 and cand > lo else float(p)
         if e <= 1.0 and cap == math.inf:
-            best, lo = (cand, e, dense), cand
+            best, lo, e_lo = (cand, e, dense), cand, e
+        elif e <= 1.0:  # within the tolerance, refused for its drift
+            refused = min(refused, cand)
+        elif e > 1.0:
+            hi = min(hi, cand)  # too long: no later candidate past it
         hi = min(hi, cap)
-        prop = cand * (TARGET / e) ** (1.0 / p) if e > 0 else math.inf
-    return best
+        prop = cand * (TARGET / e) ** (1.0 / q) if e > 0 else math.inf
+    return None if best is None else best + (refused > best[0],) if refused < math.inf else best + (False,)
 
 
-def _measure(fi, sch, y0, t0, T, dt, h, E, rtol, atol, p, backend):
+def _measure(fi, sch, y0, t0, T, dt, h, E, rtol, atol, p, backend, runs=None):
     """``(e, dense, dt, drift, floor)``: the error of the run at ``dt`` (rounded to ``T/N``) against the run at
     ``dt/q <= h`` whose error is at most ``E (dt / (q h))^p`` (:func:`_verify_longer`), and the invariants' drift
     of the two runs (:func:`_run_drift`), or ``None`` when a run fails."""
@@ -182,14 +229,13 @@ def _measure(fi, sch, y0, t0, T, dt, h, E, rtol, atol, p, backend):
     N = m * int(math.ceil(N / m))
     dt = T / N
     q = max(1, int(math.ceil(dt / h - 1e-9)))
-    kw = dict(scheme=sch, progress=False, check_stability=False, backend=backend, drop_exact=True)
+    runs = CheckRuns(fi, sch, y0, backend) if runs is None else runs
     try:
         import warnings
 
         with warnings.catch_warnings(), np.errstate(all="ignore"):
             warnings.simplefilter("ignore")
-            ys = [np.moveaxis(np.asarray(fi.run((t0, t0 + T), dt=dt / k, save_every=k * m, y0=y0, **kw).y), -1, 0)
-                  for k in (1, q)]
+            ys = [runs(t0, T, dt / k, k * m) for k in (1, q)]
     except (IntegrationError, ArithmeticError, np.linalg.LinAlgError, ValueError, RuntimeError):
         return None
     if ys[0].shape != ys[1].shape or not all(np.all(np.isfinite(y)) for y in ys):

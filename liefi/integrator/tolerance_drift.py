@@ -27,11 +27,20 @@ DRIFT_FLOOR_RATIO = 4.0
 DRIFT_AIM = 0.25
 
 
+#: The drift of a run is evaluated at most at this many of its saved states (evenly spread, the first and the last
+#: among them): the values of the invariants in numpy cost 10--100 us a state, and a check's runs save up to
+#: millions (the rattleback's step choice spent a third of its time there).
+DRIFT_SAMPLES = 512
+
+
 def _run_drift(fi, ys):
     """The largest relative drift of the invariants over a run's saved states ``ys`` (:func:`liefi.integrator.drift.drift`,
-    scales at the start); ``0`` where it cannot be evaluated (no invariant: nothing to keep)."""
+    scales at the start; at :data:`DRIFT_SAMPLES` of them at most); ``0`` where it cannot be evaluated (no
+    invariant: nothing to keep)."""
     from .drift import drift, drift_scales
 
+    if len(ys) > DRIFT_SAMPLES:
+        ys = np.asarray(ys)[np.unique(np.linspace(0, len(ys) - 1, DRIFT_SAMPLES).astype(int))]
     try:
         with np.errstate(all="ignore"):
             d = drift(fi, np.asarray(ys, float), drift_scales(fi, ys[0]))[0]

@@ -14,6 +14,10 @@ import numpy as np
 
 #: Steps of the pilot (each with a step-doubling error estimate).
 PILOT_STEPS = 24
+#: ... where the measured check follows (a compiled backend, one trajectory): the pilot then only plans the
+#: check's coarse step and ranks the orders, and the check's runs set the step (a third of the pilot's work:
+#: 10--40 ms of a short run's choice, the same steps on Suslov, Kepler, the rigid body, the Chaplygin ball).
+PILOT_STEPS_CHECKED = 8
 #: A component's error scale is at least this fraction of the largest size of its part.
 PART_FLOOR = 1e-2
 #: The first pilot step is the largest ``T / 4^k`` whose relative local error is below this.
@@ -64,11 +68,11 @@ def unforced_field(fi, Y, backend):
     return fi.unforced_vector_field
 
 
-def _local_estimate(fi, tab, Y, T, rtol, atol, f=None):
+def _local_estimate(fi, tab, Y, T, rtol, atol, f=None, steps=None):
     """``(C, h, mag)``: the local error constant of ``tab`` on ``X`` from the step-doubling pilot.
 
-    ``C`` the largest ``e / h^{p+1}`` over :data:`PILOT_STEPS` steps of ``h`` (steps 1--3 of the module
-    docstring), in the scaled norm; ``mag`` the componentwise largest ``|y|`` seen.  ``f``: ``X``
+    ``C`` the largest ``e / h^{p+1}`` over ``steps`` (default :data:`PILOT_STEPS`) steps of ``h`` (steps 1--3
+    of the module docstring), in the scaled norm; ``mag`` the componentwise largest ``|y|`` seen.  ``f``: ``X``
     (default: numpy's, :func:`unforced_field`).
     """
     p = int(tab.order)
@@ -101,7 +105,7 @@ def _local_estimate(fi, tab, Y, T, rtol, atol, f=None):
         C, hC = 0.0, h
         for _ in range(12):  # enlarge the pilot step until its error is well above rounding
             y, big, c, m = Y, 0.0, 0.0, mag
-            for _k in range(PILOT_STEPS):
+            for _k in range(PILOT_STEPS if steps is None else steps):
                 try:
                     y1 = tab.step(f, y, h)
                     yh = tab.step(f, tab.step(f, y, h / 2), h / 2)
