@@ -4,7 +4,8 @@ r"""Forward discrete sensitivities of a run: ``d y(t) / d y0`` and ``d y(t) / d 
 the derivative of the *saved states liefi returned* with respect to the start
 ``y0`` (shape ``(n, n, n_t)``, rows ``y``, columns ``y0``) or to a parameter
 (shape ``(n, n_t)``).  The parameters are the runtime constants of a system built
-by :func:`liefi.mechanics.from_mechanics` (:attr:`MechanicsSystem.constants`).
+by :func:`liefi.mechanics.from_mechanics` (:attr:`MechanicsSystem.constants`), or those declared on
+data built by hand (:mod:`liefi.systems.parameters`).
 
 **Discrete sensitivities.**  A fixed-step run is the composition of one map,
 ``y_{s+1} = Phi(y_s; p, theta, dt)``, with ``p`` the feedback parameters (gains
@@ -68,9 +69,21 @@ REPLAY_RTOL = 1e-8
 _KERNELS: dict = {}
 
 
+def _holder(system):
+    """The object whose ``values`` the system's data read: the constants of
+    :func:`~liefi.mechanics.from_mechanics`, or the :class:`~liefi.systems.parameters.Parameters` declared
+    on data built by hand (:func:`~liefi.systems.parameters.declare`); ``None`` without parameters."""
+    mech = getattr(system, "_mech", None)
+    if mech is not None:
+        return mech["constants"]
+    return getattr(system, "declared_parameters", None)
+
+
 def parameter_names(system):
-    """The names that ``sensitivities=`` accepts for ``system`` besides ``"y0"``: its runtime constants."""
-    names = getattr(system, "constant_names", None)
+    """The names that ``sensitivities=`` accepts for ``system`` besides ``"y0"``: its runtime constants, or
+    the parameters declared on its data (:mod:`liefi.systems.parameters`)."""
+    declared = getattr(system, "declared_parameters", None)
+    names = getattr(system, "constant_names", None) if declared is None else declared.names
     try:
         return tuple(str(s) for s in names) if names is not None else ()
     except (TypeError, KeyError):
@@ -97,7 +110,8 @@ def check(fi, sensitivities, *, t_eval=None, events=None, dense_output=False, y0
     for nm in names:
         if not isinstance(nm, str) or nm not in known:
             extra = (f"the system's parameters are {list(known[1:])}" if len(known) > 1 else
-                     "this system declares no parameters (the constants of liefi.mechanics.from_mechanics are)")
+                     "this system declares no parameters (the constants of liefi.mechanics.from_mechanics are; "
+                     "declare them on data built by hand with liefi.systems.parameters.declare)")
             raise ValueError(f"sensitivities: unknown name {nm!r}; use 'y0' (d y / d y0) or a parameter; {extra}")
     if len(set(names)) != len(names):
         raise ValueError(f"sensitivities: a name is repeated in {names!r}; give each once")
@@ -117,8 +131,7 @@ class _SwappedConstants:
     """While tracing: the system's constants replaced by symbols (``values``), restored after."""
 
     def __init__(self, system, values):
-        mech = getattr(system, "_mech", None)
-        self.holder = None if mech is None else mech["constants"]
+        self.holder = _holder(system)
         self.values = values
 
     def __enter__(self):
@@ -134,10 +147,10 @@ class _SwappedConstants:
 
 
 def _constants(system):
-    mech = getattr(system, "_mech", None)
-    if mech is None:
+    holder = _holder(system)
+    if holder is None:
         return np.zeros(0)
-    return np.asarray(mech["constants"].values, float)
+    return np.asarray(holder.values, float)
 
 
 def _targets(fi, y, p, data):
