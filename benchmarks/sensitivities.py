@@ -13,6 +13,8 @@ For ``k`` = 1, 4, 16 random directions of the start it prints the CPU seconds of
   the states and their ``k`` tangents, the compile excluded by a warm-up), and its ratio to the
   plain run against the target ``1 + k``;
 * central differences of whole compiled runs at equal ``k`` (``2 k`` runs), and their ratio;
+* the adjoint (:func:`liefi.integrator.adjoint.vjp`, compiled): the gradient of one scalar loss by
+  ``y0`` and every parameter, whatever their number;
 
 best of ``--reps``, with the CPU model (``benchmarks/_machine.py``).  Both sides save every
 ``--save-every`` steps.
@@ -31,6 +33,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 
 import liefi  # noqa: E402
 from liefi import scenes  # noqa: E402
+from liefi.integrator.adjoint import vjp  # noqa: E402
 from liefi.integrator.sensitivity import tangents  # noqa: E402
 from liefi.schemes import registry  # noqa: E402
 from _machine import cpu_model  # noqa: E402 -- benchmarks/_machine.py
@@ -65,13 +68,18 @@ def main(argv=None):
     t = time.perf_counter()
     for k in args.ks:  # compile (or load) the tangent loop of every k
         tangents(run_fi, sch, fi.y0, dt, 10, np.arange(11), np.eye(fi.n)[:1].repeat(k, 0), engine="numba")
+    Wl = np.random.default_rng(1).standard_normal((fi.n, saved.size))  # a loss's dL/dy at the saved states
+    vjp(run_fi, sch, fi.y0, dt, 10, saved[saved <= 10], Wl[:, saved <= 10], engine="numba")
     compile_s = time.perf_counter() - t
     rng = np.random.default_rng(0)
     Vs = {k: rng.standard_normal((k, fi.n)) for k in args.ks}
     # interleaved: every repetition runs the plain run, then the tangents of every k; best of the repetitions
-    plain, best, out = np.inf, {k: np.inf for k in args.ks}, {}
+    plain, best, out, adj = np.inf, {k: np.inf for k in args.ks}, {}, np.inf
     for _ in range(args.reps):
         plain = min(plain, fi.run(T, **kw).cpu_seconds)
+        t = time.process_time()
+        vjp(run_fi, sch, fi.y0, dt, n_steps, saved, Wl, engine="numba")
+        adj = min(adj, time.process_time() - t)
         for k in args.ks:
             t = time.process_time()
             out[k] = tangents(run_fi, sch, fi.y0, dt, n_steps, saved, Vs[k], engine="numba")
@@ -79,6 +87,8 @@ def main(argv=None):
     print(f"# {args.scene}, {args.scheme}, gains {args.gains} (resolved once, held), dt {dt:g}, t_final {T:g} "
           f"({n_steps} steps), n = {fi.n}; CPU: {cpu_model()}; best of {args.reps} interleaved repetitions")
     print(f"# plain compiled run: {plain:.4f} s CPU (loop); tangent kernels compile/load: {compile_s:.1f} s wall")
+    print(f"# adjoint (reverse mode: dL/dy0 and dL/dtheta of one scalar loss, any number of parameters): {adj:.4f} s "
+          f"CPU, {adj / plain:.2f} plain runs")
     print(f"{'k':>3} {'tangents s':>11} {'ratio':>7} {'target 1+k':>10} {'central FD s':>13} {'FD ratio':>9} "
           f"{'max |S_tan - S_FD| / |S|':>24}")
     for k in args.ks:

@@ -19,7 +19,7 @@ The arithmetic of the state is the plain loop's (``yi_r = y_r + c<i>_<l> k<l>_r 
 from __future__ import annotations
 
 from ..engine.codegen import _coeff_source, _literal, _update_terms, node_expression, reachable
-from ..engine.symbolic import as_sym, derivative
+from ..engine.symbolic import _d_unary, add, as_sym, const, derivative, div, mul, power, sub, unary
 
 #: the most directions one fused kernel carries; more are stepped in blocks of this many
 K_MAX = 16
@@ -34,6 +34,59 @@ def jvp_graph(f, inputs, directions):
     f = [as_sym(o) for o in f]
     memo = {x.id: directions[q] for q, x in enumerate(inputs)}
     return f, [derivative(e, None, memo) for e in f]
+
+
+def _partials(node):
+    """``[(argument, d node / d argument), ...]`` of an operation node (traced)."""
+    op, a = node.op, node.args
+    if op == "add":
+        return [(a[0], const(1.0)), (a[1], const(1.0))]
+    if op == "sub":
+        return [(a[0], const(1.0)), (a[1], const(-1.0))]
+    if op == "mul":
+        return [(a[0], a[1]), (a[1], a[0])]
+    if op == "div":
+        return [(a[0], div(1.0, a[1])), (a[1], unary("neg", div(node, a[1])))]
+    if op == "pow":
+        out = [(a[0], mul(a[1], power(a[0], sub(a[1], 1.0))))]
+        return out if a[1].op == "const" else out + [(a[1], mul(node, unary("log", a[0])))]
+    return [(a[0], _d_unary(op, a[0], const(1.0), node))]
+
+
+def vjp_graph(f, inputs, cotangents):
+    r"""The vector--Jacobian product ``sum_i cot_i d f_i / d inputs`` (Syms, one per input) by reverse
+    accumulation over the graph: the nodes in reverse creation order, each node's adjoint the sum over
+    its users of ``d user / d node`` times the user's adjoint."""
+    f = [as_sym(o) for o in f]
+    adj = {}
+    for o, c in zip(f, cotangents):
+        if o.op != "const":
+            adj[o.id] = add(adj[o.id], c) if o.id in adj else c
+    for node in reversed(reachable(f)):
+        if node.op == "var" or node.id not in adj:
+            continue
+        for arg, d in _partials(node):
+            if arg.op == "const":
+                continue
+            term = mul(d, adj[node.id])
+            adj[arg.id] = add(adj[arg.id], term) if arg.id in adj else term
+    return [adj.get(x.id, const(0.0)) for x in inputs]
+
+
+def emit_plain(outputs, var, prefix, indent, ref=None):
+    """Lines computing ``outputs`` (every reachable node once, ``<prefix>_t<id>``) and their names;
+    ``var(name, i)`` prints an input.  ``ref`` (node id -> name; updated): nodes already computed."""
+    ref = {} if ref is None else ref
+    lines = []
+    for node in reachable(outputs):
+        if node.id in ref:
+            continue
+        if node.op == "var":
+            ref[node.id] = var(*node.args)
+            continue
+        lines.append(f"{indent}{prefix}_t{node.id} = {node_expression(node, ref)}")
+        ref[node.id] = f"{prefix}_t{node.id}"
+    return lines, [_literal(o.value) if o.op == "const" else ref[o.id] for o in outputs]
 
 
 def _emit(f, T, var, direction, prefix, k, indent):
