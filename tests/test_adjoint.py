@@ -68,3 +68,15 @@ def test_from_mechanics_constants_and_declared_parameters_by_the_adjoint():
     _, gc = check(liefi.FeedbackIntegrator(system, y0, configuration=False, gains=5.0), "rk4", y0, 0.01, 20,
                   np.array([10, 20]))
     assert gc.shape == (2,)
+
+
+@pytest.mark.slow  # numba compiles the adjoint's loops
+def test_the_compiled_adjoint_agrees_with_the_python_one():
+    pytest.importorskip("numba")
+    fi = get_scene("suslov").integrator(gains=10.0, configuration=True)
+    sch = registry.get("imex-rk4")
+    saved = np.array([0, 50, 100])
+    W = np.random.default_rng(2).standard_normal((fi.n, saved.size))
+    a = adjoint.vjp(fi, sch, fi.y0, 0.01, 100, saved, W, engine="python")[0]
+    b = adjoint.vjp(fi, sch, fi.y0, 0.01, 100, saved, W, engine="numba")[0]
+    assert np.max(np.abs(a - b)) / np.max(np.abs(a)) < 1e-13
