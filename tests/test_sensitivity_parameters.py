@@ -163,3 +163,51 @@ def test_chaplygin_ball_two_declared_parameters_through_a_split_scheme_with_auto
         ref = central8(run, 1e-2)
         assert np.max(np.abs(ref)) > 1e-4
         assert rel(sol.sensitivities[name], ref) < RTOL, name
+
+
+# --- Suslov's body built by hand, with weight: its centre-of-mass offset and weight declared ----------
+
+
+def weighted_suslov():
+    """Suslov's constrained rigid body (inertia and constraint of ``liefi.scenes.suslov``) under gravity, on the
+    space with the advected vertical ``Gamma``: ``U = mg chi . Gamma``, ``chi = (0.1, 0, h)``; ``mg`` and ``h``
+    declared (Suslov's own data are constant arrays, which parameters do not reach: the weight is a function)."""
+    from liefi.groups import SO3
+    from liefi.groups.representation import Representation
+    from liefi.scenes.suslov import Suslov
+
+    par = Parameters(mg=1.0, h=0.3)
+
+    def potential(x, G):
+        return par["mg"] * (0.1 * G[..., 0] + par["h"] * G[..., 2])
+
+    I, a = Suslov.inertia, Suslov.a
+    e = np.linalg.solve(I, a) / np.sqrt(a @ np.linalg.solve(I, a))
+    space = liefi.LieGroupPhaseSpace(SO3(), advected=Representation(SO3()), a0=[0.0, 0.0, 1.0])
+    system = declare(liefi.NonholonomicSystem(space, I, e, potential=potential), par)
+    g0 = SO3().exp(np.array([0.4, 0.1, 0.0])).ravel()
+    return system, par, np.concatenate([g0, space.advected_vector(g0), [0.0, 1.0, 1.0]])
+
+
+def test_suslov_with_declared_weight_two_parameters_through_a_split_scheme_with_auto_gains():
+    system, par, y0 = weighted_suslov()
+    fi = liefi.FeedbackIntegrator(system, y0)  # gains="auto"
+    T, dt, scheme = 0.2, 0.01, "imex-rk4"
+    sol = fi.run(T, dt=dt, scheme=scheme, backend="numpy", sensitivities=("y0", "mg", "h"))
+    fr = liefi.FeedbackIntegrator(system, y0, gains=sol.stability.gains)
+    if sol.dropped:
+        fr = fr.without({d["name"]: d["reason"] for d in sol.dropped})
+    sch = registry.get(scheme)
+    assert np.allclose(step_map_run(fr, sch, y0, T, dt, sol.stability.gains), sol.y, rtol=0, atol=1e-14)
+    base = par.values.copy()
+    for k, name in enumerate(par.names):
+        def run(s, k=k):
+            par.values = base + s * np.eye(2)[k]
+            try:
+                return step_map_run(fr, sch, y0, T, dt, sol.stability.gains)
+            finally:
+                par.values = base
+
+        ref = central8(run, 1e-2)
+        assert np.max(np.abs(ref)) > 1e-4
+        assert rel(sol.sensitivities[name], ref) < RTOL, name
