@@ -39,3 +39,7 @@ def test_compiled_tangents_cost_a_few_plain_runs_per_direction():
             best[k] = min(best[k], time.process_time() - t)
     assert best[1] / plain < 6.0, (best, plain)
     assert best[16] / plain < 30.0, (best, plain)
+    for k in V:  # k = 1: the directions unrolled as scalars; k = 16: as lanes; both the numpy path's numbers
+        a = tangents(fi, sch, fi.y0, dt, 50, np.array([0, 20, 50]), V[k], engine="python")[1]
+        b = tangents(fi, sch, fi.y0, dt, 50, np.array([0, 20, 50]), V[k], engine="numba")[1]
+        assert np.max(np.abs(a - b)) / np.max(np.abs(a)) < 1e-13, k

@@ -27,6 +27,20 @@ K_MAX = 16
 #: from this many directions on, the fused loop carries them as lanes (:func:`fused_lanes_source`)
 LANES_FROM = 8
 
+#: the most tangent nodes (summed over the directions) printed one copy per direction; a larger step
+#: (a rolling body's) carries its directions as lanes from two on, so that its code stays compilable
+UNROLLED_NODES_MAX = 4000
+
+
+def as_lanes(k, field, feedback):
+    """Whether the fused loop of ``k`` directions carries them as lanes: from :data:`LANES_FROM` on, or
+    when ``k`` copies of the tangent code (the field's once per stage counted once) exceed
+    :data:`UNROLLED_NODES_MAX` nodes."""
+    if k >= LANES_FROM:
+        return True
+    nodes = sum(len(reachable(T)) for _, T in [field] + ([feedback] if feedback is not None else []))
+    return k > 1 and k * nodes > UNROLLED_NODES_MAX
+
 
 def jvp_graph(f, inputs, directions):
     """``(f, T)``: the outputs ``f`` (Syms) and their derivatives ``T`` along the symbols ``directions``

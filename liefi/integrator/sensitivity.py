@@ -275,12 +275,11 @@ def fused_kernel(fi, sch, k, *, engine="numba"):
                 h = tr.symbols("hh", 1)[0]
                 g = traced_call("the feedback step", feedback_step, fi, y, h, p, data=TRACED_DATA)
                 gT = tl.jvp_graph(np.asarray(g, dtype=object).reshape(-1), inputs, d)
-        gen = tl.fused_lanes_source if lanes else tl.fused_loop_source
+        gen = tl.fused_lanes_source if tl.as_lanes(k, fT, gT) else tl.fused_loop_source
         src = gen(fT, gT, tab, n, size, P, k, split=split)
         return src, size, "tangent-fused", 0
 
-    lanes = k >= tl.LANES_FROM
-    return _kept(fi, ("tangent-fused", sch.name, int(k), lanes), engine, make)
+    return _kept(fi, ("tangent-fused", sch.name, int(k)), engine, make)
 
 
 def _step(mod, sch, y, S, p, c, Wt, Ct, dt, bufs):
