@@ -70,6 +70,14 @@ def test_from_mechanics_constants_and_declared_parameters_by_the_adjoint():
     assert gc.shape == (2,)
 
 
+def test_bad_cotangents_are_refused():
+    fi = get_scene("suslov").integrator(gains=10.0, configuration=True)
+    with pytest.raises(ValueError, match=r"W: expected dL/dy at the saved steps, shape \(n, n_t\) = \(12, 2\)"):
+        adjoint.vjp(fi, "rk4", fi.y0, 0.01, 10, [0, 10], np.ones((12, 3)))
+    with pytest.raises(ValueError, match="saved_steps: expected increasing steps"):
+        adjoint.vjp(fi, "rk4", fi.y0, 0.01, 10, [10, 0], np.ones((12, 2)))
+
+
 @pytest.mark.slow  # numba compiles the adjoint's loops
 def test_the_compiled_adjoint_agrees_with_the_python_one():
     pytest.importorskip("numba")

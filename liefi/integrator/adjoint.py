@@ -161,7 +161,12 @@ def vjp(fi, sch, y0, dt, n_steps, saved_steps, W, *, engine="python", schedule=N
     c = np.ascontiguousarray(_sens._constants(fi.system), dtype=float)
     P = c.size
     saved_steps = np.asarray(saved_steps, dtype=np.int64)
-    W = np.asarray(W, float).reshape(n, saved_steps.size)
+    W = np.asarray(W, float)
+    if W.shape != (n, saved_steps.size):
+        raise ValueError(f"W: expected dL/dy at the saved steps, shape (n, n_t) = ({n}, {saved_steps.size}), got "
+                         f"{W.shape}")
+    if np.any(np.diff(saved_steps) <= 0) or (saved_steps.size and (saved_steps[0] < 0 or saved_steps[-1] > n_steps)):
+        raise ValueError(f"saved_steps: expected increasing steps in 0..{n_steps}, got {saved_steps.tolist()}")
     if schedule is None:
         schedule = [(0, fi.parameters())]
     schedule = [(int(a), np.ascontiguousarray(q, dtype=float)) for a, q in schedule]
