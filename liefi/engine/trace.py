@@ -231,29 +231,24 @@ def _free_point(x):
 
 def _substitute(outputs, mapping):
     """``outputs`` (Syms) rebuilt with the nodes of ``mapping`` (node id -> Sym) replaced: ``e(u)`` -> ``e(x)``."""
+    from .codegen import reachable
+
     new = dict(mapping)
-    for node in sorted({n.id: n for n in _reachable(outputs)}.values(), key=lambda s: s.id):
+
+    def arg(a):
+        return new.get(a.id, a)  # constants are not in reachable's list: they stay
+
+    for node in reachable(outputs):
         if node.id in new:
             continue
-        if node.op in ("const", "var"):
+        if node.op == "var":
             new[node.id] = node
         elif node.op in _BINARY:
             new[node.id] = {"add": add, "sub": sub, "mul": mul, "div": div, "pow": power}[node.op](
-                new[node.args[0].id], new[node.args[1].id])
+                arg(node.args[0]), arg(node.args[1]))
         else:
-            new[node.id] = unary(node.op, new[node.args[0].id])
-    return [new[o.id] for o in outputs]
-
-
-def _reachable(outputs):
-    seen, stack = {}, list(outputs)
-    while stack:
-        node = stack.pop()
-        if node.id not in seen:
-            seen[node.id] = node
-            if node.op not in ("const", "var"):
-                stack.extend(node.args)
-    return seen.values()
+            new[node.id] = unary(node.op, arg(node.args[0]))
+    return [arg(o) for o in outputs]
 
 
 _FRESH = [0]
