@@ -223,6 +223,67 @@ def _call_datum(fun, x, shape, name):
     return traced_call(name, call)
 
 
+def _free_point(x):
+    """Whether the traced point ``x`` is distinct input symbols (then ``d / d x_i`` is read off the graph)."""
+    flat = [as_sym(v) for v in np.asarray(x, dtype=object).reshape(-1)]
+    return all(v.op == "var" for v in flat) and len({v.id for v in flat}) == len(flat)
+
+
+def _substitute(outputs, mapping):
+    """``outputs`` (Syms) rebuilt with the nodes of ``mapping`` (node id -> Sym) replaced: ``e(u)`` -> ``e(x)``."""
+    from .codegen import reachable
+
+    new = dict(mapping)
+
+    def arg(a):
+        return new.get(a.id, a)  # constants are not in reachable's list: they stay
+
+    for node in reachable(outputs):
+        if node.id in new:
+            continue
+        if node.op == "var":
+            new[node.id] = node
+        elif node.op in _BINARY:
+            new[node.id] = {"add": add, "sub": sub, "mul": mul, "div": div, "pow": power}[node.op](
+                arg(node.args[0]), arg(node.args[1]))
+        else:
+            new[node.id] = unary(node.op, arg(node.args[0]))
+    return [arg(o) for o in outputs]
+
+
+_FRESH = [0]
+
+
+def _at_point(fun, x, shape, name, grad, grad_shape, grad_name):
+    r"""``(fun(x), d fun / d x)`` traced, ``d / d x_i`` the partial derivative in the ``i``-th entry of ``x``.
+
+    At a point of distinct input symbols the derivative is read off the graph of ``fun(x)``.  At a
+    composite point (``x_i`` expressions of other symbols, or repeated entries) the graph of ``fun(x)``
+    need not pass through the nodes ``x_i`` (the tracer simplifies sums and products into their atoms),
+    so ``fun`` is traced at fresh symbols ``u``, differentiated in ``u``, and ``u -> x`` substituted:
+    :math:`\partial_i f(x) = (\partial f / \partial u_i)|_{u = x}`.
+    """
+    x = np.asarray(x, dtype=object)
+    if _free_point(x):
+        val = _call_datum(fun, x, shape, name)
+        der = (_call_datum(grad, x, grad_shape, grad_name) if grad is not None else jacobian(val, list(x)))
+        return val, der
+    from .symbolic import _graph
+
+    _FRESH[0] += 1
+    u = np.empty(x.shape, dtype=object)
+    for i in range(x.size):
+        u[i] = _graph().node("var", (f"_point{_FRESH[0]}", i))
+    val = _call_datum(fun, u, shape, name)
+    der = (_call_datum(grad, u, grad_shape, grad_name) if grad is not None else jacobian(val, list(u)))
+    val, der = np.asarray(val, dtype=object), np.asarray(der, dtype=object)
+    flat = list(val.reshape(-1)) + list(der.reshape(-1))
+    out = _substitute([as_sym(v) for v in flat], {ui.id: as_sym(xi) for ui, xi in zip(u, x.reshape(-1))})
+    v = np.empty(len(out), dtype=object)
+    v[:] = out
+    return _sym(v[:val.size].reshape(val.shape)), _sym(v[val.size:].reshape(der.shape))
+
+
 class TracedData:
     """The data accessor of tracing (see :class:`liefi.reduction.core.NumpyData`).
 
@@ -242,21 +303,12 @@ class TracedData:
     def value_and_derivative(datum, x):
         if datum.constant:
             return datum.value, None
-        val = _call_datum(datum.fun, x, datum.shape, datum.name)
-        if datum._derivative is not None:
-            der = _call_datum(datum._derivative, x, (datum.n,) + datum.shape, f"{datum.name} derivative")
-        else:
-            der = jacobian(val, list(x))
-        return val, der
+        return _at_point(datum.fun, x, datum.shape, datum.name, datum._derivative, (datum.n,) + datum.shape,
+                         f"{datum.name} derivative")
 
     @staticmethod
     def value_and_gradient(fun, z, grad=None, name="function"):
-        val = _call_datum(fun, z, (), name)
-        if grad is not None:
-            g = _call_datum(grad, z, z.shape, f"{name} gradient")
-        else:
-            g = jacobian(val, list(z))
-        return val, g
+        return _at_point(fun, z, (), name, grad, np.shape(z), f"{name} gradient")
 
 
 #: the accessor that traces

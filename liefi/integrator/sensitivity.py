@@ -4,7 +4,8 @@ r"""Forward discrete sensitivities of a run: ``d y(t) / d y0`` and ``d y(t) / d 
 the derivative of the *saved states liefi returned* with respect to the start
 ``y0`` (shape ``(n, n, n_t)``, rows ``y``, columns ``y0``) or to a parameter
 (shape ``(n, n_t)``).  The parameters are the runtime constants of a system built
-by :func:`liefi.mechanics.from_mechanics` (:attr:`MechanicsSystem.constants`).
+by :func:`liefi.mechanics.from_mechanics` (:attr:`MechanicsSystem.constants`), or those declared on
+data built by hand (:mod:`liefi.systems.parameters`).
 
 **Discrete sensitivities.**  A fixed-step run is the composition of one map,
 ``y_{s+1} = Phi(y_s; p, theta, dt)``, with ``p`` the feedback parameters (gains
@@ -41,8 +42,10 @@ engine's tracer, :mod:`liefi.engine.trace`, the same trace as the compiled kerne
 ``theta + sum_j e_j c_j``; the exact symbolic derivative of that graph in ``e_j`` at
 ``e = 0`` is the Jacobian--vector product of the step in direction ``j`` -- the
 formulas above, every stage and the feedback step included, with the data's second
-derivatives traced too.  One generated function returns the next state and its
-``k`` tangents; :func:`propagate` steps it.  A complex step through the numpy step
+derivatives traced too.  Compiled (``engine="numba"``), one generated loop advances the state and its
+``k`` tangents together, every node's tangent printed next to its value
+(:mod:`liefi.integrator._tangent_loop`, :func:`fused_kernel`); on the numpy path the generated
+Jacobians of the step are multiplied by the tangents (:func:`_step`).  :func:`propagate` steps them.  A complex step through the numpy step
 would not be exact: the field differentiates the data by complex step itself
 (``DataFunction.with_derivative``), and two nested complex steps are not exact (the
 numpy field refuses complex states with ``x``-dependent data for that reason).
@@ -54,7 +57,6 @@ along the run: pass ``adaptive=False``) and a ``ValueError`` says so.
 
 from __future__ import annotations
 
-import contextvars
 import time
 import weakref
 
@@ -66,13 +68,22 @@ REPLAY_RTOL = 1e-8
 #: the tangent kernels built in this process: (system id, integrator layout, engine) -> (weak system, kernel)
 _KERNELS: dict = {}
 
-#: while a tangent kernel is traced: the direction symbols ``d`` (one per input of the traced function)
-_DIRECTIONS = contextvars.ContextVar("liefi_tangent_directions", default=None)
+
+def _holder(system):
+    """The object whose ``values`` the system's data read: the constants of
+    :func:`~liefi.mechanics.from_mechanics`, or the :class:`~liefi.systems.parameters.Parameters` declared
+    on data built by hand (:func:`~liefi.systems.parameters.declare`); ``None`` without parameters."""
+    mech = getattr(system, "_mech", None)
+    if mech is not None:
+        return mech["constants"]
+    return getattr(system, "declared_parameters", None)
 
 
 def parameter_names(system):
-    """The names that ``sensitivities=`` accepts for ``system`` besides ``"y0"``: its runtime constants."""
-    names = getattr(system, "constant_names", None)
+    """The names that ``sensitivities=`` accepts for ``system`` besides ``"y0"``: its runtime constants, or
+    the parameters declared on its data (:mod:`liefi.systems.parameters`)."""
+    declared = getattr(system, "declared_parameters", None)
+    names = getattr(system, "constant_names", None) if declared is None else declared.names
     try:
         return tuple(str(s) for s in names) if names is not None else ()
     except (TypeError, KeyError):
@@ -99,7 +110,8 @@ def check(fi, sensitivities, *, t_eval=None, events=None, dense_output=False, y0
     for nm in names:
         if not isinstance(nm, str) or nm not in known:
             extra = (f"the system's parameters are {list(known[1:])}" if len(known) > 1 else
-                     "this system declares no parameters (the constants of liefi.mechanics.from_mechanics are)")
+                     "this system declares no parameters (the constants of liefi.mechanics.from_mechanics are; "
+                     "declare them on data built by hand with liefi.systems.parameters.declare)")
             raise ValueError(f"sensitivities: unknown name {nm!r}; use 'y0' (d y / d y0) or a parameter; {extra}")
     if len(set(names)) != len(names):
         raise ValueError(f"sensitivities: a name is repeated in {names!r}; give each once")
@@ -119,8 +131,7 @@ class _SwappedConstants:
     """While tracing: the system's constants replaced by symbols (``values``), restored after."""
 
     def __init__(self, system, values):
-        mech = getattr(system, "_mech", None)
-        self.holder = None if mech is None else mech["constants"]
+        self.holder = _holder(system)
         self.values = values
 
     def __enter__(self):
@@ -136,10 +147,10 @@ class _SwappedConstants:
 
 
 def _constants(system):
-    mech = getattr(system, "_mech", None)
-    if mech is None:
+    holder = _holder(system)
+    if holder is None:
         return np.zeros(0)
-    return np.asarray(mech["constants"].values, float)
+    return np.asarray(holder.values, float)
 
 
 def _targets(fi, y, p, data):
@@ -166,46 +177,39 @@ def _jacobian_rows(out_expr, inputs):
     return np.concatenate([f, J.reshape(-1)])
 
 
-def _jvp_source(name, f, inputs, args):
-    """Source of ``name(*args, d, out, dout)``: ``out = f`` and ``dout[:, j]`` its derivative along ``d[:, j]``.
+def _targets_source(fi, y, p, c):
+    """Source of ``ptargets(y, p, c, out)``: the parameter vector with its targets at ``y`` and its
+    Jacobian in ``(y, c)`` (traced on the symbols ``y, p, c`` of the current session)."""
+    from ..engine.codegen import NJIT, function_source
+    from ..engine.trace import TRACED_DATA, traced_call
 
-    Forward differentiation of the graph with the inputs seeded by the direction symbols
-    (``d[q]`` for ``inputs[q]``): the tangent of every node is written once, inside a loop over
-    the ``k`` columns of ``d``; the primal nodes are computed once, before it.
-    """
-    from ..engine.codegen import _literal, node_expression, reachable
-    from ..engine.symbolic import as_sym, derivative
+    with _SwappedConstants(fi.system, c):
+        p0 = traced_call("the invariants' targets", _targets, fi, y, p, TRACED_DATA)
+    return NJIT + function_source("ptargets", _jacobian_rows(p0, [*y, *c]), ("y", "p", "c", "out"))
 
-    f = [as_sym(o) for o in np.asarray(f, dtype=object).reshape(-1)]
-    tr_d = _DIRECTIONS.get()
-    memo = {x.id: tr_d[q] for q, x in enumerate(inputs)}
-    T = [derivative(e, None, memo) for e in f]
-    ref, moving, head, body = {}, set(), [], []
-    for node in reachable(f + T):
-        if node.op == "var":
-            nm, i = node.args
-            if nm == "d":
-                ref[node.id] = f"d[{i}, j]"
-                moving.add(node.id)
-            else:
-                ref[node.id] = f"{nm}[{i}]"
-            continue
-        expr = node_expression(node, ref)
-        if any(x.id in moving for x in node.args):
-            moving.add(node.id)
-            body.append(f"        t{node.id} = {expr}")
-        else:
-            head.append(f"    t{node.id} = {expr}")
-        ref[node.id] = f"t{node.id}"
 
-    def val(o):
-        return _literal(o.value) if o.op == "const" else ref[o.id]
+def targets_kernel(fi):
+    """The plain-Python module of ``ptargets`` alone (:func:`_targets_source`), called once per run."""
 
-    lines = [f"def {name}({', '.join(args)}, d, out, dout):"] + head
-    lines += [f"    out[{i}] = {val(o)}" for i, o in enumerate(f)]
-    lines += ["    for j in range(d.shape[1]):"] + body
-    lines += [f"        dout[{i}, j] = {val(o)}" for i, o in enumerate(T)]
-    return "\n".join(lines) + "\n"
+    def make(tr):
+        n, size, P = fi.n, fi.parameter_layout.size, _constants(fi.system).size
+        y, p, c = tr.symbols("y", n), tr.symbols("p", size), tr.symbols("c", P)
+        return _targets_source(fi, y, p, c), size, "targets", 0
+
+    return _kept(fi, ("tangent-targets",), "python", make)
+
+
+def _kept(fi, kind, engine, make):
+    """The kernel ``make`` builds for ``fi``'s system and layout, kept per system (not per constants' value)."""
+    from ..engine.kernels import _engine, _fi_key, _field_kernel
+
+    key = (id(fi.system),) + _fi_key(fi, kind) + (_engine(engine),)
+    got = _KERNELS.get(key)
+    if got is not None and got[0]() is fi.system:
+        return got[1]
+    made = _field_kernel(fi, kind, engine, make)
+    _KERNELS[key] = (weakref.ref(fi.system), made)
+    return made
 
 
 def tangent_kernel(fi, sch, *, engine="python"):
@@ -221,7 +225,6 @@ def tangent_kernel(fi, sch, *, engine="python"):
     kept per system and integrator layout, not per value as the compiled field is (which folds them in).
     """
     from ..engine.codegen import NJIT, function_source
-    from ..engine.kernels import _engine, _fi_key, _field_kernel
     from ..engine.trace import TRACED_DATA, traced_call
     from ..schemes.split import feedback_step
 
@@ -232,94 +235,51 @@ def tangent_kernel(fi, sch, *, engine="python"):
         y, p, c = tr.symbols("y", n), tr.symbols("p", size), tr.symbols("c", P)
         field = fi.unforced_vector_field if split else fi.vector_field
         inputs = [*y, *p, *c]
-        token = _DIRECTIONS.set(tr.symbols("d", len(inputs)))
-        try:
-            with _SwappedConstants(fi.system, c):
-                f = traced_call("the field", field, y, p, data=TRACED_DATA)
-                src = NJIT + function_source("fj", _jacobian_rows(f, inputs), ("y", "p", "c", "out"))
-                src += "\n\n" + NJIT + _jvp_source("fjvp", f, inputs, ("y", "p", "c"))
-                if split:
-                    h = tr.symbols("hh", 1)[0]
-                    g = traced_call("the feedback step", feedback_step, fi, y, h, p, data=TRACED_DATA)
-                    src += "\n\n" + NJIT + function_source("gj", _jacobian_rows(g, inputs),
-                                                           ("y", "p", "c", "hh", "out"))
-                    src += "\n\n" + NJIT + _jvp_source("gjvp", g, inputs, ("y", "p", "c", "hh"))
-        finally:
-            _DIRECTIONS.reset(token)
         with _SwappedConstants(fi.system, c):
-            p0 = traced_call("the invariants' targets", _targets, fi, y, p, TRACED_DATA)
-            src += "\n\n" + NJIT + function_source("ptargets", _jacobian_rows(p0, [*y, *c]), ("y", "p", "c", "out"))
-        if not split:  # the loop calls gjvp on the split schemes only
-            src += "\n\n" + NJIT + "def gjvp(y, p, c, hh, d, out, dout):\n    return\n"
-        return src + "\n\n" + _LOOP, size, "tangent", 0
+            f = traced_call("the field", field, y, p, data=TRACED_DATA)
+            src = NJIT + function_source("fj", _jacobian_rows(f, inputs), ("y", "p", "c", "out"))
+            if split:
+                h = tr.symbols("hh", 1)[0]
+                g = traced_call("the feedback step", feedback_step, fi, y, h, p, data=TRACED_DATA)
+                src += "\n\n" + NJIT + function_source("gj", _jacobian_rows(g, inputs),
+                                                       ("y", "p", "c", "hh", "out"))
+        return src + "\n\n" + _targets_source(fi, y, p, c), size, "tangent", 0
 
-    kind = "tangent-split" if split else "tangent"
-    key = (id(fi.system),) + _fi_key(fi, kind) + (_engine(engine),)
-    got = _KERNELS.get(key)
-    if got is not None and got[0]() is fi.system:
-        return got[1]
-    made = _field_kernel(fi, kind, engine, make)
-    _KERNELS[key] = (weakref.ref(fi.system), made)
-    return made
+    return _kept(fi, "tangent-split" if split else "tangent", engine, make)
 
 
-#: The compiled loop of :func:`tangents` (``engine="numba"``): the arithmetic of :func:`_step`, in loops.
-_LOOP = """
-@njit(cache=CACHE, error_model='numpy')
-def tangent_run(y0, S0, p, c, PC, dt, n_steps, A, b, split, saved, Y, St, fbuf, gbuf):
-    n = y0.size
-    k = S0.shape[1]
-    s_ = b.size
-    m = PC.shape[0]
-    y = y0.copy()
-    ks = np.empty((s_, n))
-    kS = np.empty((s_, n, k))
-    yi = np.empty(n)
-    d = np.empty((n + m, k))  # the stage's direction: (S_i; the tangents of p and c)
-    d[n:, :] = PC
-    fo = np.empty(n)
-    hh = np.empty(1)
-    hh[0] = dt
-    S = d[:n, :]  # a view: the tangents of y live in d's first rows
-    S[:, :] = S0
-    Sy = np.empty((n, k))
-    j = 0
-    if saved.size and saved[0] == 0:
-        Y[:, 0] = y
-        St[:, :, 0] = S
-        j = 1
-    for step in range(1, n_steps + 1):
-        Sy[:, :] = S
-        for i in range(s_):
-            yi[:] = y
-            S[:, :] = Sy
-            for l in range(i):  # in the order of the numpy step: Y_i = y + (dt a_i0) k_0 + (dt a_i1) k_1 ...
-                a = dt * A[i, l]
-                if a != 0.0:
-                    for r in range(n):
-                        yi[r] += a * ks[l, r]
-                        for col in range(k):
-                            S[r, col] += a * kS[l, r, col]
-            fjvp(yi, p, c, d, fo, kS[i])
-            ks[i, :] = fo
-        S[:, :] = Sy
-        for i in range(s_):
-            w = dt * b[i]
-            if w != 0.0:
-                for r in range(n):
-                    y[r] += w * ks[i, r]
-                    for col in range(k):
-                        S[r, col] += w * kS[i, r, col]
-        if split:
-            gjvp(y, p, c, hh, d, fo, Sy)
-            y[:] = fo
-            S[:, :] = Sy
-        if j < saved.size and saved[j] == step:
-            Y[:, j] = y
-            St[:, :, j] = S
-            j += 1
-    return j
-"""
+def fused_kernel(fi, sch, k, *, engine="numba"):
+    """The compiled loop that steps the state and ``k`` tangents together (:mod:`._tangent_loop`).
+
+    One kernel per system, integrator layout, scheme and ``k`` (``k <= K_MAX``); the traces are those of
+    :func:`tangent_kernel` (the field, the feedback step), their tangents printed inline in one loop.
+    """
+    from ..engine.trace import TRACED_DATA, traced_call
+    from ..schemes.split import feedback_step
+    from . import _tangent_loop as tl
+
+    n, size, P = fi.n, fi.parameter_layout.size, _constants(fi.system).size
+    split = sch.kind == "split"
+    tab = sch.explicit if split else sch
+
+    def make(tr):
+        y, p, c = tr.symbols("y", n), tr.symbols("p", size), tr.symbols("c", P)
+        inputs = [*y, *p, *c]
+        d = tr.symbols("d", len(inputs))
+        field = fi.unforced_vector_field if split else fi.vector_field
+        with _SwappedConstants(fi.system, c):
+            f = traced_call("the field", field, y, p, data=TRACED_DATA)
+            fT = tl.jvp_graph(np.asarray(f, dtype=object).reshape(-1), inputs, d)
+            gT = None
+            if split:
+                h = tr.symbols("hh", 1)[0]
+                g = traced_call("the feedback step", feedback_step, fi, y, h, p, data=TRACED_DATA)
+                gT = tl.jvp_graph(np.asarray(g, dtype=object).reshape(-1), inputs, d)
+        gen = tl.fused_lanes_source if tl.as_lanes(k, fT, gT) else tl.fused_loop_source
+        src = gen(fT, gT, tab, n, size, P, k, split=split)
+        return src, size, "tangent-fused", 0
+
+    return _kept(fi, ("tangent-fused", sch.name, int(k)), engine, make)
 
 
 def _step(mod, sch, y, S, p, c, Wt, Ct, dt, bufs):
@@ -409,7 +369,7 @@ def tangents(fi, sch, y0, dt, n_steps, saved_steps, V, C=None, *, engine="python
     schedule = [(int(a), np.ascontiguousarray(q, dtype=float)) for a, q in schedule]
     p = schedule[0][1]
     size = p.size
-    mod = tangent_kernel(fi, sch, engine=engine).kernel.module
+    mod = (targets_kernel(fi) if engine == "numba" else tangent_kernel(fi, sch, engine=engine)).kernel.module
     # the start's parameter vector and its tangents: the targets taken at y0 follow it (the gains
     # are held, so their rows of the Jacobian are zero and every segment of the schedule shares them)
     buf = np.empty(size + size * (n + P))
@@ -429,28 +389,35 @@ def tangents(fi, sch, y0, dt, n_steps, saved_steps, V, C=None, *, engine="python
             continue
         inside = (saved_steps > a) & (saved_steps <= b)
         want = np.union1d(saved_steps[inside] - a, [b - a]).astype(np.int64)
-        Ys, Ss = _segment(mod, sch, y, S, q, c, Wt, C, float(dt), b - a, want, engine)
+        Ys, Ss = _segment(mod, sch, y, S, q, c, Wt, C, float(dt), b - a, want, engine, fi)
         pick = np.isin(want, saved_steps[inside] - a)  # the segment's end is computed, saved only if asked
         Y[:, inside], St[..., inside] = Ys[:, pick], Ss[..., pick]
         y, S = np.ascontiguousarray(Ys[:, -1]), np.ascontiguousarray(Ss[..., -1])
     return Y, np.moveaxis(St, 1, 0)  # (k, n, n_t)
 
 
-def _segment(mod, sch, y0, S0, p, c, Wt, C, dt, n_steps, saved, engine):
-    """``n_steps`` steps from ``(y0, S0)`` with the parameters ``p``: states and tangents at ``saved`` (from 1)."""
+def _segment(mod, sch, y0, S0, p, c, Wt, C, dt, n_steps, saved, engine, fi):
+    """``n_steps`` steps from ``(y0, S0)`` with the parameters ``p``: states and tangents at ``saved`` (from 1).
+
+    Compiled (``engine="numba"``, ``fi`` given): the fused loop (:func:`fused_kernel`), the directions in
+    blocks of at most ``K_MAX``, each block stepping the state again (the same arithmetic every time).
+    """
     n, k = S0.shape
     m = n + p.size + c.size
     Y = np.empty((n, saved.size))
     St = np.empty((n, k, saved.size))
     if engine == "numba":
-        tab = sch.explicit if sch.kind == "split" else sch
-        A = np.zeros((tab.stages, tab.stages))
-        for i, row in enumerate(tab.A):
-            A[i, : len(row)] = row
-        PC = np.ascontiguousarray(np.concatenate([Wt, C.T], 0))
-        with np.errstate(all="ignore"):
-            mod.tangent_run(y0, S0, p, c, PC, dt, int(n_steps), A, np.array(tab.b, float), sch.kind == "split",
-                            saved, Y, St, np.empty(n + n * m), np.empty(n + n * m))
+        from ._tangent_loop import K_MAX
+
+        PC = np.concatenate([Wt, C.T], 0)
+        for lo in range(0, k, K_MAX):
+            hi = min(k, lo + K_MAX)
+            fmod = fused_kernel(fi, sch, hi - lo, engine=engine).kernel.module
+            Sb = np.empty((n, hi - lo, saved.size))
+            with np.errstate(all="ignore"):
+                fmod.tangent_fused(y0, np.ascontiguousarray(S0[:, lo:hi]), p, c, np.ascontiguousarray(PC[:, lo:hi]),
+                                   dt, int(n_steps), saved, Y, Sb)
+            St[:, lo:hi] = Sb
         return Y, St
     bufs = (np.empty(n + n * m), np.empty(n + n * m))
     y, S = y0.copy(), S0.copy()
