@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .sympy_input import lambdify_checked
+from ._coefficients import linear_coefficients
+from ._evaluate import directional, evaluator
 
 
 class NonConservativeLoadError(ValueError):
@@ -40,8 +41,8 @@ def _kinematics(sympy, kd, q, qd, u):
     if K.shape[0] != n:
         raise ValueError(f"model: {K.shape[0]} kinematic differential equations for {n} coordinates; give one per "
                          "coordinate")
-    Ku, Kq = K.jacobian(u), K.jacobian(qd)
-    rest = K.xreplace(dict.fromkeys(u, 0)).xreplace(dict.fromkeys(qd, 0))
+    J, rest, _ = linear_coefficients(sympy, K, list(u) + list(qd))  # one pass, not a Jacobian per variable
+    Ku, Kq = J[:, : len(u)], J[:, len(u):]
     if any(Ku.has(s) or Kq.has(s) for s in list(u) + list(qd)):
         raise ValueError("model: the kinematic differential equations are not linear in u and qdot")
     if any(e != 0 and sympy.simplify(e) != 0 for e in rest):
@@ -252,20 +253,22 @@ def _restore(sympy, me, frame, bodies, fixed, q, qd, u, Kq, Ku, constraints, aux
         dict(zip(q, X)))
     exprs = [e for (_, _, _, a, b) in found for e in list(a) + list(b)]
     C = sympy.Matrix([sympy.sympify(c).xreplace(aux0) for c in constraints]) if constraints else sympy.zeros(0, 1)
-    Cw = C.jacobian(list(qd) + list(u)) if constraints else sympy.zeros(0, n + m)
+    Cw = linear_coefficients(sympy, C, list(qd) + list(u))[0] if constraints else sympy.zeros(0, n + m)
     K = [Kq, Ku] if u else []
     allx = [plain(e) for e in exprs + [e for M in K for e in M] + list(Cw)]
     params = sorted(set().union(*(e.free_symbols for e in allx)) - set(X) - set(V) - set(Us) - {t}, key=str)
-    f = lambdify_checked(sympy, X + V + Us + params, allx, "model: the bodies' velocities", cse=True, dummify=True)
     rng = np.random.default_rng(20261126)
     pv = rng.uniform(0.5, 1.5, len(params))
     nb = len(exprs)
+    # evaluated at a few points: walked (_evaluate), not lambdified (code generated to run eight times)
+    kin = evaluator(sympy, X + V + Us + params, allx[nb:], "model: the kinematic equations")  # K_qdot, K_u, rows
+    vel = evaluator(sympy, X + V + Us + params, allx[:nb], "model: the bodies' velocities")
 
-    def evaluate(x, on_set):
-        """The model's and the derived velocities at ``x`` with velocities on all of TQ, or on the model's set."""
-        vals = np.asarray(f(*x, *np.zeros(n), *np.zeros(m), *pv), float)
-        kq = vals[nb: nb + n * n].reshape(n, n) if u else np.eye(n)
-        ku = vals[nb + n * n: nb + n * n + n * m].reshape(n, m) if u else -np.eye(n)
+    def point(x, on_set):
+        """``(x, qdot, u)`` at ``x`` with velocities on all of TQ, or on the model's set."""
+        vals = np.asarray(kin(*x, *np.zeros(n), *np.zeros(m), *pv), float)
+        kq = vals[: n * n].reshape(n, n) if u else np.eye(n)
+        ku = vals[n * n: n * n + n * m].reshape(n, m) if u else -np.eye(n)
         cw = vals[vals.size - Cw.shape[0] * (n + m):].reshape(Cw.shape[0], n + m)
         B = -np.linalg.solve(kq, ku)  # qdot = B u
         if on_set:
@@ -276,11 +279,12 @@ def _restore(sympy, me, frame, bodies, fixed, q, qd, u, Kq, Ku, constraints, aux
         else:
             v = rng.normal(size=n)
             us = np.linalg.lstsq(B, v, rcond=None)[0] if u else v
-        return np.asarray(f(*x, *v, *(us if u else []), *pv), float)[:nb]
+        return np.concatenate([x, v, us if u else []])
 
     def mismatch(on_set):
         """``d_P`` relative to ``1 + max |v|`` over the bodies and samples: ``(bodies, samples, 3)``."""
-        vals = np.stack([evaluate(rng.uniform(-1, 1, n), on_set).reshape(len(found), 2, 3) for _ in range(4)], 1)
+        pts = np.stack([point(rng.uniform(-1, 1, n), on_set) for _ in range(4)], -1)  # (args, samples): one walk
+        vals = np.swapaxes(np.asarray(vel(*pts, *pv), float).T.reshape(4, len(found), 2, 3), 0, 1)
         return (vals[..., 0, :] - vals[..., 1, :]) / (1.0 + np.abs(vals).max())
 
     off_tq, d_set = np.abs(mismatch(False)).max((1, 2)), mismatch(True)
@@ -351,27 +355,49 @@ class _Checks:
         self.params, self.values, self.speeds = (), np.zeros(0), None
         self.rng = np.random.default_rng(20261124)
 
-    def residual(self, exprs, scale_exprs, what):
-        """Largest ``|exprs|`` relative to ``1 + |scale_exprs|`` at four random ``(q, qdot)``."""
+    def _plain(self):
+        """``(X, V, Us, plain)``: plain symbols for ``q``, ``qdot``, ``u`` and the map of an expression into them."""
         sp = self.sympy
         X = [sp.Dummy() for _ in self.q]
         V = [sp.Dummy() for _ in self.qd]
         Us = [sp.Dummy() for _ in self.u]
         to = {**dict(zip(self.qd, V)), **dict(zip(self.u, Us))}
         plain = lambda e: sp.sympify(e).xreplace(self.aux0).xreplace(to).xreplace(dict(zip(self.q, X)))  # noqa: E731
-        f = lambdify_checked(sp, X + V + Us + list(self.params),
-                             [plain(e) for e in list(exprs) + list(scale_exprs)], what, cse=True, dummify=True)
-        worst = 0.0
+        return X, V, Us, plain
+
+    def _points(self):
+        """Four random ``(q, qdot)`` (rows of ``(4, 2n)``) and their speeds ``u = W(q) qdot`` (``(4, m)``)."""
+        n = len(self.q)
+        xv = []
         for _ in range(4):
-            x, v = self.rng.uniform(-1, 1, len(X)), self.rng.normal(size=len(V))
-            us = self.speeds.u_of_qdot(np.concatenate([x, v])) if self.u else np.zeros(0)
-            vals = np.abs(np.asarray(f(*x, *v, *us, *self.values), complex))
-            worst = max(worst, float(np.max(vals[: len(exprs)], initial=0.0) / (1.0 + np.sum(vals[len(exprs):]))))
-        return worst
+            x, v = self.rng.uniform(-1, 1, n), self.rng.normal(size=len(self.qd))
+            xv.append(np.concatenate([x, v]))
+        xv = np.stack(xv)
+        return xv, (self.speeds.u_of_qdot(xv) if self.u else np.zeros((4, 0)))
+
+    def residual(self, exprs, scale_exprs, what):
+        """Largest ``|exprs|`` relative to ``1 + |scale_exprs|`` at four random ``(q, qdot)``."""
+        X, V, Us, plain = self._plain()
+        # evaluated at four points: walked (_evaluate), not lambdified
+        f = evaluator(self.sympy, X + V + Us + list(self.params), [plain(e) for e in list(exprs) + list(scale_exprs)],
+                      what)
+        xv, us = self._points()
+        vals = np.abs(np.asarray(f(*xv.T, *us.T, *self.values), complex))  # (exprs, 4): the four points in one walk
+        k = len(exprs)
+        return float(np.max(np.max(vals[:k], 0, initial=0.0) / (1.0 + np.sum(vals[k:], 0)), initial=0.0))
 
     def power_is_minus_dU_dt(self, W, U, loads, given):
-        dU = sum((self.sympy.diff(U, qi) * vi for qi, vi in zip(self.q, self.qd)), self.sympy.S.Zero)
-        err = self.residual([W + dU], [W, dU], "potential" if given else "model: the loads")
+        """The power ``W`` of the loads equals ``-dU/dt = -grad U . qdot`` at four random ``(q, qdot)``, relative to
+        ``1 + |W| + |dU/dt|``; ``dU/dt`` by forward-mode differentiation of ``U``'s walk (no symbolic derivative)."""
+        what = "potential" if given else "model: the loads"
+        X, V, Us, plain = self._plain()
+        n, params = len(X), list(self.params)
+        fW = evaluator(self.sympy, X + V + Us + params, [plain(W)], what)
+        fU = directional(self.sympy, X + params, [plain(U)], X, what)
+        xv, us = self._points()
+        w = np.asarray(fW(*xv.T, *us.T, *self.values), complex)[0]  # (4,): the four points in one walk
+        dU = np.asarray(fU(*xv[:, :n].T, *self.values, *xv[:, n:].T)[1], complex)[0]
+        err = float(np.max(np.abs(w + dU) / (1.0 + np.abs(w) + np.abs(dU))))
         if err > 1e-9:
             what = "potential: its -dU/dt is not" if given else "model: liefi's potential gives a -dU/dt that is not"
             raise NonConservativeLoadError(

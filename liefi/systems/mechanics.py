@@ -579,7 +579,8 @@ def _kinetic_form(sympy, me, frame, bodies, w, aux0, velocities=None):
     expansion of ``T`` (Kane & Levinson 1985, Sec. 2.14 and 4.11).  ``velocities``: the
     mass centres' velocities to use instead of the model's (:func:`_restore`).
     """
-    zero = dict.fromkeys(w, 0)
+    from ._coefficients import linear_coefficients
+
     n = len(w)
     H, c, T0 = sympy.zeros(n, n), sympy.zeros(n, 1), sympy.S.Zero
     for body in bodies:
@@ -592,11 +593,9 @@ def _kinetic_form(sympy, me, frame, bodies, w, aux0, velocities=None):
         if isinstance(body, me.RigidBody):
             parts.append((body.central_inertia.to_matrix(ref), body.frame.ang_vel_in(frame).to_matrix(ref)))
         for inertia, vel in parts:
-            vel = vel.xreplace(aux0)
-            J = vel.jacobian(w)
+            J, v0, _ = linear_coefficients(sympy, vel.xreplace(aux0), w)  # J = d vel / d w, v0 = vel(w = 0)
             if any(J.has(s) for s in w):
                 raise ValueError(f"model: the velocity of {body} is not linear in the speeds and qdot")
-            v0 = vel.xreplace(zero)
             IJ = inertia * J
             H += J.T * IJ
             if any(e != 0 for e in v0):

@@ -24,6 +24,8 @@ import keyword
 
 import numpy as np
 
+from ._coefficients import linear_coefficients
+
 __all__ = ["from_sympy", "NotQuadraticError", "NonlinearConstraintError"]
 
 
@@ -110,7 +112,7 @@ def _shown(name, limit=80):
 
 
 def lambdify_checked(sympy, args, exprs, what, **kw):
-    """``sympy.lambdify(args, exprs, modules="numpy", **kw)`` after :func:`checked_names` on every expression.
+    """``sympy.lambdify(args, exprs, modules=[numpy], **kw)`` after :func:`checked_names` on every expression.
 
     The expressions may depend on ``args`` only (a ``ValueError`` names any other free symbol);
     an argument whose name is not a :func:`plain_identifier` needs ``dummify=True`` (lambdify
@@ -127,7 +129,10 @@ def lambdify_checked(sympy, args, exprs, what, **kw):
             raise ValueError(f"{what}: depends on {sorted(_shown(s.name) for s in extra)}, which liefi has no value "
                              "for (give them as constants or substitute numbers)")
         out.append(checked_names(sympy, e, what, args))
-    return sympy.lambdify(args, out, modules="numpy", **kw)
+    # numpy as the module object, not the name "numpy": sympy then reads the names of numpy's namespace
+    # instead of running ``from numpy import *`` once per process, which imports numpy's lazily loaded
+    # submodules (f2py, testing, ... 0.1-0.2 s); the printer (NumPyPrinter) and the code are the same
+    return sympy.lambdify(args, out, modules=[np], **kw)
 
 
 def is_zero(sympy, expr):
@@ -374,10 +379,15 @@ def lagrangian_data(sympy, L, q, qd, constraints, parameters=(), speeds=()):
                 f"constraints[{k}]: {c} is not linear in the velocities qd; liefi treats linear "
                 "nonholonomic constraints a(q) . qd = 0"
             )
-        if not is_zero(sympy, cp.xreplace(zero)):
+        if linear:  # linear as written: the coefficients in one pass (not a derivative per velocity)
+            J, rest, _ = linear_coefficients(sympy, [cp], V)
+            row, rest = list(J), rest[0]
+        else:
+            row, rest = [sympy.diff(cp, v) for v in V], cp.xreplace(zero)
+        if not is_zero(sympy, rest):
             raise NonlinearConstraintError(
                 f"constraints[{k}]: {c} has a term without velocities (affine constraint); liefi "
                 "treats linear homogeneous constraints a(q) . qd = 0"
             )
-        rows.append([sympy.diff(cp, V[j]) for j in range(len(V))])
+        rows.append(row)
     return X, M, b, U, rows, q
