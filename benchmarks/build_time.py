@@ -5,8 +5,11 @@
 * ``from_mechanics [s]``: CPU time of liefi's build right after;
 * ``ratio``: ``from_mechanics / sympy``;
 * ``warm``: ``from_mechanics`` after one trivial ``sympy.lambdify(..., modules="numpy")`` in the process, which
-  pays sympy's one-time ``from numpy import *`` (it imports ``numpy.f2py``, about 0.2 s); sympy's equations never
-  lambdify, so the first column counts that import in liefi's build.
+  imports sympy's code printers and runs sympy's one-time ``from numpy import *`` (it imports ``numpy.f2py``,
+  ``numpy.testing`` ...: about 0.2 s).  sympy's equations never lambdify, so the first column counts the printers'
+  import in liefi's build; liefi itself hands lambdify the numpy module object and never runs that star import
+  (``liefi.systems.sympy_input.lambdify_checked``), so it is not in either column of a current checkout (an older
+  one paid it in the first column).
 
 Each number is the best of ``--repeat`` (3) runs, each in a fresh Python process (so sympy's cache starts
 empty every time).  Run from the repository root: ``python benchmarks/build_time.py [name ...]``; compare

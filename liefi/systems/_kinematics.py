@@ -82,14 +82,18 @@ def _annihilator(sympy, Kq, Ku):
 
     The left null space of ``B`` symbolically, each row cleared of its denominators (a
     polynomial row, e.g. ``(-sin theta, cos theta, 0)`` for a sleigh's ``x' = u cos theta,
-    y' = u sin theta``, not ``(-tan theta, 1, 0)``).
+    y' = u sin theta``, not ``(-tan theta, 1, 0)``).  The pivots are tested by :func:`is_zero` (``simplify``'s
+    answer, asked of ``simplify`` only when a value at a point does not decide) and the rows cleared by
+    ``cancel`` (a rational function's common factors), not by ``simplify`` on each entry.
     """
+    from .sympy_input import is_zero
+
     B = -(Kq.LUsolve(Ku) if Kq != sympy.eye(Kq.shape[0]) else Ku)
     rows = []
-    for v in B.T.nullspace(simplify=True):
+    for v in B.T.nullspace(iszerofunc=lambda e: is_zero(sympy, e)):
         v = [sympy.together(e) for e in v]
         den = sympy.lcm([sympy.fraction(e)[1] for e in v])
-        rows.append([sympy.simplify(e * den) for e in v])
+        rows.append([sympy.cancel(e * den) for e in v])
     if len(rows) != Kq.shape[0] - Ku.shape[1]:
         raise ValueError(f"model: the kinematic differential equations give qdot = B(q) u with B of rank "
                          f"{Kq.shape[0] - len(rows)} < {Ku.shape[1]} speeds: the speeds are not independent")
@@ -244,25 +248,36 @@ def _restore(sympy, me, frame, bodies, fixed, q, qd, u, Kq, Ku, constraints, aux
             v_model = P.vel(frame)
         except ValueError as exc:
             raise ValueError(f"model: the velocity of {P} in {frame} is not defined ({exc})") from None
-        v_pos = P.pos_from(R).dt(frame)
-        found.append((body, R, v_pos, v_model.to_matrix(frame).xreplace(aux0), v_pos.to_matrix(frame).xreplace(aux0)))
+        # the derivative of the position from R is compared numerically (forward mode along qdot) and formed
+        # symbolically only for the bodies that take it (derived below)
+        found.append((body, R, v_model.to_matrix(frame).xreplace(aux0), P.pos_from(R).to_matrix(frame).xreplace(aux0)))
     if not found:
         return None
+    derived = {}
+
+    def v_pos(k):
+        """``(d r_RP/dt, its components in frame)`` of the ``k``-th body, formed once."""
+        if k not in derived:
+            vec = found[k][0].masscenter.pos_from(found[k][1]).dt(frame)
+            derived[k] = (vec, vec.to_matrix(frame).xreplace(aux0))
+        return derived[k]
     X, V, Us = ([sympy.Dummy() for _ in s] for s in (q, qd, u))
     plain = lambda e: sympy.sympify(e).xreplace(aux0).xreplace({**dict(zip(qd, V)), **dict(zip(u, Us))}).xreplace(  # noqa: E731
         dict(zip(q, X)))
-    exprs = [e for (_, _, _, a, b) in found for e in list(a) + list(b)]
+    exprs = [e for (_, _, a, _) in found for e in a]  # the model's velocities
+    places = [e for (_, _, _, r) in found for e in r]  # the positions from R
     C = sympy.Matrix([sympy.sympify(c).xreplace(aux0) for c in constraints]) if constraints else sympy.zeros(0, 1)
     Cw = linear_coefficients(sympy, C, list(qd) + list(u))[0] if constraints else sympy.zeros(0, n + m)
     K = [Kq, Ku] if u else []
-    allx = [plain(e) for e in exprs + [e for M in K for e in M] + list(Cw)]
+    allx = [plain(e) for e in exprs + places + [e for M in K for e in M] + list(Cw)]
     params = sorted(set().union(*(e.free_symbols for e in allx)) - set(X) - set(V) - set(Us) - {t}, key=str)
     rng = np.random.default_rng(20261126)
     pv = rng.uniform(0.5, 1.5, len(params))
     nb = len(exprs)
     # evaluated at a few points: walked (_evaluate), not lambdified (code generated to run eight times)
-    kin = evaluator(sympy, X + V + Us + params, allx[nb:], "model: the kinematic equations")  # K_qdot, K_u, rows
+    kin = evaluator(sympy, X + V + Us + params, allx[2 * nb:], "model: the kinematic equations")  # K_qdot, K_u, rows
     vel = evaluator(sympy, X + V + Us + params, allx[:nb], "model: the bodies' velocities")
+    pos = directional(sympy, X + params, allx[nb: 2 * nb], X, "model: the bodies' positions")  # d/dt: along qdot
 
     def point(x, on_set):
         """``(x, qdot, u)`` at ``x`` with velocities on all of TQ, or on the model's set."""
@@ -284,7 +299,10 @@ def _restore(sympy, me, frame, bodies, fixed, q, qd, u, Kq, Ku, constraints, aux
     def mismatch(on_set):
         """``d_P`` relative to ``1 + max |v|`` over the bodies and samples: ``(bodies, samples, 3)``."""
         pts = np.stack([point(rng.uniform(-1, 1, n), on_set) for _ in range(4)], -1)  # (args, samples): one walk
-        vals = np.swapaxes(np.asarray(vel(*pts, *pv), float).T.reshape(4, len(found), 2, 3), 0, 1)
+        v_model = np.asarray(vel(*pts, *pv), float)  # (3 bodies, 4)
+        v_derived = np.asarray(pos(*pts[:n], *pv, *pts[n: 2 * n])[1], float)
+        vals = np.stack([v_model.reshape(len(found), 3, 4), v_derived.reshape(len(found), 3, 4)], 2)  # (b, 3, 2, 4)
+        vals = np.moveaxis(vals, -1, 1).swapaxes(-1, -2)  # (bodies, samples, 2, 3)
         return (vals[..., 0, :] - vals[..., 1, :]) / (1.0 + np.abs(vals).max())
 
     off_tq, d_set = np.abs(mismatch(False)).max((1, 2)), mismatch(True)
@@ -296,7 +314,7 @@ def _restore(sympy, me, frame, bodies, fixed, q, qd, u, Kq, Ku, constraints, aux
         comps = [i for i in range(3) if any(off_set[k, i] > tol for k in on)]
         offset = 0 * frame.x
         if comps:
-            d = [found[k][3] - found[k][4] for k in on]
+            d = [found[k][2] - v_pos(k)[1] for k in on]
             if len(on) > 1:
                 if np.max(np.abs(d_set[on[1:]] - d_set[on[0]])) > tol:
                     raise MinimalSpeedsError(
@@ -320,7 +338,7 @@ def _restore(sympy, me, frame, bodies, fixed, q, qd, u, Kq, Ku, constraints, aux
             offsets[R] = offset
         for k in on:
             if comps or off_tq[k] > tol or m < n:
-                velocities[found[k][0]] = found[k][2] + offset.dt(frame) if comps else found[k][2]
+                velocities[found[k][0]] = v_pos(k)[0] + offset.dt(frame) if comps else v_pos(k)[0]
     if not velocities:
         return None
     return dict(coords=coords, velocities=velocities, rows=rows, offsets=offsets)

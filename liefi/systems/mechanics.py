@@ -489,7 +489,9 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
     X, M, b, U, rows, q_all = lagrangian_data(sympy, L - U_loads, q_all, qd_all, constraints, params, speeds=u)
     w = len(M)  # n velocities qdot, or n + m: (qdot, u)
     if H is not None:  # T = 1/2 w.H w + c.w + T0 from the partial velocities, never expanded
-        M = [[H[i, j].xreplace(dict(zip(q_all, X))) for j in range(w)] for i in range(w)]
+        to_x = dict(zip(q_all, X))  # H is symmetric: its upper triangle, mirrored (one expression per pair)
+        upper = {(i, j): H[i, j].xreplace(to_x) for i in range(w) for j in range(i, w)}
+        M = [[upper[min(i, j), max(i, j)] for j in range(w)] for i in range(w)]
         b = [e + c.xreplace(dict(zip(q_all, X))) for e, c in zip(b, c_w)]
     metric = _bound(sympy, X, params, [e for row in M for e in row], (w, w), holder, "metric")
     pot = None if U == 0 else _bound(sympy, X, params, [U], (), holder, "potential")

@@ -360,8 +360,10 @@ def lagrangian_data(sympy, L, q, qd, constraints, parameters=(), speeds=()):
             "quadratic in qd (1/2 qd.M(q) qd), plus terms linear in qd, plus a potential"
         )
     zero = {v: 0 for v in V}
-    M = [[sympy.diff(Lp, V[i], V[j]) for j in range(len(V))] for i in range(len(V))]
-    b = [sympy.diff(Lp, V[i]).xreplace(zero) for i in range(len(V))]
+    held = Lp.free_symbols  # a velocity L does not hold has zero derivatives (no traversal of L for it)
+    d = lambda *w: sympy.diff(Lp, *w) if all(x in held for x in w) else sympy.S.Zero  # noqa: E731
+    M = [[d(V[i], V[j]) for j in range(len(V))] for i in range(len(V))]
+    b = [d(V[i]).xreplace(zero) for i in range(len(V))]
     U = -Lp.xreplace(zero)
 
     if isinstance(constraints, (str, bytes)):
