@@ -26,6 +26,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._coefficients import linear_coefficients
+
 #: generic test configurations: seeded, away from 0 and from multiples of pi/2 (where
 #: chosen coordinates such as a pendulum's x or a linkage's angles are often special)
 _RNG_SEED = 20221129
@@ -71,8 +73,6 @@ def _configuration_jacobian(sympy, f, q, X):
     constraints (its cache holds it), instead of one per coordinate of the plain expressions.
     """
     from sympy.core.function import AppliedUndef
-
-    from ._coefficients import linear_coefficients
 
     times = {s.args for s in q if isinstance(s, AppliedUndef)}
     if len(times) != 1 or not all(isinstance(s, AppliedUndef) for s in q) or len(next(iter(times))) != 1:
