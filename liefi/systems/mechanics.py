@@ -120,12 +120,22 @@ class _Constants:
         return c.reshape(-1, c.shape[-1])[0]
 
 
+def _numbers(exprs):
+    """The Python numbers that the lambdified ``exprs`` return if every one is a real number (ints for integers,
+    floats else: the values of the code lambdify prints), else ``None``."""
+    if not all(e.is_Number and e.is_finite and e.is_extended_real for e in exprs):
+        return None
+    return [int(e) if e.is_Integer else float(e) for e in exprs]
+
+
 def _bound(sympy, args, params, exprs, shape, holder, what):
     """``(..., n) -> (..., *shape)``: the lambdified ``exprs`` with the constants bound (complex safe)."""
     # |e| as sqrt(e^2) (of the plain, not real, symbols: it stays so), which is complex-step safe
     # (a spring's pathway length |q| along one coordinate)
     exprs = [sympy.sympify(e).replace(sympy.Abs, lambda a: sympy.sqrt(a**2)) for e in exprs]
-    f = lambdify_checked(sympy, list(args) + list(params), list(exprs), what, cse=True, dummify=True)
+    numbers = _numbers(exprs)  # constant data (K_u = -1 of kinematic equations qdot - u ...): no code generated
+    f = (lambda *a: numbers) if numbers is not None else lambdify_checked(
+        sympy, list(args) + list(params), list(exprs), what, cse=True, dummify=True)
     n, P = len(args), len(params)
     shape = tuple(shape)
 
