@@ -601,7 +601,9 @@ def _kinetic_form(sympy, me, frame, bodies, w, aux0, velocities=None):
         if ref is not frame and not _oriented(ref, frame):  # a frame given its angular velocity only (a wheel):
             ref = body.central_inertia.args[0][1].args[0][1] if body.central_inertia.args else frame  # the inertia's
         v = (velocities or {}).get(body)  # a restored (derived) velocity (_restore), or the model's
-        parts = [(m * sympy.eye(3), (body.masscenter.vel(frame) if v is None else v).to_matrix(ref))]
+        v = body.masscenter.vel(frame) if v is None else v
+        own = {f for _, f in v.args}  # m |v|^2 is the same in every frame: v's own, if one (no rotation to ref)
+        parts = [(m * sympy.eye(3), v.to_matrix(own.pop() if len(own) == 1 else ref))]
         if isinstance(body, me.RigidBody):
             parts.append((body.central_inertia.to_matrix(ref), body.frame.ang_vel_in(frame).to_matrix(ref)))
         for inertia, vel in parts:
@@ -617,12 +619,18 @@ def _kinetic_form(sympy, me, frame, bodies, w, aux0, velocities=None):
 
 
 def _oriented(a, b):
-    """Whether the frame ``a`` has an orientation path to ``b`` (sympy's ``dcm`` raises ``ValueError`` if not)."""
-    try:
-        a.dcm(b)
-    except ValueError:
-        return False
-    return True
+    """Whether the frame ``a`` has an orientation path to ``b`` (sympy's ``dcm`` raises ``ValueError`` if not): a
+    search of the frames' orientation graph (``_dcm_dict``, the graph ``dcm`` walks), without forming the matrix."""
+    seen, todo = {a}, [a]
+    while todo:
+        f = todo.pop()
+        if f is b:
+            return True
+        for g in getattr(f, "_dcm_dict", {}):
+            if g not in seen:
+                seen.add(g)
+                todo.append(g)
+    return False
 
 
 def _parameters(free, constants):
