@@ -88,3 +88,149 @@ def test_degree_bound_never_claims_more_than_the_polynomial_has(e, k):
         except sympy.PolynomialError:
             deg = None
         assert deg is None or deg > k
+
+
+# --- build time: what the build computes, counted (issue 25: from_mechanics within sympy's own equations' time) ---
+def _counting(monkeypatch, owner, name):
+    calls = []
+    original = getattr(owner, name)
+
+    def counting(*args, **kw):
+        calls.append(args)
+        return original(*args, **kw)
+
+    monkeypatch.setattr(owner, name, counting)
+    return calls
+
+
+def test_the_checks_generate_no_code(monkeypatch):
+    """The build lambdifies its data functions (in ``_bound``) and nothing else: the checks (the restored
+    places of ``_restore``, the loads' power against ``-dU/dt``) evaluate their expressions at their few
+    points by a walk (:mod:`liefi.systems._evaluate`); each was a ``lambdify`` with common-subexpression
+    elimination for four to eight evaluations (7 lambdify calls, 5 of them data functions)."""
+    import test_mechanics_minimal as M
+
+    import liefi.systems.mechanics as mech
+
+    KM, consts, _, _ = M.rattleback()  # minimal speeds (a restored contact point) and a gravity load
+    inside, lambdified = [], []  # whether each lambdify ran for a data function (_bound)
+    original_bound, original_lambdify = mech._bound, sympy.lambdify
+
+    def bound(*args, **kw):
+        inside.append(True)
+        try:
+            return original_bound(*args, **kw)
+        finally:
+            inside.pop()
+
+    def lambdify(*args, **kw):
+        lambdified.append(bool(inside))
+        return original_lambdify(*args, **kw)
+
+    monkeypatch.setattr(mech, "_bound", bound)
+    monkeypatch.setattr(sympy, "lambdify", lambdify)
+    system = liefi.from_mechanics(KM, consts)
+    assert system.restored_coordinates == ("x_P", "y_P") and system.potential is not None
+    assert len(lambdified) >= 3 and all(lambdified)
+
+
+def test_constant_data_are_not_lambdified():
+    """A kinematic map written ``qdot - u`` has the constant matrices ``K_qdot = 1``, ``K_u = -1``: bound as
+    numbers, with the values and dtypes the lambdified constants give."""
+    import numpy as np
+
+    import liefi.systems.mechanics as mech
+
+    assert mech._numbers([sympy.Integer(1), sympy.Rational(1, 3), sympy.Float(2.5)]) == [1, 1 / 3, 2.5]
+    assert mech._numbers([sympy.Integer(1), sympy.Symbol("x")]) is None
+    assert mech._numbers([sympy.pi]) is None and mech._numbers([sympy.I]) is None  # lambdify's own
+    holder = mech._Constants([], np.zeros(0))
+    K = mech._bound(sympy, sympy.symbols("x0:2"), [], [sympy.Integer(1), sympy.Integer(0), sympy.Integer(-1),
+                                                     sympy.Integer(1)], (2, 2), holder, "w")
+    for x, dtype in ((np.zeros((3, 2)), float), (np.zeros(2, complex), complex)):
+        out = K(x)
+        assert out.dtype == dtype and out.shape == x.shape[:-1] + (2, 2)
+        np.testing.assert_array_equal(out, np.broadcast_to([[1, 0], [-1, 1]], out.shape))
+
+
+@pytest.mark.parametrize("case", ["four_bar", "kane_pendulum", "rattleback"])
+def test_no_jacobian_of_the_models_expressions(monkeypatch, case):
+    """The velocities, kinematic equations and velocity constraints are linear in the velocities: their
+    coefficients are read in one pass (``linear_eq_to_matrix``), and the configuration constraints'
+    ``df/dq`` from ``df/dt`` (which sympy's own velocity constraints already took), not by a Jacobian (one
+    derivative per variable, each with respect to a dynamic symbol through a substitution)."""
+    import test_mechanics_holonomic as H
+    import test_mechanics_minimal as M
+
+    made = getattr(M if case == "rattleback" else H, case)()
+    model, consts = (made["model"], made["constants"]) if isinstance(made, dict) else made[:2]
+    from sympy.matrices.matrixbase import MatrixBase
+
+    jacobians = _counting(monkeypatch, MatrixBase, "jacobian")
+    liefi.from_mechanics(model, consts)
+    assert jacobians == []
+
+
+def test_the_annihilator_of_minimal_speeds_is_formed_without_simplify(monkeypatch):
+    """The sleigh in minimal speeds (``qdot = B u``, ``B`` 3 x 2): its row ``(-sin theta, cos theta, 0)`` from a
+    null space whose pivots ``is_zero`` tests and a ``cancel``, no ``simplify`` (was one per entry)."""
+    import test_mechanics_minimal as M
+
+    import liefi.systems._kinematics as kin
+    import liefi.systems.mechanics as mech
+
+    rows = []
+    original = kin._annihilator
+    monkeypatch.setattr(mech, "_annihilator", lambda *a: rows.append(original(*a)) or rows[-1])
+    made = M.sleigh_minimal()
+    model, consts = (made["model"], made["constants"]) if isinstance(made, dict) else made[:2]
+    calls = _counting_simplify(monkeypatch)
+    liefi.from_mechanics(model, consts)
+    assert calls == []
+    theta = model.q[2] if len(model.q) > 2 else None
+    (row,) = rows[0]
+    assert [sympy.simplify(e) for e in row] == [-sympy.sin(theta), sympy.cos(theta), 0]
+
+
+def test_lambdify_checked_does_not_run_numpys_star_import():
+    """``lambdify_checked`` hands sympy the numpy module object: sympy's ``from numpy import *`` (which
+    imports ``numpy.f2py``, ``numpy.testing`` ...: a tenth of a second or more, paid in the first build of a
+    process) is never run; the generated code is the same."""
+    import subprocess
+    import sys
+
+    code = ("import sys, sympy, numpy\n"
+            "from liefi.systems.sympy_input import lambdify_checked\n"
+            "x = sympy.Symbol('x')\n"
+            "f = lambdify_checked(sympy, [x], [sympy.sin(x) * sympy.sqrt(x)], 'w', cse=True, dummify=True)\n"
+            "assert abs(f(0.5)[0] - numpy.sin(0.5) * numpy.sqrt(0.5)) < 1e-15\n"
+            "print('numpy.f2py' in sys.modules)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+
+
+def test_the_walk_agrees_with_lambdify_and_sympys_derivative():
+    """:func:`evaluator` and :func:`directional` (forward mode) against ``lambdify`` and ``diff`` at random points;
+    a node the walk does not know goes to ``lambdify_checked``, whose named errors it keeps."""
+    import numpy as np
+
+    from liefi.systems._evaluate import directional, evaluator
+
+    x, y, z = sympy.symbols("x y z", real=True)
+    exprs = [sympy.sin(x) * sympy.sqrt(y) + z / x**2, sympy.atan2(x, y) * sympy.pi + sympy.Abs(x - y) ** 3,
+             3 * x / y ** sympy.Rational(3, 2) + sympy.exp(x * y) ** z, x**2 * y**3 - 1, y**x,
+             sympy.tan(x) + sympy.asin(x / 3) + sympy.log(y) * sympy.cosh(z) + sympy.atan(x * z) + sympy.tanh(y)]
+    rng = np.random.default_rng(1)
+    X, D = list(rng.uniform(0.2, 1.2, (3, 5))), list(rng.normal(size=(3, 5)))
+    T = sympy.symbols("t0:3", real=True)
+    values = np.array(sympy.lambdify([x, y, z], exprs)(*X))
+    rates = np.array(sympy.lambdify([x, y, z, *T], [sum(e.diff(s) * t for s, t in zip((x, y, z), T)) for e in exprs])(
+        *X, *D))
+    np.testing.assert_allclose(evaluator(sympy, [x, y, z], exprs, "w")(*X), values, rtol=1e-13)
+    v, d = directional(sympy, [x, y, z], exprs, [x, y, z], "w")(*X, *D)
+    np.testing.assert_allclose(v, values, rtol=1e-13)
+    np.testing.assert_allclose(d, rates, rtol=1e-12)
+    with pytest.raises(ValueError, match="w: contains the undefined function 'f'"):
+        evaluator(sympy, [x], [sympy.Function("f")(x)], "w")(X[0])
+    with pytest.raises(ValueError, match="w: depends on"):
+        evaluator(sympy, [x], [x + y], "w")(X[0])

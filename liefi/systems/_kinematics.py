@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .sympy_input import lambdify_checked
+from ._coefficients import linear_coefficients
+from ._evaluate import directional, evaluator
 
 
 class NonConservativeLoadError(ValueError):
@@ -40,8 +41,8 @@ def _kinematics(sympy, kd, q, qd, u):
     if K.shape[0] != n:
         raise ValueError(f"model: {K.shape[0]} kinematic differential equations for {n} coordinates; give one per "
                          "coordinate")
-    Ku, Kq = K.jacobian(u), K.jacobian(qd)
-    rest = K.xreplace(dict.fromkeys(u, 0)).xreplace(dict.fromkeys(qd, 0))
+    J, rest, _ = linear_coefficients(sympy, K, list(u) + list(qd))  # one pass, not a Jacobian per variable
+    Ku, Kq = J[:, : len(u)], J[:, len(u):]
     if any(Ku.has(s) or Kq.has(s) for s in list(u) + list(qd)):
         raise ValueError("model: the kinematic differential equations are not linear in u and qdot")
     if any(e != 0 and sympy.simplify(e) != 0 for e in rest):
@@ -81,14 +82,18 @@ def _annihilator(sympy, Kq, Ku):
 
     The left null space of ``B`` symbolically, each row cleared of its denominators (a
     polynomial row, e.g. ``(-sin theta, cos theta, 0)`` for a sleigh's ``x' = u cos theta,
-    y' = u sin theta``, not ``(-tan theta, 1, 0)``).
+    y' = u sin theta``, not ``(-tan theta, 1, 0)``).  The pivots are tested by :func:`is_zero` (``simplify``'s
+    answer, asked of ``simplify`` only when a value at a point does not decide) and the rows cleared by
+    ``cancel`` (a rational function's common factors), not by ``simplify`` on each entry.
     """
+    from .sympy_input import is_zero
+
     B = -(Kq.LUsolve(Ku) if Kq != sympy.eye(Kq.shape[0]) else Ku)
     rows = []
-    for v in B.T.nullspace(simplify=True):
+    for v in B.T.nullspace(iszerofunc=lambda e: is_zero(sympy, e)):
         v = [sympy.together(e) for e in v]
         den = sympy.lcm([sympy.fraction(e)[1] for e in v])
-        rows.append([sympy.simplify(e * den) for e in v])
+        rows.append([sympy.cancel(e * den) for e in v])
     if len(rows) != Kq.shape[0] - Ku.shape[1]:
         raise ValueError(f"model: the kinematic differential equations give qdot = B(q) u with B of rank "
                          f"{Kq.shape[0] - len(rows)} < {Ku.shape[1]} speeds: the speeds are not independent")
@@ -243,29 +248,42 @@ def _restore(sympy, me, frame, bodies, fixed, q, qd, u, Kq, Ku, constraints, aux
             v_model = P.vel(frame)
         except ValueError as exc:
             raise ValueError(f"model: the velocity of {P} in {frame} is not defined ({exc})") from None
-        v_pos = P.pos_from(R).dt(frame)
-        found.append((body, R, v_pos, v_model.to_matrix(frame).xreplace(aux0), v_pos.to_matrix(frame).xreplace(aux0)))
+        # the derivative of the position from R is compared numerically (forward mode along qdot) and formed
+        # symbolically only for the bodies that take it (derived below)
+        found.append((body, R, v_model.to_matrix(frame).xreplace(aux0), P.pos_from(R).to_matrix(frame).xreplace(aux0)))
     if not found:
         return None
+    derived = {}
+
+    def v_pos(k):
+        """``(d r_RP/dt, its components in frame)`` of the ``k``-th body, formed once."""
+        if k not in derived:
+            vec = found[k][0].masscenter.pos_from(found[k][1]).dt(frame)
+            derived[k] = (vec, vec.to_matrix(frame).xreplace(aux0))
+        return derived[k]
     X, V, Us = ([sympy.Dummy() for _ in s] for s in (q, qd, u))
     plain = lambda e: sympy.sympify(e).xreplace(aux0).xreplace({**dict(zip(qd, V)), **dict(zip(u, Us))}).xreplace(  # noqa: E731
         dict(zip(q, X)))
-    exprs = [e for (_, _, _, a, b) in found for e in list(a) + list(b)]
+    exprs = [e for (_, _, a, _) in found for e in a]  # the model's velocities
+    places = [e for (_, _, _, r) in found for e in r]  # the positions from R
     C = sympy.Matrix([sympy.sympify(c).xreplace(aux0) for c in constraints]) if constraints else sympy.zeros(0, 1)
-    Cw = C.jacobian(list(qd) + list(u)) if constraints else sympy.zeros(0, n + m)
+    Cw = linear_coefficients(sympy, C, list(qd) + list(u))[0] if constraints else sympy.zeros(0, n + m)
     K = [Kq, Ku] if u else []
-    allx = [plain(e) for e in exprs + [e for M in K for e in M] + list(Cw)]
+    allx = [plain(e) for e in exprs + places + [e for M in K for e in M] + list(Cw)]
     params = sorted(set().union(*(e.free_symbols for e in allx)) - set(X) - set(V) - set(Us) - {t}, key=str)
-    f = lambdify_checked(sympy, X + V + Us + params, allx, "model: the bodies' velocities", cse=True, dummify=True)
     rng = np.random.default_rng(20261126)
     pv = rng.uniform(0.5, 1.5, len(params))
     nb = len(exprs)
+    # evaluated at a few points: walked (_evaluate), not lambdified (code generated to run eight times)
+    kin = evaluator(sympy, X + V + Us + params, allx[2 * nb:], "model: the kinematic equations")  # K_qdot, K_u, rows
+    vel = evaluator(sympy, X + V + Us + params, allx[:nb], "model: the bodies' velocities")
+    pos = directional(sympy, X + params, allx[nb: 2 * nb], X, "model: the bodies' positions")  # d/dt: along qdot
 
-    def evaluate(x, on_set):
-        """The model's and the derived velocities at ``x`` with velocities on all of TQ, or on the model's set."""
-        vals = np.asarray(f(*x, *np.zeros(n), *np.zeros(m), *pv), float)
-        kq = vals[nb: nb + n * n].reshape(n, n) if u else np.eye(n)
-        ku = vals[nb + n * n: nb + n * n + n * m].reshape(n, m) if u else -np.eye(n)
+    def point(x, on_set):
+        """``(x, qdot, u)`` at ``x`` with velocities on all of TQ, or on the model's set."""
+        vals = np.asarray(kin(*x, *np.zeros(n), *np.zeros(m), *pv), float)
+        kq = vals[: n * n].reshape(n, n) if u else np.eye(n)
+        ku = vals[n * n: n * n + n * m].reshape(n, m) if u else -np.eye(n)
         cw = vals[vals.size - Cw.shape[0] * (n + m):].reshape(Cw.shape[0], n + m)
         B = -np.linalg.solve(kq, ku)  # qdot = B u
         if on_set:
@@ -276,11 +294,15 @@ def _restore(sympy, me, frame, bodies, fixed, q, qd, u, Kq, Ku, constraints, aux
         else:
             v = rng.normal(size=n)
             us = np.linalg.lstsq(B, v, rcond=None)[0] if u else v
-        return np.asarray(f(*x, *v, *(us if u else []), *pv), float)[:nb]
+        return np.concatenate([x, v, us if u else []])
 
     def mismatch(on_set):
         """``d_P`` relative to ``1 + max |v|`` over the bodies and samples: ``(bodies, samples, 3)``."""
-        vals = np.stack([evaluate(rng.uniform(-1, 1, n), on_set).reshape(len(found), 2, 3) for _ in range(4)], 1)
+        pts = np.stack([point(rng.uniform(-1, 1, n), on_set) for _ in range(4)], -1)  # (args, samples): one walk
+        v_model = np.asarray(vel(*pts, *pv), float)  # (3 bodies, 4)
+        v_derived = np.asarray(pos(*pts[:n], *pv, *pts[n: 2 * n])[1], float)
+        vals = np.stack([v_model.reshape(len(found), 3, 4), v_derived.reshape(len(found), 3, 4)], 2)  # (b, 3, 2, 4)
+        vals = np.moveaxis(vals, -1, 1).swapaxes(-1, -2)  # (bodies, samples, 2, 3)
         return (vals[..., 0, :] - vals[..., 1, :]) / (1.0 + np.abs(vals).max())
 
     off_tq, d_set = np.abs(mismatch(False)).max((1, 2)), mismatch(True)
@@ -292,7 +314,7 @@ def _restore(sympy, me, frame, bodies, fixed, q, qd, u, Kq, Ku, constraints, aux
         comps = [i for i in range(3) if any(off_set[k, i] > tol for k in on)]
         offset = 0 * frame.x
         if comps:
-            d = [found[k][3] - found[k][4] for k in on]
+            d = [found[k][2] - v_pos(k)[1] for k in on]
             if len(on) > 1:
                 if np.max(np.abs(d_set[on[1:]] - d_set[on[0]])) > tol:
                     raise MinimalSpeedsError(
@@ -316,7 +338,7 @@ def _restore(sympy, me, frame, bodies, fixed, q, qd, u, Kq, Ku, constraints, aux
             offsets[R] = offset
         for k in on:
             if comps or off_tq[k] > tol or m < n:
-                velocities[found[k][0]] = found[k][2] + offset.dt(frame) if comps else found[k][2]
+                velocities[found[k][0]] = v_pos(k)[0] + offset.dt(frame) if comps else v_pos(k)[0]
     if not velocities:
         return None
     return dict(coords=coords, velocities=velocities, rows=rows, offsets=offsets)
@@ -351,27 +373,49 @@ class _Checks:
         self.params, self.values, self.speeds = (), np.zeros(0), None
         self.rng = np.random.default_rng(20261124)
 
-    def residual(self, exprs, scale_exprs, what):
-        """Largest ``|exprs|`` relative to ``1 + |scale_exprs|`` at four random ``(q, qdot)``."""
+    def _plain(self):
+        """``(X, V, Us, plain)``: plain symbols for ``q``, ``qdot``, ``u`` and the map of an expression into them."""
         sp = self.sympy
         X = [sp.Dummy() for _ in self.q]
         V = [sp.Dummy() for _ in self.qd]
         Us = [sp.Dummy() for _ in self.u]
         to = {**dict(zip(self.qd, V)), **dict(zip(self.u, Us))}
         plain = lambda e: sp.sympify(e).xreplace(self.aux0).xreplace(to).xreplace(dict(zip(self.q, X)))  # noqa: E731
-        f = lambdify_checked(sp, X + V + Us + list(self.params),
-                             [plain(e) for e in list(exprs) + list(scale_exprs)], what, cse=True, dummify=True)
-        worst = 0.0
+        return X, V, Us, plain
+
+    def _points(self):
+        """Four random ``(q, qdot)`` (rows of ``(4, 2n)``) and their speeds ``u = W(q) qdot`` (``(4, m)``)."""
+        n = len(self.q)
+        xv = []
         for _ in range(4):
-            x, v = self.rng.uniform(-1, 1, len(X)), self.rng.normal(size=len(V))
-            us = self.speeds.u_of_qdot(np.concatenate([x, v])) if self.u else np.zeros(0)
-            vals = np.abs(np.asarray(f(*x, *v, *us, *self.values), complex))
-            worst = max(worst, float(np.max(vals[: len(exprs)], initial=0.0) / (1.0 + np.sum(vals[len(exprs):]))))
-        return worst
+            x, v = self.rng.uniform(-1, 1, n), self.rng.normal(size=len(self.qd))
+            xv.append(np.concatenate([x, v]))
+        xv = np.stack(xv)
+        return xv, (self.speeds.u_of_qdot(xv) if self.u else np.zeros((4, 0)))
+
+    def residual(self, exprs, scale_exprs, what):
+        """Largest ``|exprs|`` relative to ``1 + |scale_exprs|`` at four random ``(q, qdot)``."""
+        X, V, Us, plain = self._plain()
+        # evaluated at four points: walked (_evaluate), not lambdified
+        f = evaluator(self.sympy, X + V + Us + list(self.params), [plain(e) for e in list(exprs) + list(scale_exprs)],
+                      what)
+        xv, us = self._points()
+        vals = np.abs(np.asarray(f(*xv.T, *us.T, *self.values), complex))  # (exprs, 4): the four points in one walk
+        k = len(exprs)
+        return float(np.max(np.max(vals[:k], 0, initial=0.0) / (1.0 + np.sum(vals[k:], 0)), initial=0.0))
 
     def power_is_minus_dU_dt(self, W, U, loads, given):
-        dU = sum((self.sympy.diff(U, qi) * vi for qi, vi in zip(self.q, self.qd)), self.sympy.S.Zero)
-        err = self.residual([W + dU], [W, dU], "potential" if given else "model: the loads")
+        """The power ``W`` of the loads equals ``-dU/dt = -grad U . qdot`` at four random ``(q, qdot)``, relative to
+        ``1 + |W| + |dU/dt|``; ``dU/dt`` by forward-mode differentiation of ``U``'s walk (no symbolic derivative)."""
+        what = "potential" if given else "model: the loads"
+        X, V, Us, plain = self._plain()
+        n, params = len(X), list(self.params)
+        fW = evaluator(self.sympy, X + V + Us + params, [plain(W)], what)
+        fU = directional(self.sympy, X + params, [plain(U)], X, what)
+        xv, us = self._points()
+        w = np.asarray(fW(*xv.T, *us.T, *self.values), complex)[0]  # (4,): the four points in one walk
+        dU = np.asarray(fU(*xv[:, :n].T, *self.values, *xv[:, n:].T)[1], complex)[0]
+        err = float(np.max(np.abs(w + dU) / (1.0 + np.abs(w) + np.abs(dU))))
         if err > 1e-9:
             what = "potential: its -dU/dt is not" if given else "model: liefi's potential gives a -dU/dt that is not"
             raise NonConservativeLoadError(

@@ -26,6 +26,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._coefficients import linear_coefficients
+
 #: generic test configurations: seeded, away from 0 and from multiples of pi/2 (where
 #: chosen coordinates such as a pendulum's x or a linkage's angles are often special)
 _RNG_SEED = 20221129
@@ -55,11 +57,29 @@ def holonomic_functions(sympy, f, q, X, params, bind):
     if bad:
         raise ValueError(f"model: the configuration constraints {bad} hold velocities; configuration "
                          "constraints are f(q) = 0 (velocity constraints go to velocity_constraints)")
-    jac = plain.jacobian(X)  # (H, n)
+    jac = _configuration_jacobian(sympy, f, q, X)
+    jac = plain.jacobian(X) if jac is None else jac  # (H, n)
     H, n = jac.shape
     values = bind(list(plain), (H,), "configuration constraints")
     deriv = bind([jac[j, k] for k in range(n) for j in range(H)], (n, H), "configuration constraints")
     return values, deriv
+
+
+def _configuration_jacobian(sympy, f, q, X):
+    """``df/dq`` in the plain symbols ``X``, read as the coefficients of ``qdot`` in ``df/dt`` (``q`` dynamic
+    symbols of one time ``t``), else ``None``.
+
+    One derivative in ``t`` per constraint, which sympy took already for the model's own velocity
+    constraints (its cache holds it), instead of one per coordinate of the plain expressions.
+    """
+    from sympy.core.function import AppliedUndef
+
+    times = {s.args for s in q if isinstance(s, AppliedUndef)}
+    if len(times) != 1 or not all(isinstance(s, AppliedUndef) for s in q) or len(next(iter(times))) != 1:
+        return None
+    t = next(iter(times))[0]
+    J = linear_coefficients(sympy, [sympy.sympify(e).diff(t) for e in f], [s.diff(t) for s in q])[0]
+    return J.xreplace(dict(zip(q, X)))
 
 
 def independent_rows(A, df, n, points):

@@ -123,12 +123,22 @@ class _Constants:
         return c.reshape(-1, c.shape[-1])[0]
 
 
+def _numbers(exprs):
+    """The Python numbers that the lambdified ``exprs`` return if every one is a real number (ints for integers,
+    floats else: the values of the code lambdify prints), else ``None``."""
+    if not all(e.is_Number and e.is_finite and e.is_extended_real for e in exprs):
+        return None
+    return [int(e) if e.is_Integer else float(e) for e in exprs]
+
+
 def _bound(sympy, args, params, exprs, shape, holder, what):
     """``(..., n) -> (..., *shape)``: the lambdified ``exprs`` with the constants bound (complex safe)."""
     # |e| as sqrt(e^2) (of the plain, not real, symbols: it stays so), which is complex-step safe
     # (a spring's pathway length |q| along one coordinate)
     exprs = [sympy.sympify(e).replace(sympy.Abs, lambda a: sympy.sqrt(a**2)) for e in exprs]
-    f = lambdify_checked(sympy, list(args) + list(params), list(exprs), what, cse=True, dummify=True)
+    numbers = _numbers(exprs)  # constant data (K_u = -1 of kinematic equations qdot - u ...): no code generated
+    f = (lambda *a: numbers) if numbers is not None else lambdify_checked(
+        sympy, list(args) + list(params), list(exprs), what, cse=True, dummify=True)
     n, P = len(args), len(params)
     shape = tuple(shape)
 
@@ -501,7 +511,9 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
     X, M, b, U, rows, q_all = lagrangian_data(sympy, L - U_loads, q_all, qd_all, constraints, params, speeds=u)
     w = len(M)  # n velocities qdot, or n + m: (qdot, u)
     if H is not None:  # T = 1/2 w.H w + c.w + T0 from the partial velocities, never expanded
-        M = [[H[i, j].xreplace(dict(zip(q_all, X))) for j in range(w)] for i in range(w)]
+        to_x = dict(zip(q_all, X))  # H is symmetric: its upper triangle, mirrored (one expression per pair)
+        upper = {(i, j): H[i, j].xreplace(to_x) for i in range(w) for j in range(i, w)}
+        M = [[upper[min(i, j), max(i, j)] for j in range(w)] for i in range(w)]
         b = [e + c.xreplace(dict(zip(q_all, X))) for e, c in zip(b, c_w)]
     metric = _bound(sympy, X, params, [e for row in M for e in row], (w, w), holder, "metric")
     pot = None if U == 0 else _bound(sympy, X, params, [U], (), holder, "potential")
@@ -595,7 +607,8 @@ def _kinetic_form(sympy, me, frame, bodies, w, aux0, velocities=None):
     expansion of ``T`` (Kane & Levinson 1985, Sec. 2.14 and 4.11).  ``velocities``: the
     mass centres' velocities to use instead of the model's (:func:`_restore`).
     """
-    zero = dict.fromkeys(w, 0)
+    from ._coefficients import linear_coefficients
+
     n = len(w)
     H, c, T0 = sympy.zeros(n, n), sympy.zeros(n, 1), sympy.S.Zero
     for body in bodies:
@@ -604,15 +617,15 @@ def _kinetic_form(sympy, me, frame, bodies, w, aux0, velocities=None):
         if ref is not frame and not _oriented(ref, frame):  # a frame given its angular velocity only (a wheel):
             ref = body.central_inertia.args[0][1].args[0][1] if body.central_inertia.args else frame  # the inertia's
         v = (velocities or {}).get(body)  # a restored (derived) velocity (_restore), or the model's
-        parts = [(m * sympy.eye(3), (body.masscenter.vel(frame) if v is None else v).to_matrix(ref))]
+        v = body.masscenter.vel(frame) if v is None else v
+        own = {f for _, f in v.args}  # m |v|^2 is the same in every frame: v's own, if one (no rotation to ref)
+        parts = [(m * sympy.eye(3), v.to_matrix(own.pop() if len(own) == 1 else ref))]
         if isinstance(body, me.RigidBody):
             parts.append((body.central_inertia.to_matrix(ref), body.frame.ang_vel_in(frame).to_matrix(ref)))
         for inertia, vel in parts:
-            vel = vel.xreplace(aux0)
-            J = vel.jacobian(w)
+            J, v0, _ = linear_coefficients(sympy, vel.xreplace(aux0), w)  # J = d vel / d w, v0 = vel(w = 0)
             if any(J.has(s) for s in w):
                 raise ValueError(f"model: the velocity of {body} is not linear in the speeds and qdot")
-            v0 = vel.xreplace(zero)
             IJ = inertia * J
             H += J.T * IJ
             if any(e != 0 for e in v0):
@@ -622,12 +635,18 @@ def _kinetic_form(sympy, me, frame, bodies, w, aux0, velocities=None):
 
 
 def _oriented(a, b):
-    """Whether the frame ``a`` has an orientation path to ``b`` (sympy's ``dcm`` raises ``ValueError`` if not)."""
-    try:
-        a.dcm(b)
-    except ValueError:
-        return False
-    return True
+    """Whether the frame ``a`` has an orientation path to ``b`` (sympy's ``dcm`` raises ``ValueError`` if not): a
+    search of the frames' orientation graph (``_dcm_dict``, the graph ``dcm`` walks), without forming the matrix."""
+    seen, todo = {a}, [a]
+    while todo:
+        f = todo.pop()
+        if f is b:
+            return True
+        for g in getattr(f, "_dcm_dict", {}):
+            if g not in seen:
+                seen.add(g)
+                todo.append(g)
+    return False
 
 
 def _parameters(free, constants):

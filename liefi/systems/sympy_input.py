@@ -24,6 +24,8 @@ import keyword
 
 import numpy as np
 
+from ._coefficients import linear_coefficients
+
 __all__ = ["from_sympy", "NotQuadraticError", "NonlinearConstraintError"]
 
 
@@ -110,7 +112,7 @@ def _shown(name, limit=80):
 
 
 def lambdify_checked(sympy, args, exprs, what, **kw):
-    """``sympy.lambdify(args, exprs, modules="numpy", **kw)`` after :func:`checked_names` on every expression.
+    """``sympy.lambdify(args, exprs, modules=[numpy], **kw)`` after :func:`checked_names` on every expression.
 
     The expressions may depend on ``args`` only (a ``ValueError`` names any other free symbol);
     an argument whose name is not a :func:`plain_identifier` needs ``dummify=True`` (lambdify
@@ -127,7 +129,10 @@ def lambdify_checked(sympy, args, exprs, what, **kw):
             raise ValueError(f"{what}: depends on {sorted(_shown(s.name) for s in extra)}, which liefi has no value "
                              "for (give them as constants or substitute numbers)")
         out.append(checked_names(sympy, e, what, args))
-    return sympy.lambdify(args, out, modules="numpy", **kw)
+    # numpy as the module object, not the name "numpy": sympy then reads the names of numpy's namespace
+    # instead of running ``from numpy import *`` once per process, which imports numpy's lazily loaded
+    # submodules (f2py, testing, ... 0.1-0.2 s); the printer (NumPyPrinter) and the code are the same
+    return sympy.lambdify(args, out, modules=[np], **kw)
 
 
 def is_zero(sympy, expr):
@@ -355,8 +360,10 @@ def lagrangian_data(sympy, L, q, qd, constraints, parameters=(), speeds=()):
             "quadratic in qd (1/2 qd.M(q) qd), plus terms linear in qd, plus a potential"
         )
     zero = {v: 0 for v in V}
-    M = [[sympy.diff(Lp, V[i], V[j]) for j in range(len(V))] for i in range(len(V))]
-    b = [sympy.diff(Lp, V[i]).xreplace(zero) for i in range(len(V))]
+    held = Lp.free_symbols  # a velocity L does not hold has zero derivatives (no traversal of L for it)
+    d = lambda *w: sympy.diff(Lp, *w) if all(x in held for x in w) else sympy.S.Zero  # noqa: E731
+    M = [[d(V[i], V[j]) for j in range(len(V))] for i in range(len(V))]
+    b = [d(V[i]).xreplace(zero) for i in range(len(V))]
     U = -Lp.xreplace(zero)
 
     if isinstance(constraints, (str, bytes)):
@@ -374,10 +381,15 @@ def lagrangian_data(sympy, L, q, qd, constraints, parameters=(), speeds=()):
                 f"constraints[{k}]: {c} is not linear in the velocities qd; liefi treats linear "
                 "nonholonomic constraints a(q) . qd = 0"
             )
-        if not is_zero(sympy, cp.xreplace(zero)):
+        if linear:  # linear as written: the coefficients in one pass (not a derivative per velocity)
+            J, rest, _ = linear_coefficients(sympy, [cp], V)
+            row, rest = list(J), rest[0]
+        else:
+            row, rest = [sympy.diff(cp, v) for v in V], cp.xreplace(zero)
+        if not is_zero(sympy, rest):
             raise NonlinearConstraintError(
                 f"constraints[{k}]: {c} has a term without velocities (affine constraint); liefi "
                 "treats linear homogeneous constraints a(q) . qd = 0"
             )
-        rows.append([sympy.diff(cp, V[j]) for j in range(len(V))])
+        rows.append(row)
     return X, M, b, U, rows, q
