@@ -25,10 +25,13 @@ same fingerprint; two different dummies in one model stay apart).
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import os
 import re
+import sys
 import threading
+import types
 
 import numpy as np
 
@@ -42,6 +45,12 @@ _DUMMY = re.compile(r"dummy_index=(\d+)")
 
 class _Unknown(Exception):
     """A value :func:`digest` cannot fingerprint (a user's callable, an unknown object)."""
+
+
+def _is_sympy(x):
+    """A sympy expression or matrix (without importing sympy: a sympy object means it is imported)."""
+    sp = sys.modules.get("sympy")
+    return sp is not None and isinstance(x, (sp.Basic, sp.MatrixBase))
 
 
 def _encode(h, x, dummies):
@@ -76,7 +85,14 @@ def _encode(h, x, dummies):
             put(b"A", f"{x.dtype.str}{x.shape}".encode() + np.ascontiguousarray(x).tobytes())
     elif getattr(x, ATTR, None) is not None:
         put(b"X", getattr(x, ATTR).encode())
-    elif type(x).__module__.split(".")[0] == "sympy" and hasattr(x, "free_symbols"):
+    elif isinstance(x, types.FunctionType) and (x.__module__ or "").startswith("liefi."):
+        # liefi's own function (its code is in sources()): named, with the data it closes over
+        cells = tuple(c.cell_contents for c in (x.__closure__ or ()))
+        _encode(h, ("function", x.__module__, x.__qualname__, x.__defaults__, x.__kwdefaults__, cells), dummies)
+    elif dataclasses.is_dataclass(x) and not isinstance(x, type):  # a record of data (a scene's Variant)
+        _encode(h, (type(x).__module__, type(x).__qualname__,
+                    {f.name: getattr(x, f.name) for f in dataclasses.fields(x)}), dummies)
+    elif _is_sympy(x):
         import sympy
 
         text = _DUMMY.sub(lambda m: "dummy_index=#%d" % dummies.setdefault(m.group(1), len(dummies)),
@@ -108,8 +124,10 @@ def mark(fun, *parts):
 
 
 def of(obj):
-    """The fingerprint :func:`mark` gave ``obj``, or ``None``."""
-    return getattr(obj, ATTR, None)
+    """The fingerprint of the function ``obj``: the one :func:`mark` gave it, or for liefi's own function
+    that of its name and the data it closes over; ``None`` for any other (a user's function)."""
+    fp = getattr(obj, ATTR, None)
+    return fp if fp is not None else digest(obj)
 
 
 def stamp(system, *parts):
@@ -163,3 +181,36 @@ def sources():
                         _encode(h, (os.path.relpath(p, root).replace(os.sep, "/"), data), {})
             _SOURCES.append(h.hexdigest())
         return _SOURCES[0]
+
+
+def _liefi_code(v):
+    """True for a function, method or descriptor defined in liefi's own modules (covered by :func:`sources`)."""
+    f = getattr(v, "__func__", None) or getattr(v, "fget", None) or getattr(v, "func", None) or v
+    return (getattr(f, "__module__", None) or "").startswith("liefi.")
+
+
+def object_data(obj, skip=()):
+    """The data of ``obj`` (an object of one of liefi's classes, e.g. a scene), for :func:`stamp`; ``None`` when
+    it is not only liefi's code and pure data.
+
+    Every class of ``obj`` (its MRO) must be defined in liefi; their attributes that are liefi's
+    functions or descriptors are code (covered by :func:`sources`), the others data, and so is every
+    attribute of ``obj`` itself (except ``skip``).  A function from elsewhere (a user's subclass, a
+    replaced method, a user's callable in an attribute) gives ``None``: no stamp, the safe path.
+    """
+    parts = []
+    for cls in type(obj).__mro__:
+        if cls is object:
+            continue
+        if not (cls.__module__ or "").startswith("liefi."):
+            return None
+        for k, v in sorted(vars(cls).items()):
+            if k.startswith("__"):
+                continue
+            if callable(v) or hasattr(v, "__get__") and not isinstance(v, (int, float, str, tuple, np.ndarray)):
+                if not _liefi_code(v):
+                    return None
+                continue
+            parts.append((cls.__qualname__, k, v))
+    parts += [("self", k, v) for k, v in sorted(vars(obj).items()) if k not in skip]
+    return parts if digest(parts) is not None else None

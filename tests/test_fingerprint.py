@@ -215,3 +215,26 @@ def test_the_digest_is_the_same_in_every_process_and_tells_values_apart():
     assert _fingerprint.digest(("a", "bc")) != _fingerprint.digest(("ab", "c"))
     assert _fingerprint.digest(lambda z: z) is None
     assert a is not None and os.path.basename(_fingerprint.sources()) == _fingerprint.sources()
+
+
+def test_liefis_scenes_are_stamped_and_a_changed_or_foreign_scene_is_not_the_same():
+    import warnings
+
+    from liefi import scenes
+
+    def fingerprint(sc):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return kernels.kernel_fingerprint(sc.integrator(), "split", "numba")
+
+    kind = type(scenes.get("suslov"))
+    a, b = kind(), kind()  # two new objects of liefi's scene (as in two processes)
+    assert fingerprint(a) is not None and fingerprint(a) == fingerprint(b)
+    c = kind()
+    c.dt = c.dt / 2  # a changed datum of the scene (before its system is built): another fingerprint
+    assert fingerprint(c) not in (None, fingerprint(a))
+
+    class Mine(kind):  # a user's subclass: its code is not liefi's
+        pass
+
+    assert _fingerprint.of_system(Mine().system) is None
