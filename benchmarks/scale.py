@@ -245,37 +245,43 @@ RATTLEBACK_CASES = (("Scene.run, cold", "scene", "cold", False), ("Scene.run, wa
 SPLIT = ("import", "build", "trace", "choose", "compile_load", "integrate")
 
 
-def rattleback(repeat, timeout, pydy_path=None):
-    """The rattleback's time to result (module docstring), best of ``repeat`` rounds; the rounds interleave the
-    cases and the PyDy peer.  Returns ``{label: result}`` (``None`` for a case that failed)."""
+def rattleback(repeat, timeout, pydy_path=None, cold_repeat=1):
+    """The rattleback's time to result (module docstring), best of ``repeat`` rounds (the cold cases in the first
+    ``cold_repeat`` rounds only: each compiles afresh); the rounds interleave the cases and the PyDy peer.
+    Returns ``{label: result}`` (``None`` for a case that failed)."""
     warm = tempfile.mkdtemp(prefix="liefi-scale-warm-")
-    stored = tempfile.mkdtemp(prefix="liefi-scale-stored-")
+    stored = os.path.join(tempfile.mkdtemp(prefix="liefi-scale-stored-"), "kernels")
     here = os.path.dirname(os.path.abspath(__file__))
     try:
         _child(_RATTLEBACK, ["scene"], _env(warm), timeout)  # the kernels cached
         _child(_RATTLEBACK, ["fi"], _env(warm), timeout)
-        _child(_RATTLEBACK, ["scene"], _env(stored, store=True), timeout)  # the kernels and the step stored
+        shutil.copytree(warm, stored)  # the same kernels, and the step stored by one run
+        _child(_RATTLEBACK, ["scene"], _env(stored, store=True), timeout)
         best = {}
-        for _ in range(repeat):
+        for round_ in range(repeat):
             for label, path, kernels, keep in RATTLEBACK_CASES:
+                if kernels == "cold" and round_ >= cold_repeat:
+                    continue
                 cold = tempfile.mkdtemp(prefix="liefi-scale-cold-") if kernels == "cold" else None
                 try:
                     r = _child(_RATTLEBACK, [path], _env(cold or (stored if keep else warm), store=keep), timeout)
                 finally:
                     if cold:
                         shutil.rmtree(cold, ignore_errors=True)
+                print(f"  {label}: {json.dumps(r)}", flush=True)
                 if r is not None and (best.get(label) is None or r["total"] < best[label]["total"]):
                     best[label] = r
             env = _env()
             if pydy_path:  # also for the C build pydy runs in a process of its own
                 env["PYTHONPATH"] = pydy_path + os.pathsep + env["PYTHONPATH"]
             r = _child(_PEER, [here, pydy_path or ""], env, timeout)
+            print(f"  peer: {json.dumps(r)}", flush=True)
             if r is not None and (best.get("peer") is None or r["total"] < best["peer"]["total"]):
                 best["peer"] = r
         return best
     finally:
         shutil.rmtree(warm, ignore_errors=True)
-        shutil.rmtree(stored, ignore_errors=True)
+        shutil.rmtree(os.path.dirname(stored), ignore_errors=True)
 
 
 def print_rattleback(best):
@@ -341,7 +347,8 @@ def main(argv=None):
     ap.add_argument("--cold-n", type=int, nargs="*", default=None,
                     help="the N measured cold (default: every N; the cold runs are the long ones)")
     ap.add_argument("--repeat", type=int, default=3)
-    ap.add_argument("--cold-repeat", type=int, default=1, help="cold processes per N (each compiles afresh)")
+    ap.add_argument("--cold-repeat", type=int, default=1,
+                    help="cold processes per N, and rounds with the rattleback's cold cases (each compiles afresh)")
     ap.add_argument("--timeout", type=float, default=1800.0)
     ap.add_argument("--profile", type=int, default=None, metavar="N")
     ap.add_argument("--no-chain", action="store_true")
@@ -358,7 +365,7 @@ def main(argv=None):
     if not args.no_chain:
         chain_table(args)
     if not args.no_rattleback:
-        print_rattleback(rattleback(args.repeat, args.timeout, args.pydy_path))
+        print_rattleback(rattleback(args.repeat, args.timeout, args.pydy_path, args.cold_repeat))
     print(f"load at the end {os.getloadavg()[0]:.1f}")
 
 
