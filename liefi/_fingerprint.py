@@ -57,7 +57,10 @@ def _encode(h, x, dummies):
     def put(tag, payload=b""):
         h.update(tag + len(payload).to_bytes(8, "little") + payload)
 
-    if x is None or isinstance(x, (bool, np.bool_)):
+    known = dummies.get(("known", id(x))) if not isinstance(x, (int, float, str)) else None
+    if known is not None:  # an object the caller names (a part of a stamped system)
+        put(b"K", known.encode())
+    elif x is None or isinstance(x, (bool, np.bool_)):
         put(b"N" if x is None else (b"T" if x else b"F"))
     elif isinstance(x, (int, np.integer)):
         put(b"I", str(int(x)).encode())
@@ -102,12 +105,16 @@ def _encode(h, x, dummies):
         raise _Unknown(type(x).__name__)
 
 
-def digest(*parts):
+def digest(*parts, known=None):
     """The SHA-256 (hex) of ``parts`` (pure data: numbers, strings, arrays, sympy objects, marked functions,
-    tuples, lists and dicts of them); ``None`` when some part cannot be fingerprinted (a user's callable)."""
+    tuples, lists and dicts of them); ``None`` when some part cannot be fingerprinted (a user's callable).
+
+    ``known``: ``{label: object}``, objects written as their label (the parts of a stamped system a
+    function of liefi's closes over: the system's own data, fingerprinted by its stamp).
+    """
     h = hashlib.sha256()
     try:
-        _encode(h, parts, {})
+        _encode(h, parts, {("known", id(o)): label for label, o in (known or {}).items() if o is not None})
     except _Unknown:
         return None
     except RecursionError:  # a pathologically deep expression: no fingerprint, the safe path
@@ -123,11 +130,12 @@ def mark(fun, *parts):
     return fun
 
 
-def of(obj):
+def of(obj, known=None):
     """The fingerprint of the function ``obj``: the one :func:`mark` gave it, or for liefi's own function
-    that of its name and the data it closes over; ``None`` for any other (a user's function)."""
+    that of its name and the data it closes over (``known`` as in :func:`digest`); ``None`` for any other
+    (a user's function)."""
     fp = getattr(obj, ATTR, None)
-    return fp if fp is not None else digest(obj)
+    return fp if fp is not None else digest(obj, known=known)
 
 
 def stamp(system, *parts):

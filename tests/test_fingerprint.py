@@ -238,3 +238,23 @@ def test_liefis_scenes_are_stamped_and_a_changed_or_foreign_scene_is_not_the_sam
         pass
 
     assert _fingerprint.of_system(Mine().system) is None
+
+
+def test_the_invariants_of_configuration_constraints_are_the_systems_own(fresh):
+    """``f_j`` of a model with configuration constraints: liefi's functions of the system's own data (made anew
+    at every access), found by the fingerprint; the pendulum of sympy's nonminimal example."""
+    from test_mechanics_holonomic import lagrange_pendulum
+
+    def build():
+        case = lagrange_pendulum()
+        system = liefi.from_mechanics(case["model"], case["constants"])
+        L = 0.7
+        z0 = system.state([L * np.cos(0.3), L * np.sin(0.3)], [-0.1 * L * np.sin(0.3), 0.1 * L * np.cos(0.3)])
+        return liefi.FeedbackIntegrator(system, z0, gains=1.0)
+
+    fi = build()
+    assert any(u.name.startswith("f_") for u in fi.user)
+    first = kernels.compile_split(fi)
+    fresh()
+    again = kernels.compile_split(build())
+    assert fresh.traces() == 1 and again.kernel.text == first.kernel.text

@@ -86,14 +86,12 @@ def kernel_fingerprint(fi, kind, engine):
     system_fp = _fp.of_system(fi.system)
     if system_fp is None:
         return None
-    held = list(getattr(fi.system, "holonomic_invariants", ()))
+    # the system's own parts a function of liefi's may close over (the invariants f_j of its configuration
+    # constraints): named, their data being in the system's stamp
+    own = {"system": fi.system, "system.holonomic": getattr(fi.system, "holonomic", None)}
     users = []
     for u in fi.user:
-        i = next((k for k, h in enumerate(held) if h is u), None)
-        if i is not None:  # made by liefi from the system's own data: named by its place
-            users.append(("holonomic", i, u.name))
-            continue
-        fun, grad = _fp.of(u.fun), None if u.grad is None else _fp.of(u.grad)
+        fun, grad = _fp.of(u.fun, own), None if u.grad is None else _fp.of(u.grad, own)
         if fun is None or (u.grad is not None and grad is None):
             return None
         users.append((u.name, fun, grad))
