@@ -41,6 +41,7 @@ from __future__ import annotations
 import atexit
 import hashlib
 import hmac
+import json
 import os
 import secrets
 import shutil
@@ -409,6 +410,83 @@ def load(source, engine="numba"):
         got = Kernel(mod, name, path, text, engine, time.perf_counter() - t)
         _MODULES[key] = got
         return got
+
+
+# ======================================================================================
+# kernels found by the fingerprint of their data (no trace)
+# ======================================================================================
+
+#: the prefix of an index entry's file in the kernel directory: ``<prefix><fingerprint>.json``
+INDEX_PREFIX = "fingerprint-"
+
+
+def _index_path(directory, fingerprint):
+    return os.path.join(directory, f"{INDEX_PREFIX}{fingerprint}.json")
+
+
+def remember(fingerprint, kernel, meta):
+    """Record, signed, that the data of ``fingerprint`` give the loaded ``kernel`` and ``meta`` (a dict of numbers
+    and strings), so that a later process :func:`find` s it without tracing.  Nothing is written for a kernel
+    compiled in memory; a write that fails is silent (the next process traces again)."""
+    if kernel.path is None or kernel.engine != "numba":
+        return
+    directory = os.path.dirname(kernel.path)
+    key = signing_key(directory)
+    if key is None:
+        return
+    body = {"name": kernel.name, "text": hashlib.sha256(kernel.text.encode()).hexdigest(), "meta": meta}
+    payload = json.dumps(body, sort_keys=True).encode()
+    entry = {"body": body, "tag": tag(key, INDEX_PREFIX + fingerprint, payload).hex()}
+    try:
+        atomic_write(_index_path(directory, fingerprint), json.dumps(entry, sort_keys=True), prefix=".index")
+    except OSError:
+        pass
+
+
+def find(fingerprint, engine="numba"):
+    """``(Kernel, meta)`` recorded for ``fingerprint`` by :func:`remember`, loaded without a trace; else ``None``.
+
+    Only what liefi signed is used: the entry's signature (the key of :func:`signing_key`) must
+    match, and the module's file must hold exactly the text whose hash the entry names; anything
+    else (no entry, a foreign or corrupt one, a changed module file) is a miss, and the caller
+    traces as before (and :func:`load` rewrites the module).
+    """
+    if engine != "numba" or numba_module() is None:
+        return None
+    directory = kernel_dir()
+    if directory is None:
+        return None
+    try:
+        with open(_index_path(directory, fingerprint)) as fh:
+            entry = json.load(fh)
+        body = entry["body"]
+        key = signing_key(directory)
+        payload = json.dumps(body, sort_keys=True).encode()
+        if key is None or not hmac.compare_digest(bytes.fromhex(entry["tag"]),
+                                                  tag(key, INDEX_PREFIX + fingerprint, payload)):
+            return None
+        name = body["name"]
+        if not (isinstance(name, str) and name.startswith("liefi_kernel_") and name[13:].isalnum()):
+            return None
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return None
+    with _LOCK:
+        got = _MODULES.get(name[13:])
+        if got is not None:
+            return got, body["meta"]
+        t = time.perf_counter()
+        path = os.path.join(directory, name + ".py")
+        try:
+            with open(path) as fh:
+                text = fh.read()
+        except (OSError, UnicodeDecodeError):
+            return None
+        if hashlib.sha256(text.encode()).hexdigest() != body["text"]:
+            return None
+        mod = _execute(name, path, text)
+        got = Kernel(mod, name, path, text, engine, time.perf_counter() - t)
+        _MODULES[name[13:]] = got
+        return got, body["meta"]
 
 
 def heal(kernel):

@@ -68,18 +68,64 @@ def _cached(system, key, engine, build):
     return made
 
 
+def kernel_fingerprint(fi, kind, engine):
+    """The fingerprint naming the kernel ``kind`` of ``fi`` without a trace, or ``None`` (the safe path: trace).
+
+    SHA-256 (:func:`liefi._fingerprint.digest`) of liefi's sources, numba's and numpy's
+    versions, the system's stamp (given by the builders that make a system from pure data:
+    :func:`liefi.from_sympy`, :func:`liefi.from_mechanics`, :func:`liefi.systems.rolling.rolling_body`
+    with liefi's contact functions), its constants (``data_key``) and every setting of ``fi``
+    the trace reads (those of the per-process key ``_fi_key``), the invariants by their
+    fingerprints.  ``None`` for a system built from a user's callables, a user's invariant, or
+    a stamped system whose attributes were replaced since.
+    """
+    from .. import _fingerprint as _fp
+
+    if engine != "numba":
+        return None
+    system_fp = _fp.of_system(fi.system)
+    if system_fp is None:
+        return None
+    # the system's own parts a function of liefi's may close over (the invariants f_j of its configuration
+    # constraints): named, their data being in the system's stamp
+    own = {"system": fi.system, "system.holonomic": getattr(fi.system, "holonomic", None)}
+    users = []
+    for u in fi.user:
+        fun, grad = _fp.of(u.fun, own), None if u.grad is None else _fp.of(u.grad, own)
+        if fun is None or (u.grad is not None and grad is None):
+            return None
+        users.append((u.name, fun, grad))
+    nb = _cache.numba_module()
+    return _fp.digest(
+        "liefi kernel", kind, _fp.sources(), nb.__version__ if nb else "", np.__version__, system_fp,
+        getattr(fi.system, "data_key", None), fi.n, fi.nc, fi.configuration, fi.field, fi.energy,
+        fi.use_constraints, getattr(fi, "_J_kept", None), fi.use_energy, users, fi.use_penalty, fi.A,
+        fi.parameter_layout.size,
+    )
+
+
 def _field_kernel(fi, key, engine, make):
-    """Trace with ``make(tr) -> (source, n_params, kind, projection)`` and load the module."""
+    """The kernel found by its fingerprint (:func:`kernel_fingerprint`, no trace), else traced with
+    ``make(tr) -> (source, n_params, kind, projection)`` and loaded (and its fingerprint recorded)."""
     engine = _engine(engine)
 
     def build():
         t = time.perf_counter()
+        fingerprint = kernel_fingerprint(fi, key, engine)
+        found = None if fingerprint is None else _cache.find(fingerprint, engine)
+        if found is not None:
+            kernel, meta = found
+            return CompiledField(kernel, fi.n, meta["n_params"], meta["kind"], engine, time.perf_counter() - t, {},
+                                 meta["projection"], meta["nodes"], _owns_load=kernel.claim(), traced=False)
         with compiling(), trace() as tr:
             source, n_params, kind, projection = make(tr)
             nodes = tr.size
         build_s = time.perf_counter() - t
         with compiling():
             kernel = _cache.load(source, engine)
+        if fingerprint is not None:
+            _cache.remember(fingerprint, kernel, {"n_params": n_params, "kind": kind, "projection": projection,
+                                                  "nodes": nodes})
         return CompiledField(kernel, fi.n, n_params, kind, engine, build_s, {}, projection, nodes,
                              _owns_load=kernel.claim())
 

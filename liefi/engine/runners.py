@@ -195,6 +195,10 @@ class CompiledField(_Overhead):
         Number of invariant residuals of the projection (0: none).
     nodes : int
         Size of the traced graph (a measure of the generated code).
+    traced : bool
+        False when the kernel was found by the fingerprint of the system's data, without a
+        trace (:func:`liefi.engine.kernels.kernel_fingerprint`); :attr:`build_seconds` is then
+        the time of that look-up.
     """
 
     kernel: object
@@ -208,6 +212,7 @@ class CompiledField(_Overhead):
     nodes: int = 0
     _owns_load: bool = True
     _reported: float = 0.0
+    traced: bool = True
 
     def rhs(self, y, p):
         """The field at one state ``y`` (shape ``(N,)``) with parameters ``p``."""

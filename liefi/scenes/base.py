@@ -29,6 +29,7 @@ from functools import cached_property
 import numpy as np
 
 from ..results import scene_figures as plotting
+from .. import _fingerprint
 from .._keywords import SCENE_FOREIGN, keywords, unknown_keyword
 from ..integrator.feedback import FeedbackIntegrator
 from ..reduction import core as _core
@@ -270,7 +271,12 @@ class Scene:
     # --- derived -------------------------------------------------------------------
     @cached_property
     def system(self):
-        return self.build_system()
+        system = self.build_system()
+        if _fingerprint.of_system(system) is None:  # liefi's own scene: its data and liefi's code decide the system
+            data = _fingerprint.object_data(self, skip=("system",))
+            if data is not None:
+                _fingerprint.stamp(system, "scene", type(self).__module__, type(self).__qualname__, data)
+        return system
 
     def variant(self, name=None) -> Variant:
         if name is None:

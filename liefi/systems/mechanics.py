@@ -42,6 +42,7 @@ from ._kinematics import (MinimalSpeedsError, NonConservativeLoadError, _annihil
                           _kinematics, _restore, _speed_coordinates, _Speeds)
 from .sympy_input import _sympy, coordinate_names, is_zero, lagrangian_data, lambdify_checked
 from . import _mechanics_constraints as _mc
+from .. import _fingerprint
 from .system import NonholonomicSystem
 
 __all__ = ["from_mechanics", "MechanicsSystem", "NonConservativeLoadError", "MinimalSpeedsError"]
@@ -54,6 +55,8 @@ class _Constants:
         self.symbols = tuple(symbols)
         self.names = tuple(str(s) for s in symbols)
         self.values = values
+        #: the inputs of every data function bound so far (:func:`_bound`): the system's fingerprint
+        self.bound = []
 
     def parse(self, constants):
         """An array ``(..., P)`` from a mapping ``{symbol or name: value(s)}`` or an array."""
@@ -135,6 +138,8 @@ def _bound(sympy, args, params, exprs, shape, holder, what):
     """``(..., n) -> (..., *shape)``: the lambdified ``exprs`` with the constants bound (complex safe)."""
     # |e| as sqrt(e^2) (of the plain, not real, symbols: it stays so), which is complex-step safe
     # (a spring's pathway length |q| along one coordinate)
+    exprs = list(exprs)
+    holder.bound.append((list(args), list(params), exprs, tuple(shape), what))
     exprs = [sympy.sympify(e).replace(sympy.Abs, lambda a: sympy.sqrt(a**2)) for e in exprs]
     numbers = _numbers(exprs)  # constant data (K_u = -1 of kinematic equations qdot - u ...): no code generated
     f = (lambda *a: numbers) if numbers is not None else lambdify_checked(
@@ -432,6 +437,7 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
     import sympy.physics.mechanics as me
     from ..phase_space import CotangentBundle
 
+    user_kw = dict(kw)  # as given (holonomic_data adds liefi's own functions to kw)
     parts = _parts(sympy, me, model)
     q, qd, u = parts["q"], parts["qd"], parts["u"]
     n = len(q)
@@ -542,14 +548,18 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
     metric = _mc.regularized_metric(metric, A, kw) if hol else metric  # singular on the ambient space: regular off C
     space = CotangentBundle(n + r, names=coordinate_names(sympy, q_all) if names is None else names)
     if A is None:
-        out = MechanicsSystem(space, metric, None, pot, vector_potential=vp, mechanics=mech, **kw)
+        system = MechanicsSystem(space, metric, None, pot, vector_potential=vp, mechanics=mech, **kw)
     else:
-        out = MechanicsSystem.from_velocity_constraints(
+        system = MechanicsSystem.from_velocity_constraints(
             space, metric, A, pot, scaling=scaling, vector_potential=vp, mechanics=mech, **kw
         )
-    if forced:
-        out.force = forced  # the non-conservative loads: a ForceLaw (liefi.systems.forcing), inputs by name
-    return out
+    if forced:  # the non-conservative loads: a ForceLaw (liefi.systems.forcing), inputs by name; numpy runs only,
+        system.force = forced  # so no kernel fingerprint
+        return system
+    # pure data: every data function is bound from the sympy expressions recorded in holder.bound, the
+    # constants are the system's data_key (part of a kernel's fingerprint); kernels found without a trace
+    return _fingerprint.stamp(system, "from_mechanics", holder.bound, user_kw, names, scaling, n, r, len(u),
+                              W is not None if u else None, keep, k_model, mech["q_dependent"], space.state_names)
 
 def _parts(sympy, me, model):
     """The model's coordinates, speeds, kinematics, Lagrangian or bodies, loads and constraints."""

@@ -63,7 +63,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import _diff
+from .. import _diff, _fingerprint
 from .._data import as_float, as_float_array
 from .invariant import Invariant
 from ..groups import SO3, Representation, Rn
@@ -90,7 +90,7 @@ def _pair(i, j):
 
     names = ("rho1", "rho2", "Gamma")
     name = f"|{names[i]}|^2" if i == j else f"{names[i]}.{names[j]}"
-    return Invariant(name, fun, grad)
+    return Invariant(name, _fingerprint.mark(fun, "attitude pair", i, j), _fingerprint.mark(grad, "attitude pair grad", i, j))
 
 
 #: The six Casimirs ``<rho_i, rho_j>`` of the advected attitude (``|Gamma|^2`` among them): first
@@ -340,9 +340,11 @@ def rolling_body(mass, inertia, contact, gravity=9.81, *, sample=None, scaling="
         _check_start(y, configuration, metric, rows, r_at, contact)
 
     try:
-        return NonholonomicSystem.from_velocity_constraints(
+        system = NonholonomicSystem.from_velocity_constraints(
             rolling_space(), metric, rows, potential, scaling=scaling, check=check, sample=attitude_state(R0),
             start_check=start_check)
+        # pure data when the contact is liefi's own (sphere, ellipsoid, disk): kernels found without a trace
+        return _fingerprint.stamp(system, "rolling_body", m, I, contact, g, R0, scaling, check)
     except ValueError as exc:
         if radius > FLAT_RATIO * L and "complex-step" in str(exc):  # the contact is the only datum the user wrote
             raise ValueError(
@@ -473,7 +475,7 @@ def sphere(radius, offset=(0.0, 0.0, 0.0)):
     def r(Gamma):
         return -a * np.asarray(Gamma) + (0.0 * np.asarray(Gamma) - c)
 
-    return r
+    return _fingerprint.mark(r, "sphere", a, c)
 
 
 def ellipsoid(semi_axes, offset=(0.0, 0.0, 0.0), rotation=None):
@@ -500,7 +502,7 @@ def ellipsoid(semi_axes, offset=(0.0, 0.0, 0.0), rotation=None):
         rs = -An / np.sqrt(np.einsum("...i,...i->...", n, An))[..., None]
         return np.einsum("ij,...j->...i", Q, rs) - c
 
-    return r
+    return _fingerprint.mark(r, "ellipsoid", A, c, Q)
 
 
 def disk(radius):
@@ -518,4 +520,4 @@ def disk(radius):
         s = np.sqrt(Gamma[..., 0] ** 2 + Gamma[..., 1] ** 2)
         return -a * np.stack([Gamma[..., 0] / s, Gamma[..., 1] / s, 0.0 * s], -1)
 
-    return r
+    return _fingerprint.mark(r, "disk", a)

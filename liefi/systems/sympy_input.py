@@ -263,6 +263,9 @@ def from_sympy(L, q, qd, constraints=(), names=None, *, scaling="unit", **kw):
     from ..phase_space import CotangentBundle
     from .system import NonholonomicSystem
 
+    from .._fingerprint import stamp
+
+    data = ("from_sympy", L, q, qd, constraints, names, scaling, kw)  # the inputs, before they are read
     X, M, b, U, rows, q = lagrangian_data(sympy, _scalar_lagrangian(sympy, L), q, qd, constraints)
     n = len(q)
     metric = _batch_function(sympy, X, [e for row in M for e in row], (n, n), "metric")
@@ -273,12 +276,12 @@ def from_sympy(L, q, qd, constraints=(), names=None, *, scaling="unit", **kw):
     if names is None:
         names = coordinate_names(sympy, q)
     space = CotangentBundle(n, names=names)
-    if not rows:
-        return NonholonomicSystem(space, metric, None, potential, vector_potential=vector_potential, **kw)
+    if not rows:  # stamped: pure data, so its kernels are found without a trace (liefi._fingerprint)
+        return stamp(NonholonomicSystem(space, metric, None, potential, vector_potential=vector_potential, **kw), *data)
     A = _batch_function(sympy, X, [e for row in rows for e in row], (len(rows), n), "constraints")
-    return NonholonomicSystem.from_velocity_constraints(
+    return stamp(NonholonomicSystem.from_velocity_constraints(
         space, metric, A, potential, scaling=scaling, vector_potential=vector_potential, **kw
-    )
+    ), *data)
 
 
 def _scalar_lagrangian(sympy, L):

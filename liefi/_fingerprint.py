@@ -1,0 +1,224 @@
+"""Fingerprints of pure data: how the compiled engine finds a kernel without tracing (issue 26).
+
+A system built by liefi from *data* -- sympy expressions (:func:`liefi.from_sympy`,
+:func:`liefi.from_mechanics`), numbers and liefi's own contact functions
+(:func:`liefi.systems.rolling.rolling_body` with :func:`~liefi.systems.rolling.sphere`,
+:func:`~liefi.systems.rolling.ellipsoid`, :func:`~liefi.systems.rolling.disk`) -- is
+determined by those data and by liefi's code.  Its builder stamps it with
+:func:`digest` of the data (:func:`stamp`), and the engine then names a kernel by
+
+.. math:: \\mathrm{SHA256}(\\text{liefi's sources},\\ \\text{the system's stamp},\\ \\text{its constants},
+          \\ \\text{the integrator's settings},\\ \\text{the kernel's kind})
+
+(:func:`liefi.engine.kernels.kernel_fingerprint`), which it can compute without running any
+user code.  A later process with the same fingerprint loads the kernel the first one
+generated, without tracing.  Anything that cannot be fingerprinted -- a user's callable,
+an object liefi does not know -- makes :func:`digest` return ``None``, and the system keeps
+the safe path (traced in every process).
+
+Encoding: every value is written with its type and length, so that no two different
+values share an encoding; floats by :meth:`float.hex` (exact), arrays by dtype, shape and
+bytes, sympy objects by :func:`sympy.srepr` with the process-local indices of their
+``Dummy`` symbols renumbered by first appearance (the same model in two processes gets the
+same fingerprint; two different dummies in one model stay apart).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import os
+import re
+import sys
+import threading
+import types
+
+import numpy as np
+
+#: the attribute holding the fingerprint of a function or a system
+ATTR = "_liefi_fingerprint"
+#: the attribute holding the ids of a stamped system's attributes at the time it was stamped
+_IDS = "_liefi_fingerprint_ids"
+
+_DUMMY = re.compile(r"dummy_index=(\d+)")
+
+
+class _Unknown(Exception):
+    """A value :func:`digest` cannot fingerprint (a user's callable, an unknown object)."""
+
+
+def _is_sympy(x):
+    """A sympy expression or matrix (without importing sympy: a sympy object means it is imported)."""
+    sp = sys.modules.get("sympy")
+    return sp is not None and isinstance(x, (sp.Basic, sp.MatrixBase))
+
+
+def _encode(h, x, dummies):
+    def put(tag, payload=b""):
+        h.update(tag + len(payload).to_bytes(8, "little") + payload)
+
+    known = dummies.get(("known", id(x))) if not isinstance(x, (int, float, str)) else None
+    if known is not None:  # an object the caller names (a part of a stamped system)
+        put(b"K", known.encode())
+    elif x is None or isinstance(x, (bool, np.bool_)):
+        put(b"N" if x is None else (b"T" if x else b"F"))
+    elif isinstance(x, (int, np.integer)):
+        put(b"I", str(int(x)).encode())
+    elif isinstance(x, (float, np.floating)):
+        put(b"D", float(x).hex().encode())
+    elif isinstance(x, (complex, np.complexfloating)):
+        put(b"C", (complex(x).real.hex() + "," + complex(x).imag.hex()).encode())
+    elif isinstance(x, str):
+        put(b"S", x.encode())
+    elif isinstance(x, bytes):
+        put(b"B", x)
+    elif isinstance(x, (tuple, list)):
+        put(b"L", str(len(x)).encode())
+        for v in x:
+            _encode(h, v, dummies)
+    elif isinstance(x, dict):
+        put(b"M", str(len(x)).encode())
+        for k in sorted(x, key=repr):
+            _encode(h, k, dummies)
+            _encode(h, x[k], dummies)
+    elif isinstance(x, np.ndarray):
+        if x.dtype == object:
+            _encode(h, ("object array", x.shape, x.reshape(-1).tolist()), dummies)
+        else:
+            put(b"A", f"{x.dtype.str}{x.shape}".encode() + np.ascontiguousarray(x).tobytes())
+    elif getattr(x, ATTR, None) is not None:
+        put(b"X", getattr(x, ATTR).encode())
+    elif isinstance(x, types.FunctionType) and (x.__module__ or "").startswith("liefi."):
+        # liefi's own function (its code is in sources()): named, with the data it closes over
+        cells = tuple(c.cell_contents for c in (x.__closure__ or ()))
+        _encode(h, ("function", x.__module__, x.__qualname__, x.__defaults__, x.__kwdefaults__, cells), dummies)
+    elif dataclasses.is_dataclass(x) and not isinstance(x, type):  # a record of data (a scene's Variant)
+        _encode(h, (type(x).__module__, type(x).__qualname__,
+                    {f.name: getattr(x, f.name) for f in dataclasses.fields(x)}), dummies)
+    elif _is_sympy(x):
+        import sympy
+
+        text = _DUMMY.sub(lambda m: "dummy_index=#%d" % dummies.setdefault(m.group(1), len(dummies)),
+                          sympy.srepr(x))
+        put(b"Y", text.encode())
+    else:
+        raise _Unknown(type(x).__name__)
+
+
+def digest(*parts, known=None):
+    """The SHA-256 (hex) of ``parts`` (pure data: numbers, strings, arrays, sympy objects, marked functions,
+    tuples, lists and dicts of them); ``None`` when some part cannot be fingerprinted (a user's callable).
+
+    ``known``: ``{label: object}``, objects written as their label (the parts of a stamped system a
+    function of liefi's closes over: the system's own data, fingerprinted by its stamp).
+    """
+    h = hashlib.sha256()
+    try:
+        _encode(h, parts, {("known", id(o)): label for label, o in (known or {}).items() if o is not None})
+    except _Unknown:
+        return None
+    except RecursionError:  # a pathologically deep expression: no fingerprint, the safe path
+        return None
+    return h.hexdigest()
+
+
+def mark(fun, *parts):
+    """Give the function ``fun`` (made by liefi from the data ``parts``) the fingerprint of those data; return it."""
+    fp = digest(*parts)
+    if fp is not None:
+        setattr(fun, ATTR, fp)
+    return fun
+
+
+def of(obj, known=None):
+    """The fingerprint of the function ``obj``: the one :func:`mark` gave it, or for liefi's own function
+    that of its name and the data it closes over (``known`` as in :func:`digest`); ``None`` for any other
+    (a user's function)."""
+    fp = getattr(obj, ATTR, None)
+    return fp if fp is not None else digest(obj, known=known)
+
+
+def stamp(system, *parts):
+    """Stamp ``system`` (built by liefi from the data ``parts`` alone) with their fingerprint; return it.
+
+    Nothing is stamped when a part cannot be fingerprinted.  The ids of the system's
+    attributes are kept: an attribute assigned afterwards (new data in the same object)
+    voids the stamp (:func:`of_system`).
+    """
+    fp = digest(*parts)
+    if fp is not None:
+        ids = {k: id(v) for k, v in vars(system).items()}
+        setattr(system, ATTR, fp)
+        setattr(system, _IDS, ids)
+    return system
+
+
+def of_system(system):
+    """The stamp of ``system``, or ``None`` (not built from pure data, or one of its attributes replaced since)."""
+    fp = getattr(system, ATTR, None)
+    ids = getattr(system, _IDS, None)
+    if fp is None or ids is None:
+        return None
+    d = vars(system)
+    if any(k not in d or id(d[k]) != i for k, i in ids.items()):
+        return None
+    return fp
+
+
+_SOURCES = []
+_SOURCES_LOCK = threading.Lock()
+
+
+def sources():
+    """SHA-256 of liefi's own source files (``liefi/**/*.py``, by relative path and content), once per process.
+
+    Part of every kernel fingerprint: a kernel generated by other code (another version,
+    an edited checkout) is never found by a fingerprint.
+    """
+    with _SOURCES_LOCK:
+        if not _SOURCES:
+            root = os.path.dirname(os.path.abspath(__file__))
+            h = hashlib.sha256()
+            for d, dirs, files in os.walk(root):
+                dirs.sort()
+                for f in sorted(files):
+                    if f.endswith(".py"):
+                        p = os.path.join(d, f)
+                        with open(p, "rb") as fh:
+                            data = fh.read()
+                        _encode(h, (os.path.relpath(p, root).replace(os.sep, "/"), data), {})
+            _SOURCES.append(h.hexdigest())
+        return _SOURCES[0]
+
+
+def _liefi_code(v):
+    """True for a function, method or descriptor defined in liefi's own modules (covered by :func:`sources`)."""
+    f = getattr(v, "__func__", None) or getattr(v, "fget", None) or getattr(v, "func", None) or v
+    return (getattr(f, "__module__", None) or "").startswith("liefi.")
+
+
+def object_data(obj, skip=()):
+    """The data of ``obj`` (an object of one of liefi's classes, e.g. a scene), for :func:`stamp`; ``None`` when
+    it is not only liefi's code and pure data.
+
+    Every class of ``obj`` (its MRO) must be defined in liefi; their attributes that are liefi's
+    functions or descriptors are code (covered by :func:`sources`), the others data, and so is every
+    attribute of ``obj`` itself (except ``skip``).  A function from elsewhere (a user's subclass, a
+    replaced method, a user's callable in an attribute) gives ``None``: no stamp, the safe path.
+    """
+    parts = []
+    for cls in type(obj).__mro__:
+        if cls is object:
+            continue
+        if not (cls.__module__ or "").startswith("liefi."):
+            return None
+        for k, v in sorted(vars(cls).items()):
+            if k.startswith("__"):
+                continue
+            if callable(v) or hasattr(v, "__get__") and not isinstance(v, (int, float, str, tuple, np.ndarray)):
+                if not _liefi_code(v):
+                    return None
+                continue
+            parts.append((cls.__qualname__, k, v))
+    parts += [("self", k, v) for k, v in sorted(vars(obj).items()) if k not in skip]
+    return parts if digest(parts) is not None else None
