@@ -33,9 +33,12 @@ def _kinematics(sympy, kd, q, qd, u):
     """
     n = len(q)
     if len(u) > n:
-        raise ValueError(f"model: {len(u)} generalized speeds for {n} coordinates; liefi needs at most one speed "
-                         "per coordinate (move the extra speeds to u_dependent= with their velocity constraints, "
-                         "or to u_auxiliary=)")
+        raise ValueError(f"model: the kinematic differential equations hold {len(u)} generalized speeds "
+                         f"{[str(getattr(s, 'func', s)) for s in u]} for {n} coordinates, so the coordinates' rates do "
+                         "not fix the speeds (a velocity constraint among them does not help); liefi needs at most one "
+                         "speed per coordinate: write the model with one speed per coordinate (substitute a speed a "
+                         "velocity constraint fixes), move the speeds of reaction forces to u_auxiliary=, and leave a "
+                         "rate with no coordinate (a wheel's spin) out of kd_eqs (liefi then gives it a coordinate)")
     K = sympy.Matrix(kd)
     if K.shape[0] != n:
         raise ValueError(f"model: {K.shape[0]} kinematic differential equations for {n} coordinates; give one per "
