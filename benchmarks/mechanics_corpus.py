@@ -17,7 +17,9 @@ dependent ones solved from the configuration constraints) and random independent
   by liefi with a message that says what to do);
 * ``crashed``: any other exception, or one raised outside liefi's own code;
 * ``no reference``: the model's own equations could not be integrated from the start (a singular mass matrix
-  or velocity-constraint block there).
+  or velocity-constraint block there);
+* ``run failed``: liefi's run (``IntegrationError``) met non-finite values (a start that reaches a singular
+  configuration of the model's coordinates within ``[0, 2]``).
 
 Columns: sympy's equations [s] (CPU, the wrapped call), ``from_mechanics`` [s] (CPU), error, the drifts.
 Run from the repository root: ``python benchmarks/mechanics_corpus.py [--skip-slow] [--json out.json] [filter]``
@@ -100,6 +102,9 @@ def row(where, model, sympy_s):
             return out
         except np.linalg.LinAlgError as exc:
             out.update(status="no reference", reason=f"LinAlgError: {exc}")
+            return out
+        except liefi.IntegrationError as exc:  # a start that runs into a singular configuration of the model
+            out.update(status="run failed", reason=f"IntegrationError: {str(exc)[:160]}")
             return out
         out.update(res)
         good = res["error"] <= 1e-8 and max(res["f"], res["velocity"], res["energy"]) <= 1e-12

@@ -140,8 +140,8 @@ class Own:
         ind = [s for s in v if s not in dep]
         self.ii, self.di = [v.index(s) for s in ind], [v.index(s) for s in dep]
         self.K = len(dep)
-        self.MM = _lam([q, v], model.mass_matrix_full, c)
-        self.F = _lam([q, v], model.forcing_full, c)
+        self.MM = _lam([q, v], model.mass_matrix_full, c, cse=True)
+        self.F = _lam([q, v], model.forcing_full, c, cse=True)
         if self.K:
             self.Ad = _lam([q], cons.jacobian(dep), c)
             self.rest = _lam([q, ind], cons.xreplace(dict.fromkeys(dep, 0)), c)
