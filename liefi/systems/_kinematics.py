@@ -84,12 +84,15 @@ def _annihilator(sympy, Kq, Ku):
 
     The left null space of ``B`` symbolically, each row cleared of its denominators (a
     polynomial row, e.g. ``(-sin theta, cos theta, 0)`` for a sleigh's ``x' = u cos theta,
-    y' = u sin theta``, not ``(-tan theta, 1, 0)``).
+    y' = u sin theta``, not ``(-tan theta, 1, 0)``).  No inverse of ``K_qdot``: ``a B = 0`` if and
+    only if ``a = b K_qdot`` with ``b K_u = 0``, so the rows are the left null space of ``K_u`` times
+    ``K_qdot`` (a symbolic ``K_qdot^{-1}``, of implicit kinematics such as a quaternion's, hung
+    the build in ``expand``).
     """
-    B = -(Kq.LUsolve(Ku) if Kq != sympy.eye(Kq.shape[0]) else Ku)
+    eye = Kq == sympy.eye(Kq.shape[0])
     rows = []
-    for v in B.T.nullspace(simplify=True):
-        v = [sympy.together(e) for e in v]
+    for b in Ku.T.nullspace(simplify=True):
+        v = [sympy.together(e) for e in (b if eye else b.T * Kq)]
         den = sympy.lcm([sympy.fraction(e)[1] for e in v])
         rows.append([sympy.simplify(e * den) for e in v])
     if len(rows) != Kq.shape[0] - Ku.shape[1]:
