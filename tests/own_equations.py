@@ -169,7 +169,7 @@ def own_trajectory(own, q0, v_ind0, t_eval):
     sol = solve_ivp(lambda _, y: own.rates(y), (t_eval[0], t_eval[-1]), np.concatenate([q0, v_ind0]),
                     method="DOP853", rtol=1e-12, atol=1e-12, t_eval=t_eval)
     if sol.status != 0 or sol.y.shape[1] != len(t_eval):
-        raise RuntimeError(f"the model's own equations did not integrate: {sol.message}")
+        raise RuntimeError(f"the model's own equations did not integrate: {sol.message} (at t = {sol.t[-1]:.6g})")
     Y = sol.y.T
     return Y[:, : own.n], np.array([own.rates(y)[: own.n] for y in Y]), np.array([own.speeds(y[: own.n], y[own.n:])
                                                                                   for y in Y])

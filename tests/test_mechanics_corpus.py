@@ -82,12 +82,17 @@ CORPUS = {
 }
 
 
+#: liefi's run for the drift, where imex-rk8 at dt = 0.01 under-resolves the motion (the rattleback's fastest rate
+#: is 133/s: liefi warns, and its energy drifts by 1.2e-6): the default adaptive step
+RUNS = {name: dict(backend="numpy") for name in CORPUS if name.startswith("rattleback")}
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(CORPUS))
 def test_the_corpus_model_runs_as_its_own_equations_holding_its_constraints_and_energy(name):
     model, consts, q0, v0 = CORPUS[name]()
     system = liefi.from_mechanics(model, consts)
-    out = OE.compare(model, consts, system, np.asarray(q0, float), v0)
+    out = OE.compare(model, consts, system, np.asarray(q0, float), v0, run=RUNS.get(name))
     assert out["error"] <= 1e-8, out
     assert max(out["f"], out["velocity"]) <= 1e-12, out
     assert out["energy"] <= 1e-12, out
