@@ -22,8 +22,8 @@ dependent ones solved from the configuration constraints) and random independent
   configuration of the model's coordinates within ``[0, 2]``).
 
 Columns: sympy's equations [s] (CPU, the wrapped call), ``from_mechanics`` [s] (CPU), error, the drifts.
-Run from the repository root: ``python benchmarks/mechanics_corpus.py [--skip-slow] [--json out.json] [filter]``
-(``filter``: a substring of the test file or function); about 10 CPU minutes on a 2-core machine.
+Run from the repository root: ``python benchmarks/mechanics_corpus.py [--skip-slow] [--json out.json] [filter ...]``
+(``filter``: substrings of ``file::test_function``, any of them); about 10 CPU minutes on a 2-core machine.
 """
 
 from __future__ import annotations
@@ -138,7 +138,7 @@ def main(argv):
     if "--json" in argv:
         i = argv.index("--json")
         out_json, argv = argv[i + 1], argv[:i] + argv[i + 2:]
-    only = argv[0] if argv else None
+    only = argv or None
     from own_equations import FILES
 
     files = [f for f in FILES if not (skip_slow and f in SLOW)]

@@ -47,7 +47,7 @@ def collect(files=FILES, only=None):
 
     ``KanesMethod.kanes_equations``, ``LagrangesMethod.form_lagranges_equations`` and ``System.form_eoms`` are
     wrapped for the run; the outermost call is kept (a ``System``, not the ``KanesMethod`` it forms inside), one
-    entry per model object.  ``only``: a substring of ``"file::test_function"``.
+    entry per model object.  ``only``: a substring of ``"file::test_function"`` (or several: any of them).
     """
 
     found, depth, spent = {}, [0], [0.0]
@@ -76,7 +76,7 @@ def collect(files=FILES, only=None):
         for file in files:
             mod = importlib.import_module(f"sympy.physics.mechanics.tests.{file}")
             for name in sorted(n for n in dir(mod) if n.startswith("test_")):
-                if only and only not in f"{file}::{name}":
+                if only and not any(o in f"{file}::{name}" for o in ([only] if isinstance(only, str) else only)):
                     continue
                 where[0] = f"{file}::{name}"
                 try:
