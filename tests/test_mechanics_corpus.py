@@ -107,9 +107,8 @@ def test_the_whipple_bicycle_runs_as_its_own_equations_holding_its_constraints_a
 
     bike = bm.whipple_sympy_test()
     system = liefi.from_mechanics(bike.kane, bike.params)
-    v = 5.0
-    independent = {"u2": 0.5, "u3": -v / bm.TABLE_1["rR"], "u5": 0.0}  # lean rate, rear wheel rate, steer rate
-    v0 = [independent[str(s.func)] for s in bike.kane.u[:3]]
+    upright_run = {**bike.speed_of(5.0), bike.lean_rate: 0.5}  # the rear wheel's rate v / r_R forward, a lean rate
+    v0 = [upright_run.get(s, 0.0) for s in bike.kane.u[:3]]  # (u2, u3, u5): lean rate, rear wheel rate, steer rate
     out = OE.compare(bike.kane, bike.params, system, np.zeros(len(bike.kane.q)), v0)
     assert out["error"] <= 1e-8, out
     assert max(out["f"], out["velocity"]) <= 1e-12, out
