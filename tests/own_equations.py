@@ -189,10 +189,10 @@ def _model_columns(system, own, Y):
     return Y[:, idx], system.velocities(Y)[:, idx]
 
 
-def liefi_trajectory(system, own, z0, t_eval):
-    """``(Q, Qd)`` at ``t_eval`` in the model's coordinates: liefi's constrained field, DOP853 at 1e-12."""
+def liefi_trajectory(system, own, z0, t_eval, tol=1e-12):
+    """``(Q, Qd)`` at ``t_eval`` in the model's coordinates: liefi's constrained field, DOP853 at ``tol``."""
     sol = solve_ivp(lambda _, z: system.constrained_vector_field(z), (t_eval[0], t_eval[-1]), z0, method="DOP853",
-                    rtol=1e-12, atol=1e-12, t_eval=t_eval)
+                    rtol=tol, atol=tol, t_eval=t_eval)
     if sol.status != 0 or sol.y.shape[1] != len(t_eval):
         raise RuntimeError(f"liefi's field did not integrate: {sol.message}")
     return _model_columns(system, own, sol.y.T)
@@ -233,10 +233,12 @@ def on_constraints(own, q_guess):
     return x
 
 
-def compare(model, constants, system, q0, v_ind0, t_final=2.0, run=None):
+def compare(model, constants, system, q0, v_ind0, t_final=2.0, run=None, tol=1e-12):
     """``dict(error, f, velocity, energy)``: the model's own equations against liefi's field over ``[0, t_final]``
     (21 times), and the drift of the model's declared constraints and energy along liefi's run (``run``: keyword
-    arguments of ``FeedbackIntegrator.run``; default imex-rk8, ``dt = 0.01``, numpy)."""
+    arguments of ``FeedbackIntegrator.run``; default imex-rk8, ``dt = 0.01``, numpy); ``tol``: DOP853's tolerances
+    for liefi's field (liefi's state holds momenta, which for small inertias are small: the rattleback's,
+    about 1e-3, need 1e-14 for an absolute tolerance to be 1e-11 relative)."""
     import liefi
 
     own = Own(model, constants, q0)
@@ -244,7 +246,7 @@ def compare(model, constants, system, q0, v_ind0, t_final=2.0, run=None):
     t_eval = np.linspace(0.0, t_final, 21)
     Q, Qd, V = own_trajectory(own, q0, np.asarray(v_ind0, float), t_eval)
     z0 = liefi_start(system, own, q0, V[0])
-    Ql, Qdl = liefi_trajectory(system, own, z0, t_eval)
+    Ql, Qdl = liefi_trajectory(system, own, z0, t_eval, tol)
     scale = max(1.0, float(np.max(np.abs(Qd))))
     err = max(float(np.max(np.abs(Ql - Q))), float(np.max(np.abs(Qdl - Qd)))) / scale
     sol = liefi.FeedbackIntegrator(system, z0).run(t_final, t_eval=t_eval,
