@@ -248,9 +248,10 @@ def system_sleigh():
 
 
 # --- the model's own equations ---------------------------------------------------------
-def _lam(args, expr, constants):
+def _lam(args, expr, constants, cse=False):
     """``lambdify`` of ``expr`` in the lists ``args`` of dynamicsymbols and their derivatives (derivatives
-    replaced first by plain symbols, so that ``q'`` is not read as ``d/dt`` of the symbol of ``q``)."""
+    replaced first by plain symbols, so that ``q'`` is not read as ``d/dt`` of the symbol of ``q``); ``cse``:
+    common subexpressions once (large models)."""
     plain = [[sympy.Dummy() for _ in a] for a in args]
     subs = sorted(((s, p) for a, pa in zip(args, plain) for s, p in zip(a, pa)),
                   key=lambda sp: -len(sp[0].atoms(sympy.Derivative)) if isinstance(sp[0], sympy.Derivative) else 0)
@@ -259,7 +260,7 @@ def _lam(args, expr, constants):
         if isinstance(s, sympy.Derivative):
             e = e.xreplace({s: p})
     e = e.xreplace({s: p for s, p in subs if not isinstance(s, sympy.Derivative)})
-    return sympy.lambdify(plain, e, "numpy")
+    return sympy.lambdify(plain, e, "numpy", cse=cse)
 
 
 def reference(case, q0, v_ind0):

@@ -34,9 +34,12 @@ def _kinematics(sympy, kd, q, qd, u):
     """
     n = len(q)
     if len(u) > n:
-        raise ValueError(f"model: {len(u)} generalized speeds for {n} coordinates; liefi needs at most one speed "
-                         "per coordinate (move the extra speeds to u_dependent= with their velocity constraints, "
-                         "or to u_auxiliary=)")
+        raise ValueError(f"model: the kinematic differential equations hold {len(u)} generalized speeds "
+                         f"{[str(getattr(s, 'func', s)) for s in u]} for {n} coordinates, so the coordinates' rates do "
+                         "not fix the speeds (a velocity constraint among them does not help); liefi needs at most one "
+                         "speed per coordinate: write the model with one speed per coordinate (substitute a speed a "
+                         "velocity constraint fixes), move the speeds of reaction forces to u_auxiliary=, and leave a "
+                         "rate with no coordinate (a wheel's spin) out of kd_eqs (liefi then gives it a coordinate)")
     K = sympy.Matrix(kd)
     if K.shape[0] != n:
         raise ValueError(f"model: {K.shape[0]} kinematic differential equations for {n} coordinates; give one per "
@@ -82,16 +85,19 @@ def _annihilator(sympy, Kq, Ku):
 
     The left null space of ``B`` symbolically, each row cleared of its denominators (a
     polynomial row, e.g. ``(-sin theta, cos theta, 0)`` for a sleigh's ``x' = u cos theta,
-    y' = u sin theta``, not ``(-tan theta, 1, 0)``).  The pivots are tested by :func:`is_zero` (``simplify``'s
-    answer, asked of ``simplify`` only when a value at a point does not decide) and the rows cleared by
-    ``cancel`` (a rational function's common factors), not by ``simplify`` on each entry.
+    y' = u sin theta``, not ``(-tan theta, 1, 0)``).  No inverse of ``K_qdot``: ``a B = 0`` if and
+    only if ``a = b K_qdot`` with ``b K_u = 0``, so the rows are the left null space of ``K_u`` times
+    ``K_qdot`` (a symbolic ``K_qdot^{-1}``, of implicit kinematics such as a quaternion's, hung
+    the build in ``expand``).  The pivots are tested by :func:`is_zero` (``simplify``'s answer, asked of
+    ``simplify`` only when a value at a point does not decide) and the rows cleared by ``cancel`` (a
+    rational function's common factors), not by ``simplify`` on each entry.
     """
     from .sympy_input import is_zero
 
-    B = -(Kq.LUsolve(Ku) if Kq != sympy.eye(Kq.shape[0]) else Ku)
+    eye = Kq == sympy.eye(Kq.shape[0])
     rows = []
-    for v in B.T.nullspace(iszerofunc=lambda e: is_zero(sympy, e)):
-        v = [sympy.together(e) for e in v]
+    for b in Ku.T.nullspace(iszerofunc=lambda e: is_zero(sympy, e)):
+        v = [sympy.together(e) for e in (b if eye else b.T * Kq)]
         den = sympy.lcm([sympy.fraction(e)[1] for e in v])
         rows.append([sympy.cancel(e * den) for e in v])
     if len(rows) != Kq.shape[0] - Ku.shape[1]:

@@ -1,0 +1,254 @@
+"""A model's own equations against ``liefi.from_mechanics`` of it (test and benchmark helper).
+
+* :func:`collect` -- the models sympy's own mechanics tests build, by running those tests;
+  :func:`constants_of` values for their parameters.
+
+For any ``KanesMethod``, ``LagrangesMethod`` or ``System`` after its equations are formed:
+
+* :func:`own_trajectory` -- the model's own equations, ``mass_matrix_full x' = forcing_full``, in the state
+  ``(q, v_ind)`` (the independent speeds, or for a Lagrange model the independent velocities): the dependent
+  speeds are solved from the model's velocity constraints at each evaluation, the auxiliary speeds (and their
+  rates) are zero, as sympy forms the equations; DOP853 at ``rtol = atol = 1e-12``;
+* :func:`liefi_trajectory` -- liefi's constrained field of the built system from the same start, DOP853 at
+  1e-12, read back in the model's coordinates (by name: restored coordinates are left out);
+* :func:`declared_drift` -- along liefi's own run, every constraint the model declares, evaluated from the
+  model's expressions (its configuration constraints, its velocity constraints at liefi's speeds), and the
+  energy (liefi's ``H``, relative to ``max(1, |H(0)|)``);
+* :func:`compare` -- the three together: ``dict(error=..., f=..., velocity=..., energy=...)``, where
+  ``error`` is the largest difference in ``(q, q')`` over the times, relative to ``max(1, max |q'|)``.
+
+Imported only by tests and benchmarks (``tests/test_mechanics_corpus.py``, ``benchmarks/mechanics_corpus.py``).
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+import time
+import zlib
+
+import numpy as np
+import sympy
+import sympy.physics.mechanics as me
+from scipy.integrate import solve_ivp
+from scipy.linalg import qr
+
+from test_mechanics_holonomic import _lam  # the one lambdify of dynamicsymbols and their derivatives
+
+t = me.dynamicsymbols._t
+
+#: sympy's test modules that form equations of motion (the others test vectors, inertia, pathways ...)
+FILES = ["test_kane", "test_kane2", "test_kane3", "test_kane4", "test_kane5", "test_lagrange", "test_lagrange2",
+         "test_linearize", "test_models", "test_jointsmethod", "test_system_class", "test_actuator"]
+
+
+def collect(files=FILES, only=None):
+    """``[(where, model, sympy_seconds)]``: every model whose equations sympy's own tests form, by running them.
+
+    ``KanesMethod.kanes_equations``, ``LagrangesMethod.form_lagranges_equations`` and ``System.form_eoms`` are
+    wrapped for the run; the outermost call is kept (a ``System``, not the ``KanesMethod`` it forms inside), one
+    entry per model object.  ``only``: a substring of ``"file::test_function"`` (or several: any of them).
+    """
+
+    found, depth, spent = {}, [0], [0.0]
+    where = [""]
+
+    def wrap(cls, name):
+        f = getattr(cls, name)
+
+        def wrapper(self, *a, **k):
+            depth[0] += 1
+            t0 = time.process_time()
+            try:
+                out = f(self, *a, **k)
+            finally:
+                depth[0] -= 1
+            if depth[0] == 0:
+                found[id(self)] = (where[0], self, time.process_time() - t0)
+            return out
+        setattr(cls, name, wrapper)
+        return f
+
+    originals = [(c, n, wrap(c, n)) for c, n in ((me.KanesMethod, "kanes_equations"),
+                                                  (me.LagrangesMethod, "form_lagranges_equations"),
+                                                  (me.System, "form_eoms"))]
+    try:
+        for file in files:
+            mod = importlib.import_module(f"sympy.physics.mechanics.tests.{file}")
+            for name in sorted(n for n in dir(mod) if n.startswith("test_")):
+                if only and not any(o in f"{file}::{name}" for o in ([only] if isinstance(only, str) else only)):
+                    continue
+                where[0] = f"{file}::{name}"
+                try:
+                    getattr(mod, name)()
+                except Exception as exc:  # a test that needs what is not installed; its models so far are kept
+                    print(f"# {where[0]}: {type(exc).__name__}: {exc}", file=sys.stderr)
+    finally:
+        for c, n, f in originals:
+            setattr(c, n, f)
+    out, count = [], {}
+    for where_, model, sec in found.values():
+        count[where_] = count.get(where_, 0) + 1
+        out.append((f"{where_}#{count[where_]}", model, sec))
+    return out
+
+
+def value(symbol):
+    """A deterministic value in ``[0.5, 1.4]`` by the symbol's name (``g``: 9.81)."""
+    name = str(symbol)
+    return 9.81 if name == "g" else 0.5 + (zlib.crc32(name.encode()) % 10) / 10
+
+
+def constants_of(model):
+    m = model.eom_method if isinstance(model, me.System) else model
+    free = set()
+    for e in (m.mass_matrix_full, m.forcing_full):
+        free |= e.free_symbols
+    free.discard(me.dynamicsymbols._t)
+    return {s: value(s) for s in sorted(free, key=str)}
+
+
+class Own:
+    """The model's own equations at the constants ``c`` (a symbol -> float mapping), ready to integrate."""
+
+    def __init__(self, model, c, q0):
+        if isinstance(model, me.System):
+            model = model.eom_method
+        self.model, self.lagrange = model, isinstance(model, me.LagrangesMethod)
+        q = list(model.q)
+        self.q, self.n = q, len(q)
+        if self.lagrange:
+            v, aux = [s.diff(t) for s in q], []
+            cons = sympy.Matrix(model.coneqs)
+            hol = sympy.Matrix(getattr(model, "_hol_coneqs", []) or [])
+        else:
+            v, aux = list(model.u), list(model._uaux)
+            cons = (model._k_nh * sympy.Matrix(v) + model._f_nh) if model._k_nh.shape[0] else sympy.Matrix()
+            hol = sympy.Matrix(model._f_h)
+        self.v, self.aux = v, aux
+        c = {**c, **dict.fromkeys(list(aux) + [a.diff(t) for a in aux], 0)}
+        self.c = c
+        cons = cons.xreplace(dict.fromkeys(aux, 0))
+        self.names = [str(s.func) for s in q]
+        self.speed_names = [str(s.func) for s in v] if not self.lagrange else None
+        K = cons.shape[0]
+        if self.lagrange and K:  # the dependent velocities: a well-conditioned pivot of the rows at the start
+            J = np.asarray(_lam([q], cons.jacobian(v), c)(np.asarray(q0, float)), float)
+            dep = [v[i] for i in sorted(qr(J, pivoting=True)[2][:K])]
+        else:
+            dep = list(getattr(model, "_udep", []) or [])
+        ind = [s for s in v if s not in dep]
+        self.ii, self.di = [v.index(s) for s in ind], [v.index(s) for s in dep]
+        self.K = len(dep)
+        self.MM = _lam([q, v], model.mass_matrix_full, c, cse=True)
+        self.F = _lam([q, v], model.forcing_full, c, cse=True)
+        if self.K:
+            self.Ad = _lam([q], cons.jacobian(dep), c)
+            self.rest = _lam([q, ind], cons.xreplace(dict.fromkeys(dep, 0)), c)
+        self.cons = _lam([q, v], cons, c) if K else None
+        self.hol = _lam([q], hol, c) if hol.shape[0] else None
+
+    def speeds(self, qq, vi):
+        """Every speed (velocity) from the independent ones, solving the velocity constraints."""
+        vv = np.zeros(len(self.v))
+        vv[self.ii] = vi
+        if self.K:
+            vv[self.di] = np.linalg.solve(np.asarray(self.Ad(qq), float), -np.asarray(self.rest(qq, vi), float).ravel())
+        return vv
+
+    def rates(self, y):
+        """``(q', v_ind')`` at ``y = (q, v_ind)``: ``mass_matrix_full \\ forcing_full``."""
+        qq, vv = y[: self.n], self.speeds(y[: self.n], y[self.n:])
+        xd = np.linalg.solve(np.asarray(self.MM(qq, vv), float), np.asarray(self.F(qq, vv), float).ravel())
+        return np.concatenate([xd[: self.n], xd[self.n:][self.ii]])
+
+
+def own_trajectory(own, q0, v_ind0, t_eval):
+    """``(Q, Qd, U)`` at ``t_eval``: the coordinates, their rates and every speed (velocity) of the model's own
+    equations (DOP853, 1e-12)."""
+    sol = solve_ivp(lambda _, y: own.rates(y), (t_eval[0], t_eval[-1]), np.concatenate([q0, v_ind0]),
+                    method="DOP853", rtol=1e-12, atol=1e-12, t_eval=t_eval)
+    if sol.status != 0 or sol.y.shape[1] != len(t_eval):
+        raise RuntimeError(f"the model's own equations did not integrate: {sol.message} (at t = {sol.t[-1]:.6g})")
+    Y = sol.y.T
+    return Y[:, : own.n], np.array([own.rates(y)[: own.n] for y in Y]), np.array([own.speeds(y[: own.n], y[own.n:])
+                                                                                  for y in Y])
+
+
+def liefi_start(system, own, q0, v0):
+    """liefi's state at the model's coordinates ``q0`` (restored places 0) and every speed (velocity) ``v0``."""
+    names = [str(s) for s in system.space.shape_names]
+    q = np.zeros(len(names))
+    q[[names.index(s) for s in own.names]] = q0
+    return system.state(q, v0) if own.lagrange else system.state(q, u=v0)
+
+
+def _model_columns(system, own, Y):
+    names = [str(s) for s in system.space.shape_names]
+    idx = [names.index(s) for s in own.names]
+    return Y[:, idx], system.velocities(Y)[:, idx]
+
+
+def liefi_trajectory(system, own, z0, t_eval, tol=1e-12):
+    """``(Q, Qd)`` at ``t_eval`` in the model's coordinates: liefi's constrained field, DOP853 at ``tol``."""
+    sol = solve_ivp(lambda _, z: system.constrained_vector_field(z), (t_eval[0], t_eval[-1]), z0, method="DOP853",
+                    rtol=tol, atol=tol, t_eval=t_eval)
+    if sol.status != 0 or sol.y.shape[1] != len(t_eval):
+        raise RuntimeError(f"liefi's field did not integrate: {sol.message}")
+    return _model_columns(system, own, sol.y.T)
+
+
+def declared_drift(system, own, run):
+    """The model's declared constraints and the energy along liefi's run ``run`` (a solution):
+    ``dict(f=max |f(q)|, velocity=max |constraint(q, u)|, energy=max |H - H(0)| / max(1, |H(0)|))``."""
+    Y = run.y.T
+    Q, Qd = _model_columns(system, own, Y)
+    if own.lagrange:
+        V = Qd
+    else:
+        speeds = system.generalized_speeds(Y)
+        V = np.stack([speeds[s] for s in own.speed_names], -1)
+    f = max((np.max(np.abs(np.asarray(own.hol(x), float))) for x in Q), default=0.0) if own.hol else 0.0
+    vel = max((np.max(np.abs(np.asarray(own.cons(x, v), float))) for x, v in zip(Q, V)), default=0.0) \
+        if own.cons else 0.0
+    h = system.hamiltonian(Y)
+    return dict(f=float(f), velocity=float(vel), energy=float(np.max(np.abs(h - h[0])) / max(1.0, abs(h[0]))))
+
+
+def on_constraints(own, q_guess):
+    """``q`` near ``q_guess`` with the model's configuration constraints ``f(q) = 0`` (Newton on the dependent
+    coordinates: those of the Kane model, or a well-conditioned pivot of ``df``)."""
+    x = np.array(q_guess, float)
+    if own.hol is None:
+        return x
+    f = own.model._f_h if not own.lagrange else sympy.Matrix(own.model._hol_coneqs)
+    DF = _lam([own.q], f.jacobian(own.q), own.c)
+    qdep = list(getattr(own.model, "_qdep", []) or [])
+    free = [own.q.index(s) for s in qdep] if qdep else sorted(qr(np.asarray(DF(x), float), pivoting=True)[2][:f.shape[0]])
+    for _ in range(60):
+        r = np.asarray(own.hol(x), float).ravel()
+        if np.max(np.abs(r)) < 1e-15:
+            break
+        x[free] -= np.linalg.lstsq(np.asarray(DF(x), float)[:, free], r, rcond=None)[0]
+    return x
+
+
+def compare(model, constants, system, q0, v_ind0, t_final=2.0, run=None, tol=1e-12):
+    """``dict(error, f, velocity, energy)``: the model's own equations against liefi's field over ``[0, t_final]``
+    (21 times), and the drift of the model's declared constraints and energy along liefi's run (``run``: keyword
+    arguments of ``FeedbackIntegrator.run``; default imex-rk8, ``dt = 0.01``, numpy); ``tol``: DOP853's tolerances
+    for liefi's field (liefi's state holds momenta, which for small inertias are small: the rattleback's,
+    about 1e-3, need 1e-14 for an absolute tolerance to be 1e-11 relative)."""
+    import liefi
+
+    own = Own(model, constants, q0)
+    q0 = on_constraints(own, q0)
+    t_eval = np.linspace(0.0, t_final, 21)
+    Q, Qd, V = own_trajectory(own, q0, np.asarray(v_ind0, float), t_eval)
+    z0 = liefi_start(system, own, q0, V[0])
+    Ql, Qdl = liefi_trajectory(system, own, z0, t_eval, tol)
+    scale = max(1.0, float(np.max(np.abs(Qd))))
+    err = max(float(np.max(np.abs(Ql - Q))), float(np.max(np.abs(Qdl - Qd)))) / scale
+    sol = liefi.FeedbackIntegrator(system, z0).run(t_final, t_eval=t_eval,
+                                                    **(run or dict(dt=0.01, scheme="imex-rk8", backend="numpy")))
+    return dict(error=err, **declared_drift(system, own, sol))
