@@ -240,7 +240,9 @@ def _true_error(dt, T, scheme, rtol, name="knife-edge", every=1):
     ("knife-edge", "imex-rk4", 20.0, 20 / 64, True),
     ("knife-edge", "imex-heun", 10.0, 0.1, True),
     ("kepler", "imex-heun", 40.0, 40 / 64, False),  # halving H does not shrink the difference: not trusted
-    ("kepler", "imex-heun", 60.0, 60 / 64, False),  # the runs differ by 2 % relative: not trusted
+    # the runs differ by 2 % relative: trusted since CHECK_TRUST is 5e-2 (it halves the rattleback's steps), and the
+    # estimate is then twice the truth -- an overestimate, which only shortens the step
+    ("kepler", "imex-heun", 60.0, 60 / 64, "over"),
 ])
 def test_tolerance_check_estimate_is_the_true_error(name, scheme, T, H, asymptotic):
     """The check's Richardson estimate ``E`` of the error of its run at ``H/2`` against the true error (the
@@ -248,7 +250,8 @@ def test_tolerance_check_estimate_is_the_true_error(name, scheme, T, H, asymptot
     it, within 3 %; in the asymptotic regime the check trusts it; the conservative bound ``E_safe`` is a
     bound.  The Richardson factor ``1/(1 - 2^-p)`` and the trust
     test (the ratio ``2^(p-1)`` of the differences, at most :data:`~liefi.tolerance.CHECK_TRUST` relative) are
-    what make these true: Kepler's coarse checks are off by 9 % and 37 % and must not be trusted."""
+    what make these true: Kepler's coarse check at ``T = 40`` is off and must not be trusted; at ``T = 60`` it is
+    trusted and overestimates (2.06x), which errs on the safe side."""
     from liefi import tolerance
     from liefi.schemes import registry
 
@@ -259,9 +262,12 @@ def test_tolerance_check_estimate_is_the_true_error(name, scheme, T, H, asymptot
     chk = tolerance._global_check(fi, sch, fi.y0, 0.0, T, H, T, rtol, 0.0, p, "numpy")
     E, E_safe, h, trusted = chk[0], chk[1], chk[2], chk[4]
     truth = _true_error(h, T, scheme, rtol, name, every=2)  # at the coarse steps, where the check compares
-    assert trusted == asymptotic, chk
-    if trusted:
-        assert E / truth == pytest.approx(1.0, abs=0.03), (E, truth)
+    if asymptotic == "over":  # trusted outside the asymptotic regime: never below the truth
+        assert trusted and 1.0 <= E / truth <= 3.0, (chk, truth)
+    else:
+        assert trusted == asymptotic, chk
+        if trusted:
+            assert E / truth == pytest.approx(1.0, abs=0.03), (E, truth)
     assert E_safe >= truth  # the conservative bound is a bound
 
 
