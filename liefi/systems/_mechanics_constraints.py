@@ -75,6 +75,8 @@ def _configuration_jacobian(sympy, f, q, X):
     from sympy.core.function import AppliedUndef
 
     times = {s.args for s in q if isinstance(s, AppliedUndef)}
+    if len(q) != len(X):  # coordinates liefi added (restored contact places, speeds' coordinates): the Jacobian
+        return None  # in all of X
     if len(times) != 1 or not all(isinstance(s, AppliedUndef) for s in q) or len(next(iter(times))) != 1:
         return None
     t = next(iter(times))[0]
