@@ -42,6 +42,7 @@ def _kind(v) -> int:
 
 
 _ID = np.frompyfunc(id, 1, 1)
+_TYPE = np.frompyfunc(type, 1, 1)
 #: peels of :func:`_kinds` (one pass over the entries left each) before it sorts the rest
 _PEELS = 8
 
@@ -56,12 +57,28 @@ def _addresses(a):
     return ptr
 
 
+def _kinds_each(flat, ptr):
+    """:func:`_kind` of the entries ``flat`` (1-d object) with addresses ``ptr``: floats by value at once,
+    other entries once per distinct object."""
+    kinds = np.zeros(flat.shape, np.int8)
+    isf = np.asarray(_TYPE(flat) == float, dtype=bool)
+    if isf.any():
+        v = flat[isf].astype(float)
+        kinds[isf] = np.where(v == 0, 1, np.where(np.isfinite(v), 0, 2))
+    rest, ptr = flat[~isf], ptr[~isf]
+    if rest.size:
+        _, first, inverse = np.unique(ptr, return_index=True, return_inverse=True)
+        kinds[~isf] = np.array([_kind(rest[i]) for i in first], dtype=np.int8)[inverse.reshape(-1)]
+    return kinds
+
+
 def _kinds(a):
-    """:func:`_kind` of every entry of the object array ``a`` (int8), once per distinct object.
+    """:func:`_kind` of every entry of the object array ``a`` (int8).
 
     Traced arrays hold few distinct objects, most entries one shared zero (``0.0`` or a hash-consed
-    constant): the entries are grouped by identity, peeling off the objects of the first entry left
-    (a comparison of addresses per entry left) up to :data:`_PEELS` times, then sorting what remains.
+    constant): the entries are grouped by identity, peeling off the object of the first entry left
+    (a comparison of addresses per entry left) up to :data:`_PEELS` times; what remains goes to
+    :func:`_kinds_each`.
     """
     kinds = np.zeros(a.size, np.int8)
     if not a.size:
@@ -78,8 +95,7 @@ def _kinds(a):
         ptr = ptr[~same]
         if not pos.size:
             return kinds.reshape(a.shape)
-    _, first, inverse = np.unique(ptr, return_index=True, return_inverse=True)
-    kinds[pos] = np.array([_kind(flat[pos[i]]) for i in first], dtype=np.int8)[inverse.reshape(-1)]
+    kinds[pos] = _kinds_each(flat[pos], ptr)
     return kinds.reshape(a.shape)
 
 
