@@ -80,9 +80,9 @@ def _kinds(a):
     (a comparison of addresses per entry left) up to :data:`_PEELS` times; what remains goes to
     :func:`_kinds_each`.
     """
-    kinds = np.zeros(a.size, np.int8)
+    shape, kinds = a.shape, np.zeros(a.size, np.int8)
     if not a.size:
-        return kinds.reshape(a.shape)
+        return kinds.reshape(shape)
     a = np.ascontiguousarray(a)
     flat, ptr = a.reshape(-1), _addresses(a)
     pos = None  # the positions left (None: all)
@@ -94,9 +94,9 @@ def _kinds(a):
         pos = np.flatnonzero(~same) if pos is None else pos[~same]
         ptr = ptr[~same]
         if not pos.size:
-            return kinds.reshape(a.shape)
+            return kinds.reshape(shape)
     kinds[pos] = _kinds_each(flat[pos], ptr)
-    return kinds.reshape(a.shape)
+    return kinds.reshape(shape)
 
 
 def _zeros(*arrays):

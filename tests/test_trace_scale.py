@@ -209,7 +209,7 @@ def test_the_zero_masks_of_the_chain_s_trace_cost_a_python_call_per_distinct_obj
 
 def test_the_zero_masks_are_those_of_each_entry():
     """:func:`liefi._sparse._kinds` is :func:`~liefi._sparse._kind` of every entry, whatever the layout
-    (more distinct objects than it peels off, distinct float objects, strided views, one entry)."""
+    (more distinct objects than it peels off, distinct float objects, strided views, one entry, 0-d)."""
     rng = np.random.default_rng(7)
     with liefi.engine.trace.trace() as tr:
         x = list(tr.symbols("x", 12))
@@ -225,3 +225,6 @@ def test_the_zero_masks_are_those_of_each_entry():
                     want = np.array([_sparse._kind(v) for v in view.reshape(-1)], dtype=np.int8).reshape(view.shape)
                     got = _sparse._kinds(view)
                     assert got.dtype == np.int8 and np.array_equal(got, want), (shape, spread)
+        zero = np.empty((), dtype=object)
+        zero[()] = symbolic.const(0.0)
+        assert _sparse._kinds(zero).shape == () and _sparse._kinds(zero)[()] == 1
