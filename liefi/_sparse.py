@@ -19,6 +19,7 @@ at a cost of the number of such terms plus one scan of the operands.  Plain
 
 from __future__ import annotations
 
+import ctypes
 import math
 
 import numpy as np
@@ -42,24 +43,60 @@ def _kind(v) -> int:
 
 _ID = np.frompyfunc(id, 1, 1)
 _TYPE = np.frompyfunc(type, 1, 1)
+#: peels of :func:`_kinds` (one pass over the entries left each) before it sorts the rest
+_PEELS = 8
+
+
+def _addresses(a):
+    """``id`` of every entry of the C-contiguous object array ``a`` (int), read from its buffer of object
+    pointers without a Python call per entry (CPython's ``id`` is the address), or by ``id`` if not so."""
+    ptr = np.ctypeslib.as_array((ctypes.c_ssize_t * a.size).from_address(a.ctypes.data)).copy()
+    flat = a.reshape(-1)
+    if ptr[0] != id(flat[0]) or ptr[-1] != id(flat[-1]):
+        return _ID(flat).astype(np.int64)
+    return ptr
+
+
+def _kinds_each(flat, ptr):
+    """:func:`_kind` of the entries ``flat`` (1-d object) with addresses ``ptr``: floats by value at once,
+    other entries once per distinct object."""
+    kinds = np.zeros(flat.shape, np.int8)
+    isf = np.asarray(_TYPE(flat) == float, dtype=bool)
+    if isf.any():
+        v = flat[isf].astype(float)
+        kinds[isf] = np.where(v == 0, 1, np.where(np.isfinite(v), 0, 2))
+    rest, ptr = flat[~isf], ptr[~isf]
+    if rest.size:
+        _, first, inverse = np.unique(ptr, return_index=True, return_inverse=True)
+        kinds[~isf] = np.array([_kind(rest[i]) for i in first], dtype=np.int8)[inverse.reshape(-1)]
+    return kinds
 
 
 def _kinds(a):
-    """:func:`_kind` of every entry of the object array ``a`` (int8): floats at once, other entries once
-    per distinct object (traced arrays hold few distinct zeros, hash-consed constants)."""
-    kinds = np.zeros(a.shape, np.int8)
+    """:func:`_kind` of every entry of the object array ``a`` (int8).
+
+    Traced arrays hold few distinct objects, most entries one shared zero (``0.0`` or a hash-consed
+    constant): the entries are grouped by identity, peeling off the object of the first entry left
+    (a comparison of addresses per entry left) up to :data:`_PEELS` times; what remains goes to
+    :func:`_kinds_each`.
+    """
+    shape, kinds = a.shape, np.zeros(a.size, np.int8)
     if not a.size:
-        return kinds
-    isf = np.asarray(_TYPE(a) == float, dtype=bool)
-    if isf.any():
-        v = a[isf].astype(float)
-        kinds[isf] = np.where(v == 0, 1, np.where(np.isfinite(v), 0, 2))
-    rest = a[~isf]
-    if rest.size:
-        uniq, first, inverse = np.unique(_ID(rest).astype(np.int64), return_index=True, return_inverse=True)
-        k = np.array([_kind(rest[i]) for i in first], dtype=np.int8)
-        kinds[~isf] = k[inverse.reshape(-1)]
-    return kinds
+        return kinds.reshape(shape)
+    a = np.ascontiguousarray(a)
+    flat, ptr = a.reshape(-1), _addresses(a)
+    pos = None  # the positions left (None: all)
+    for _ in range(_PEELS):
+        same = ptr == ptr[0]
+        k = _kind(flat[0] if pos is None else flat[pos[0]])
+        if k:
+            kinds[same if pos is None else pos[same]] = k
+        pos = np.flatnonzero(~same) if pos is None else pos[~same]
+        ptr = ptr[~same]
+        if not pos.size:
+            return kinds.reshape(shape)
+    kinds[pos] = _kinds_each(flat[pos], ptr)
+    return kinds.reshape(shape)
 
 
 def _zeros(*arrays):
