@@ -86,3 +86,16 @@ def test_the_rolling_disc_of_sympys_test_runs_as_its_own_equations(built, start)
     assert out["error"] <= 1e-8, out
     assert max(out["f"], out["velocity"]) <= 1e-12, out
     assert out["energy"] <= 1e-12, out
+
+
+def test_a_datum_that_is_not_finite_at_the_checked_configuration_is_refused_saying_what_to_do():
+    """The refusal the disc met before (``constraints: non-finite values at x = [0 0 0 0 0]``) says what to do."""
+    def rows(x):  # the row (cos(x1) / sin(x1), 1): 0/0-like at x = 0
+        x = np.asarray(x)
+        with np.errstate(divide="ignore"):
+            return np.stack([np.cos(x[..., 0]) / np.sin(x[..., 0]), np.ones(x.shape[:-1])], -1)[..., None, :]
+
+    with pytest.raises(ValueError, match=r"constraints: non-finite values at x = .*pass sample= an ordinary "
+                                         r"configuration.*write the datum without that division"):
+        liefi.NonholonomicSystem(liefi.CotangentBundle(2), np.eye(2), rows)
+    liefi.NonholonomicSystem(liefi.CotangentBundle(2), np.eye(2), rows, sample=[0.5, 0.0])  # the advice holds
