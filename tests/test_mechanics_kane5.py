@@ -99,3 +99,19 @@ def test_a_datum_that_is_not_finite_at_the_checked_configuration_is_refused_sayi
                                          r"configuration.*write the datum without that division"):
         liefi.NonholonomicSystem(liefi.CotangentBundle(2), np.eye(2), rows)
     liefi.NonholonomicSystem(liefi.CotangentBundle(2), np.eye(2), rows, sample=[0.5, 0.0])  # the advice holds
+
+
+def test_rows_singular_at_the_zero_configuration_are_cleared_and_the_others_kept_as_they_are():
+    from liefi.systems._kinematics import _regular_rows
+
+    q1, q2, u1, u2 = me.dynamicsymbols("q1 q2 u1 u2")
+    rows = [u1 * sympy.cot(q1) + u2, u1 * sympy.cos(q1) / (sympy.sin(q1) + sympy.cos(q1) ** 2 / sympy.sin(q1)) + u2,
+            u1 / sympy.cos(q1) + u2, u1 * sympy.tan(q2) + u2]
+    out = _regular_rows(sympy, rows, [q1, q2])
+    at0 = {q1: 0, q2: 0}
+    for new, old in zip(out[:2], rows[:2]):  # the same constraint (the row times a function of q), finite at q = 0
+        assert not new.xreplace(at0).has(sympy.zoo, sympy.nan) and new.xreplace(at0) != 0
+        c, d = ([e.diff(s) for s in (u1, u2)] for e in (new, old))
+        assert sympy.simplify(c[0] * d[1] - c[1] * d[0]) == 0  # proportional coefficients
+    assert sympy.simplify(out[0] - rows[0] * sympy.sin(q1)) == 0
+    assert out[2] is rows[2] and out[3] is rows[3]  # regular at q = 0: kept (bit-identical data)

@@ -112,7 +112,8 @@ def _cleared(sympy, entries):
 
 def _regular_rows(sympy, rows, q):
     r"""The velocity constraints ``rows`` (expressions linear in the speeds), each with its denominators cleared
-    (:func:`_cleared`) when one of them vanishes, or is itself singular, at the configuration ``q = 0``.
+    (:func:`_cleared`) when one of them vanishes, or is itself singular, at the configuration ``q = 0``
+    (``tan``, ``cot``, ``sec``, ``csc`` taken as quotients of ``sin`` and ``cos``).
 
     A ``KanesMethod`` holds its velocity constraints with its own symbolic solution of the kinematic
     equations substituted (``_k_nh``: ``qdot`` in ``u`` by sympy's LU pivots), and those pivots may vanish
@@ -124,15 +125,25 @@ def _regular_rows(sympy, rows, q):
     ``q = 0`` is kept as it is (no symbolic work on large rows, such as a bicycle's).
     """
     zero = dict.fromkeys(q, sympy.S.Zero)
+    sin, cos = sympy.sin, sympy.cos
+    quotients = {sympy.tan: lambda a: sin(a) / cos(a), sympy.cot: lambda a: cos(a) / sin(a),
+                 sympy.sec: lambda a: 1 / cos(a), sympy.csc: lambda a: 1 / sin(a)}
 
     def singular(e):
-        for p in sympy.sympify(e).atoms(sympy.Pow):
+        for p in e.atoms(sympy.Pow):
             if p.exp.is_negative and p.base.has(*q):
                 b0 = p.base.xreplace(zero)
                 if b0.is_zero or b0.has(sympy.zoo, sympy.nan, sympy.oo, -sympy.oo):
                     return True
         return False
-    return [_cleared(sympy, [e])[0] if singular(e) else e for e in rows]
+    out = []
+    for e in rows:
+        e = sympy.sympify(e)
+        quotient = e.has(*quotients) and e
+        for f, g in quotients.items():  # tan, cot, sec, csc as quotients of sin and cos, to find and clear
+            quotient = quotient and quotient.replace(f, g)
+        out.append(_cleared(sympy, [quotient or e])[0] if singular(quotient or e) else e)
+    return out
 
 
 def _solve(A, B):
