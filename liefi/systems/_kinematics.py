@@ -95,15 +95,55 @@ def _annihilator(sympy, Kq, Ku):
     from .sympy_input import is_zero
 
     eye = Kq == sympy.eye(Kq.shape[0])
-    rows = []
-    for b in Ku.T.nullspace(iszerofunc=lambda e: is_zero(sympy, e)):
-        v = [sympy.together(e) for e in (b if eye else b.T * Kq)]
-        den = sympy.lcm([sympy.fraction(e)[1] for e in v])
-        rows.append([sympy.cancel(e * den) for e in v])
+    rows = [_cleared(sympy, b if eye else b.T * Kq) for b in Ku.T.nullspace(iszerofunc=lambda e: is_zero(sympy, e))]
     if len(rows) != Kq.shape[0] - Ku.shape[1]:
         raise ValueError(f"model: the kinematic differential equations give qdot = B(q) u with B of rank "
                          f"{Kq.shape[0] - len(rows)} < {Ku.shape[1]} speeds: the speeds are not independent")
     return rows
+
+
+def _cleared(sympy, entries):
+    """``entries`` times the least common multiple of their denominators (after ``together``), each ``cancel``-ed:
+    the same row (or, for one entry, the same constraint) free of denominators."""
+    v = [sympy.together(e) for e in entries]
+    den = sympy.lcm([sympy.fraction(e)[1] for e in v])
+    return [sympy.cancel(e * den) for e in v]
+
+
+def _regular_rows(sympy, rows, q):
+    r"""The velocity constraints ``rows`` (expressions linear in the speeds), each with its denominators cleared
+    (:func:`_cleared`) when one of them vanishes, or is itself singular, at the configuration ``q = 0``
+    (``tan``, ``cot``, ``sec``, ``csc`` taken as quotients of ``sin`` and ``cos``).
+
+    A ``KanesMethod`` holds its velocity constraints with its own symbolic solution of the kinematic
+    equations substituted (``_k_nh``: ``qdot`` in ``u`` by sympy's LU pivots), and those pivots may vanish
+    where the model is regular: sympy's rolling disc (``test_kane5.py``) has rows with entries
+    ``\sin q_2 \cos q_3 / ((\sin q_3 + \cos^2 q_3/\sin q_3) \sin q_3 \cos q_2)``, ``0/0`` at the upright
+    ``q_3 = 0``.  ``c = 0`` and ``d c = 0`` are the same constraint for a function ``d`` not zero, so
+    the row is multiplied by its denominator, ``\cos q_2 (\sin^2 q_3 + \cos^2 q_3)`` there (zero only
+    where the model's own kinematic map is singular).  A row whose denominators are regular and not zero at
+    ``q = 0`` is kept as it is (no symbolic work on large rows, such as a bicycle's).
+    """
+    zero = dict.fromkeys(q, sympy.S.Zero)
+    sin, cos = sympy.sin, sympy.cos
+    quotients = {sympy.tan: lambda a: sin(a) / cos(a), sympy.cot: lambda a: cos(a) / sin(a),
+                 sympy.sec: lambda a: 1 / cos(a), sympy.csc: lambda a: 1 / sin(a)}
+
+    def singular(e):
+        for p in e.atoms(sympy.Pow):
+            if p.exp.is_negative and p.base.has(*q):
+                b0 = p.base.xreplace(zero)
+                if b0.is_zero or b0.has(sympy.zoo, sympy.nan, sympy.oo, -sympy.oo):
+                    return True
+        return False
+    out = []
+    for e in rows:
+        e = sympy.sympify(e)
+        quotient = e.has(*quotients) and e
+        for f, g in quotients.items():  # tan, cot, sec, csc as quotients of sin and cos, to find and clear
+            quotient = quotient and quotient.replace(f, g)
+        out.append(_cleared(sympy, [quotient or e])[0] if singular(quotient or e) else e)
+    return out
 
 
 def _solve(A, B):

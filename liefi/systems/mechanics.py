@@ -39,7 +39,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._kinematics import (MinimalSpeedsError, NonConservativeLoadError, _annihilator, _Checks, _fixed_point,
-                          _kinematics, _restore, _speed_coordinates, _Speeds)
+                          _kinematics, _regular_rows, _restore, _speed_coordinates, _Speeds)
 from .sympy_input import _sympy, coordinate_names, is_zero, lagrangian_data, lambdify_checked
 from . import _mechanics_constraints as _mc
 from .. import _fingerprint
@@ -454,7 +454,7 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
     if u:
         Kq, Ku = _kinematics(sympy, parts["kd"], q, qd, u)
     frame, bodies = parts["frame"], parts["bodies"]
-    model_rows = [sympy.sympify(c).xreplace(aux0) for c in parts["constraints"]]
+    model_rows = _regular_rows(sympy, [sympy.sympify(c).xreplace(aux0) for c in parts["constraints"]], q)
     # minimal speeds: the eliminated places and rows restored (_restore), the velocities in the range of B
     restored = None if parts["L"] is not None else _restore(sympy, me, frame, bodies, parts["fixed"], q, qd, u, Kq, Ku,
                                                             model_rows, aux0)

@@ -39,6 +39,13 @@ from .. import reduction as _red
 from ..phase_space import PhaseSpace
 
 
+#: what to do about a datum that is not finite at the checked configuration (the end of check's messages)
+_NON_FINITE = ("; the datum divides by a function that vanishes there (or is undefined there). If that "
+               "configuration is a singularity of your coordinates, pass sample= an ordinary configuration to be "
+               "checked instead; if it is an ordinary one, write the datum without that division (e.g. clear the "
+               "denominators of a constraint row, or keep a kinematic map unsolved), since a run through it fails")
+
+
 class NonholonomicSystem:
     """A mechanical system with linear nonholonomic constraints on a phase space.
 
@@ -426,7 +433,7 @@ class NonholonomicSystem:
             datum.check_real(x)
         m = np.asarray(self.metric(x), float)
         if not np.all(np.isfinite(m)):
-            raise ValueError(f"metric: non-finite values at x = {x}")
+            raise ValueError(f"metric: non-finite values at x = {x}" + _NON_FINITE)
         asym = np.max(np.abs(m - np.swapaxes(m, -1, -2)), initial=0.0)
         if asym > 1e-12 * max(1.0, np.max(np.abs(m), initial=0.0)):
             raise ValueError(
@@ -442,16 +449,16 @@ class NonholonomicSystem:
         if self.K:
             E = np.asarray(self.constraints(x), float)
             if not np.all(np.isfinite(E)):
-                raise ValueError(f"constraints: non-finite values at x = {x}")
+                raise ValueError(f"constraints: non-finite values at x = {x}" + _NON_FINITE)
             with np.errstate(over="ignore", invalid="ignore"):  # an overflow is named by _gram_inverse
                 C = E @ m @ np.swapaxes(E, -1, -2)
             _gram_inverse(C)
         U = np.asarray(self.potential(x), float)
         if not np.all(np.isfinite(U)):
-            raise ValueError(f"potential: non-finite value at x = {x}")
+            raise ValueError(f"potential: non-finite value at x = {x}" + _NON_FINITE)
         if self.vector_potential is not None:
             if not np.all(np.isfinite(np.asarray(self.vector_potential(x), float))):
-                raise ValueError(f"vector_potential: non-finite values at x = {x}")
+                raise ValueError(f"vector_potential: non-finite values at x = {x}" + _NON_FINITE)
         if self.space.data_dim:
             for datum in data:
                 datum.check_differentiable(x)
