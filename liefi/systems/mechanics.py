@@ -40,7 +40,6 @@ import numpy as np
 
 from ._kinematics import (MinimalSpeedsError, NonConservativeLoadError, _annihilator, _Checks, _fixed_point,
                           _kinematics, _restore, _speed_coordinates, _Speeds)
-from ._accelerations import warn_stored_accelerations
 from .sympy_input import _sympy, coordinate_names, is_zero, lagrangian_data, lambdify_checked
 from . import _mechanics_constraints as _mc
 from .. import _fingerprint
@@ -475,6 +474,8 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
             L = L - sum((b.potential_energy for b in bodies), sympy.S.Zero)
         else:
             _warn_ignored_potential_energy(sympy, parts, bodies)
+            from ._accelerations import warn_stored_accelerations
+
             warn_stored_accelerations(sympy, me, frame, bodies, q, qd, u, Kq, Ku, aux0)
     L = sympy.sympify(L).xreplace(aux0)
     constraints = model_rows + kin_rows + ([] if restored is None else restored["rows"])
