@@ -21,6 +21,9 @@ dependent ones solved from the configuration constraints) and random independent
 * ``run failed``: liefi's run (``IntegrationError``) met non-finite values (a start that reaches a singular
   configuration of the model's coordinates within ``[0, 2]``).
 
+``reason`` also carries liefi's warnings on the model (``model: ...``), e.g. where the model's own equations differ
+from its velocities (a stored acceleration that is not their derivative).
+
 Columns: sympy's equations [s] (CPU, the wrapped call), ``from_mechanics`` [s] (CPU), error, the drifts.
 Run from the repository root: ``python benchmarks/mechanics_corpus.py [--skip-slow] [--json out.json] [filter ...]``
 (``filter``: substrings of ``file::test_function``, any of them); about 10 CPU minutes on a 2-core machine.
@@ -36,6 +39,7 @@ import signal
 import sys
 import time
 import traceback
+import warnings
 import zlib
 
 import numpy as np
@@ -148,7 +152,13 @@ def main(argv):
     print("|---|---|---|---|---|---|---|---|---|---|")
     rows = []
     for where, model, sec in models:
-        r = row(where, model, sec)
+        with warnings.catch_warnings(record=True) as caught:  # liefi's word on the model (where it differs from it)
+            warnings.simplefilter("always")
+            r = row(where, model, sec)
+        said = sorted({str(w.message).split(":")[1].split(";")[0].strip()[:120] for w in caught
+                       if str(w.message).startswith("model:")})
+        if said:
+            r["reason"] = "; ".join(([r["reason"]] if r.get("reason") else []) + [f"liefi warns: {x}" for x in said])
         rows.append(r)
         print(f"| {r['model']} | {r['kind']} | {r['sympy']:.2f} | {_fmt(r.get('build'))} | {r['status']} | "
               f"{_fmt(r.get('error'))} | {_fmt(r.get('f'))} | {_fmt(r.get('velocity'))} | {_fmt(r.get('energy'))} | "

@@ -6,9 +6,11 @@
 For any ``KanesMethod``, ``LagrangesMethod`` or ``System`` after its equations are formed:
 
 * :func:`own_trajectory` -- the model's own equations, ``mass_matrix_full x' = forcing_full``, in the state
-  ``(q, v_ind)`` (the independent speeds, or for a Lagrange model the independent velocities): the dependent
-  speeds are solved from the model's velocity constraints at each evaluation, the auxiliary speeds (and their
-  rates) are zero, as sympy forms the equations; DOP853 at ``rtol = atol = 1e-12``;
+  ``(q, u_ind)`` (the independent speeds, the model's own choice): the dependent speeds are solved from the
+  model's velocity constraints at each evaluation, the auxiliary speeds (and their rates) are zero, as sympy forms
+  the equations; a Lagrange model with constraints names no dependent velocities, so its state is ``(q, q')``, moved
+  onto the velocity constraints at each evaluation by the least change (``Own.project``; a dependent velocity
+  chosen at the start divides by zero where it stops being a pivot); DOP853 at ``rtol = atol = 1e-12``;
 * :func:`liefi_trajectory` -- liefi's constrained field of the built system from the same start, DOP853 at
   1e-12, read back in the model's coordinates (by name: restored coordinates are left out);
 * :func:`declared_drift` -- along liefi's own run, every constraint the model declares, evaluated from the
@@ -132,7 +134,7 @@ class Own:
         self.names = [str(s.func) for s in q]
         self.speed_names = [str(s.func) for s in v] if not self.lagrange else None
         K = cons.shape[0]
-        if self.lagrange and K:  # the dependent velocities: a well-conditioned pivot of the rows at the start
+        if self.lagrange and K:  # the start's independent velocities: a well-conditioned pivot there
             J = np.asarray(_lam([q], cons.jacobian(v), c)(np.asarray(q0, float)), float)
             dep = [v[i] for i in sorted(qr(J, pivoting=True)[2][:K])]
         else:
@@ -147,6 +149,12 @@ class Own:
             self.rest = _lam([q, ind], cons.xreplace(dict.fromkeys(dep, 0)), c)
         self.cons = _lam([q, v], cons, c) if K else None
         self.hol = _lam([q], hol, c) if hol.shape[0] else None
+        # a Lagrange model names no dependent velocities: none is singled out along the run (see :meth:`project`),
+        # since a pivot fixed at the start can become singular there
+        self.projecting = self.lagrange and bool(K)
+        if self.projecting:
+            self.Jv = _lam([q], cons.jacobian(v), c)
+            self.b = _lam([q], cons.xreplace(dict.fromkeys(v, 0)), c)
 
     def speeds(self, qq, vi):
         """Every speed (velocity) from the independent ones, solving the velocity constraints."""
@@ -162,15 +170,40 @@ class Own:
         xd = np.linalg.solve(np.asarray(self.MM(qq, vv), float), np.asarray(self.F(qq, vv), float).ravel())
         return np.concatenate([xd[: self.n], xd[self.n:][self.ii]])
 
+    def project(self, qq, vv):
+        """A Lagrange model's velocities ``vv`` moved onto its velocity constraints ``J(q) v + b(q) = 0`` by the
+        least change, ``v - J^+ (J v + b)``: no velocity is singled out as dependent, so no ordinary configuration
+        divides by a vanishing pivot (the pendulum ``q1^2 + q2^2 = L^2`` with ``q2'`` dependent divides by ``q2``,
+        zero at the bottom of each swing), and the map is smooth in ``q`` where ``J`` has full rank (a pivot chosen
+        anew at each evaluation would jump, and DOP853 loses ~1e-11 at each jump)."""
+        J = np.asarray(self.Jv(qq), float)
+        r = J @ np.asarray(vv, float) + np.asarray(self.b(qq), float).ravel()
+        return np.asarray(vv, float) - np.linalg.lstsq(J, r, rcond=None)[0]
+
+    def full_rates(self, y):
+        """``(q', v')`` at ``y = (q, v)`` (every velocity) of a Lagrange model with constraints: ``v`` projected
+        (:meth:`project`), then ``mass_matrix_full \\ forcing_full``."""
+        qq = y[: self.n]
+        vv = self.project(qq, y[self.n:])
+        xd = np.linalg.solve(np.asarray(self.MM(qq, vv), float), np.asarray(self.F(qq, vv), float).ravel())
+        return xd[: 2 * self.n]
+
 
 def own_trajectory(own, q0, v_ind0, t_eval):
     """``(Q, Qd, U)`` at ``t_eval``: the coordinates, their rates and every speed (velocity) of the model's own
     equations (DOP853, 1e-12)."""
-    sol = solve_ivp(lambda _, y: own.rates(y), (t_eval[0], t_eval[-1]), np.concatenate([q0, v_ind0]),
+    if own.projecting:  # every velocity in the state, moved onto the velocity constraints at each evaluation
+        rates, y0 = own.full_rates, np.concatenate([q0, own.speeds(q0, v_ind0)])
+    else:
+        rates, y0 = own.rates, np.concatenate([q0, v_ind0])
+    sol = solve_ivp(lambda _, y: rates(y), (t_eval[0], t_eval[-1]), y0,
                     method="DOP853", rtol=1e-12, atol=1e-12, t_eval=t_eval)
     if sol.status != 0 or sol.y.shape[1] != len(t_eval):
         raise RuntimeError(f"the model's own equations did not integrate: {sol.message} (at t = {sol.t[-1]:.6g})")
     Y = sol.y.T
+    if own.projecting:
+        return Y[:, : own.n], np.array([rates(y)[: own.n] for y in Y]), np.array([own.project(y[: own.n], y[own.n:])
+                                                                                 for y in Y])
     return Y[:, : own.n], np.array([own.rates(y)[: own.n] for y in Y]), np.array([own.speeds(y[: own.n], y[own.n:])
                                                                                   for y in Y])
 

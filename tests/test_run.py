@@ -136,6 +136,24 @@ def test_metric_turning_indefinite_is_named(monkeypatch):
     assert "metric is not positive definite" in metric_defect(fi, np.array([2.0, 1.0]))
 
 
+def test_a_metric_degenerating_at_a_gimbal_lock_names_its_null_direction_and_what_to_do():
+    """Euler-angle-like coordinates: ``g = diag(1, cos(lean)^2)`` loses rank along ``yaw`` at ``lean = pi/2`` (as
+    sympy's ``test_kane.py::test_aux`` disc, whose fixed-step run failed there with "check the metric's data")."""
+    from liefi.guard import metric_defect
+
+    def metric(x):
+        one, c2 = np.ones_like(x[..., 0]), np.cos(x[..., 0]) ** 2
+        return np.stack([np.stack([one, 0 * one], -1), np.stack([0 * one, c2], -1)], -2)
+
+    sysm = liefi.NonholonomicSystem(liefi.CotangentBundle(2, names=("lean", "yaw")), metric)
+    fi = FeedbackIntegrator(sysm, np.array([0.0, 0.0, 1.0, 1.0]), gains=1.0)
+    assert metric_defect(fi, np.array([0.3, 0.0, 1.0, 1.0])) == ""
+    msg = metric_defect(fi, np.array([1.5, 0.0, 1.0, 1.0]))
+    assert "degenerates" in msg and "loses rank along +1 yaw" in msg.replace("-1 yaw", "+1 yaw")
+    assert "lean" not in msg.split("loses rank along")[1].split("(")[0]
+    assert "choose coordinates regular there" in msg and "smaller dt" in msg
+
+
 def test_errors_pickle():
     for e in (IntegrationError("m", 1.0, 2, np.ones(2), ["x"]), S.StabilityError("s", 3.0, 4, None, ["J_1"])):
         e2 = pickle.loads(pickle.dumps(e))

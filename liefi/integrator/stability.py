@@ -428,15 +428,16 @@ def metric_defect(fi, y, rtol=METRIC_DEGENERACY):
         if not n:
             return ""
 
-        def smallest(yy):
+        def metrics(yy):
             x = np.asarray(yy, float)[..., fi.nc : fi.nc + n].reshape(-1, n)
             m = np.asarray(fi.system.metric(x), float)
             m = np.broadcast_to(m, (x.shape[0],) + m.shape[-2:])
-            return x, np.linalg.eigvalsh(0.5 * (m + np.swapaxes(m, -1, -2)))[..., 0]
+            return x, 0.5 * (m + np.swapaxes(m, -1, -2))
 
         with np.errstate(all="ignore"):
-            _, w0 = smallest(fi.y0)
-            x, w = smallest(y)
+            w0 = np.linalg.eigvalsh(metrics(fi.y0)[1])[..., 0]
+            x, m = metrics(y)
+            w = np.linalg.eigvalsh(m)[..., 0]
     except Exception:  # noqa: BLE001 -- a diagnostic only
         return ""
     bad = np.nonzero(~(w > rtol * float(np.min(w0))))[0]
@@ -447,8 +448,26 @@ def metric_defect(fi, y, rtol=METRIC_DEGENERACY):
     eig = f"smallest eigenvalue {float(w[i]):.3g}" if math.isfinite(w[i]) else "eigenvalues not finite"
     return (f"The metric {what} at x = [{', '.join(f'{v:.6g}' for v in x[i])}] ({eig}; smallest eigenvalue "
             f"{float(np.min(w0)):.3g} at the start): the motion runs into a degenerate metric, where the field "
-            "and the stiffness grow like 1/eigenvalue; no choice of gains repairs that: check the metric's data "
-            "there (or stop the run before it).")
+            f"and the stiffness grow like 1/eigenvalue; no choice of gains repairs that.{_null_direction(fi, m[i])} "
+            "If the coordinates are singular there (Euler angles where two of their axes align, as a disc's yaw "
+            "and spin at a lean of +-pi/2: the model's own kinematic map divides by zero there too), choose "
+            "coordinates regular there or a shorter horizon; a run that stepped through such a place between two "
+            "steps (rates grow like 1/sqrt(eigenvalue) near it) may pass with a smaller dt; else check the "
+            "metric's data there.")
+
+
+def _null_direction(fi, m):
+    """`` The metric loses rank along [names] ...``: the coordinates of the eigenvector of ``m``'s smallest
+    eigenvalue with at least a third of its largest component (``""`` if ``m`` is not finite)."""
+    if not np.all(np.isfinite(m)):
+        return ""
+    v = np.linalg.eigh(m)[1][:, 0]
+    names = [str(s) for s in getattr(fi.system.space, "shape_names", ())]
+    if len(names) != len(v):
+        names = [f"x[{j}]" for j in range(len(v))]
+    big = np.nonzero(np.abs(v) >= np.max(np.abs(v)) / 3)[0]
+    return (f" It loses rank along {', '.join(f'{v[j]:+.3g} {names[j]}' for j in big)} (the eigenvector of its "
+            "smallest eigenvalue).")
 
 
 @dataclass

@@ -474,6 +474,9 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
             L = L - sum((b.potential_energy for b in bodies), sympy.S.Zero)
         else:
             _warn_ignored_potential_energy(sympy, parts, bodies)
+            from ._accelerations import warn_stored_accelerations
+
+            warn_stored_accelerations(sympy, me, frame, bodies, q, qd, u, Kq, Ku, aux0)
     L = sympy.sympify(L).xreplace(aux0)
     constraints = model_rows + kin_rows + ([] if restored is None else restored["rows"])
     hol = [sympy.sympify(c).xreplace(aux0) for c in parts["holonomic"]]  # f(q) = 0 (liefi.systems.holonomic)
