@@ -55,19 +55,24 @@ def node_expression(node, ref):
     return _UNARY[node.op].format(*a)
 
 
-def _node_lines(outputs, var_ref, indent="    "):
-    """Assignments ``t<id> = ...`` of every node reachable from ``outputs`` (in creation order, a
-    topological order of the graph) and the expressions of the outputs; ``var_ref(name, index)``
-    prints an input."""
-    ref = {}
+def node_lines(outputs, var_ref, indent="    ", prefix="", ref=None):
+    """Assignments ``t<id> = ...`` (``<prefix>_t<id>`` with a prefix) of every node reachable from ``outputs``
+    (in creation order, a topological order of the graph) and the expressions of the outputs;
+    ``var_ref(name, index)`` prints an input.  ``ref`` (node id -> name; updated): nodes already computed,
+    which are not computed again."""
+    ref = {} if ref is None else ref
     lines = []
     for node in reachable(outputs):
+        if node.id in ref:
+            continue
         if node.op == "var":
             ref[node.id] = var_ref(*node.args)
             continue
-        lines.append(f"{indent}t{node.id} = {node_expression(node, ref)}")
-        ref[node.id] = f"t{node.id}"
+        name = f"{prefix}_t{node.id}" if prefix else f"t{node.id}"
+        lines.append(f"{indent}{name} = {node_expression(node, ref)}")
+        ref[node.id] = name
     return lines, [_literal(o.value) if o.op == "const" else ref[o.id] for o in outputs]
+
 
 
 def _syms(outputs):
@@ -81,7 +86,7 @@ def function_source(name, outputs, args=("y", "p", "out")):
     of the graph).
     """
     outputs = _syms(outputs)
-    body, vals = _node_lines(outputs, lambda name, i: f"{name}[{i}]")
+    body, vals = node_lines(outputs, lambda name, i: f"{name}[{i}]")
     lines = [f"def {name}({', '.join(args)}):"] + body
     lines += [f"    {args[-1]}[{j}] = {v}" for j, v in enumerate(vals)]
     if len(lines) == 1 or not outputs:
@@ -112,7 +117,7 @@ def scalar_function_source(name, outputs, inputs, *, wrapper=None, inline=False)
     """
     outputs = _syms(outputs)
     params = [a for nm, size in inputs for a in scalar_names(nm, size)]
-    body, vals = _node_lines(outputs, lambda nm, i: f"{nm}_{i}")
+    body, vals = node_lines(outputs, lambda nm, i: f"{nm}_{i}")
     ret = ", ".join(vals) + ("," if len(vals) == 1 else "")
     # numba's inliner refuses a call of 31 or more arguments (CPython passes them as one tuple, "calling a
     # closure with *args is unsupported", and the whole kernel fails to load): larger systems (a rolling

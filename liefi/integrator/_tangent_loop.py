@@ -18,7 +18,7 @@ The arithmetic of the state is the plain loop's (``yi_r = y_r + c<i>_<l> k<l>_r 
 
 from __future__ import annotations
 
-from ..engine.codegen import _coeff_source, _literal, _update_terms, node_expression, reachable
+from ..engine.codegen import _coeff_source, _literal, _update_terms, node_expression, node_lines, reachable
 from ..engine.symbolic import _d_unary, add, as_sym, const, derivative, div, mul, power, sub, unary
 
 #: the most directions one fused kernel carries; more are stepped in blocks of this many
@@ -90,17 +90,7 @@ def vjp_graph(f, inputs, cotangents):
 def emit_plain(outputs, var, prefix, indent, ref=None):
     """Lines computing ``outputs`` (every reachable node once, ``<prefix>_t<id>``) and their names;
     ``var(name, i)`` prints an input.  ``ref`` (node id -> name; updated): nodes already computed."""
-    ref = {} if ref is None else ref
-    lines = []
-    for node in reachable(outputs):
-        if node.id in ref:
-            continue
-        if node.op == "var":
-            ref[node.id] = var(*node.args)
-            continue
-        lines.append(f"{indent}{prefix}_t{node.id} = {node_expression(node, ref)}")
-        ref[node.id] = f"{prefix}_t{node.id}"
-    return lines, [_literal(o.value) if o.op == "const" else ref[o.id] for o in outputs]
+    return node_lines(outputs, var, indent, prefix, ref)
 
 
 def _emit(f, T, var, direction, prefix, k, indent):
