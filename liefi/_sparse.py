@@ -200,3 +200,35 @@ def matvec(spec, A, x):
     elif spec != "...ij,...j->...i":
         raise ValueError(f"spec: expected '...ij,...j->...i' or '...ji,...j->...i', got {spec!r}")
     return matmul(A, np.asarray(x)[..., None])[..., 0]
+
+
+def dot(a, b):
+    """``np.einsum("...i,...i->...", a, b)`` (batches broadcast).
+
+    On object arrays: the nonzero products ``a_i b_i`` summed in ascending ``i``, left to right (numpy's
+    object einsum adds them to ``0`` in that order: the same expressions, module docstring), an exact
+    ``0.0`` where there is none.  Otherwise numpy's einsum.
+    """
+    if not (is_object(a) or is_object(b)):
+        return np.einsum("...i,...i->...", a, b)
+    a, b = np.asarray(a), np.asarray(b)
+    masks = _zeros(a, b) if a.ndim and b.ndim and a.shape[-1] == b.shape[-1] else None
+    if masks is None:
+        return np.einsum("...i,...i->...", a, b)
+    shape = np.broadcast_shapes(a.shape, b.shape)
+    a, b = np.broadcast_to(a, shape), np.broadcast_to(b, shape)
+    nz = ~(np.broadcast_to(masks[0], shape) | np.broadcast_to(masks[1], shape))
+    out = np.empty(shape[:-1], dtype=object)
+    out.fill(0.0)
+    acc, at = None, None
+    for idx in map(tuple, np.argwhere(nz)):  # C order: batch, then i ascending
+        p = a[idx] * b[idx]
+        if idx[:-1] != at:
+            if at is not None:
+                out[at] = acc
+            acc, at = p, idx[:-1]
+        else:
+            acc = acc + p
+    if at is not None:
+        out[at] = acc
+    return out if out.ndim else out[()]

@@ -49,6 +49,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import _sparse
 from ._data import as_float_array
 from .groups import LieGroup, Representation, Rn
 
@@ -163,7 +164,9 @@ class PhaseSpace:
             G, rep = z[..., n:a], self.advected
             lp = lp + np.einsum("...j,...j->...", rep.action(mu_f, G), dg[..., n:a]) - np.einsum(
                 "...j,...j->...", rep.action(mu_g, G), df[..., n:a])
-        return lp + np.einsum("...i,...i->...", x_f, px_g) - np.einsum("...i,...i->...", x_g, px_f)
+        # the canonical pairing, 2 n K products on the traced (object) gradients of K constraints: the sums over
+        # the nonzero terms only, the same expressions (liefi._sparse)
+        return lp + _sparse.dot(x_f, px_g) - _sparse.dot(x_g, px_f)
 
     def poisson_tensor(self, z):
         """``B(z)`` of shape ``(..., nz, nz)``, antisymmetric, with ``{f, g} = df . B . dg``."""

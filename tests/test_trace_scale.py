@@ -228,3 +228,64 @@ def test_the_zero_masks_are_those_of_each_entry():
         zero = np.empty((), dtype=object)
         zero[()] = symbolic.const(0.0)
         assert _sparse._kinds(zero).shape == () and _sparse._kinds(zero)[()] == 1
+
+
+def test_the_bracket_multiplies_only_the_nonzero_terms_of_the_chain(chain, monkeypatch):
+    """``{H, J}`` in :func:`liefi.reduction.core._multipliers` on the traced chain of 8: the symbolic
+    multiplications the bracket makes are at most twice the structurally nonzero entries of ``dJ`` (each meets
+    one entry of ``dH`` in ``x_f . p_g - x_g . p_f``), not the dense einsum's ``2 K n``."""
+    from liefi.phase_space import PhaseSpace
+
+    system, y0 = chain(8)
+    fi = liefi.FeedbackIntegrator(system, y0, invariants=("constraints", "energy"), gains=10.0)
+    inside, muls, seen = [False], [0], []
+    folded, bracket = symbolic._folded, PhaseSpace.bracket
+
+    def counted(a, b, ufunc):
+        muls[0] += inside[0] and ufunc is np.multiply
+        return folded(a, b, ufunc)
+
+    def watched(self, z, df, dg):
+        inside[0] = True
+        try:
+            out = bracket(self, z, df, dg)
+        finally:
+            inside[0] = False
+        seen.append((np.size(dg), int(np.sum(_sparse._kinds(np.asarray(dg, dtype=object)) != 1))))
+        return out
+
+    def no_load(source, engine="numba"):
+        raise _Stop
+
+    monkeypatch.setattr(symbolic, "_folded", counted)
+    monkeypatch.setattr(PhaseSpace, "bracket", watched)
+    monkeypatch.setattr(cache, "find", lambda *a, **k: None)
+    monkeypatch.setattr(cache, "load", no_load)
+    with pytest.raises(_Stop):
+        kernels.compile_split(fi, engine="python")
+    monkeypatch.undo()
+    assert seen and muls[0] > 0
+    dense, nonzero = sum(s for s, _ in seen), sum(nz for _, nz in seen)
+    assert nonzero < dense / 4, seen  # the chain's dJ is mostly exact zeros: the bound below is not the dense one
+    assert muls[0] <= 2 * nonzero, (muls[0], nonzero, dense)  # the products, and what the sums fold
+
+
+def test_sparse_dot_builds_numpy_s_expressions():
+    """:func:`liefi._sparse.dot` on traced vectors with exact zeros (batches broadcast) builds the nodes
+    numpy's object einsum builds, and on floats it is numpy's einsum."""
+    rng = np.random.default_rng(5)
+    A0, w0 = rng.standard_normal((3, 6)), rng.standard_normal(6)
+    A0[A0 < 0.2] = 0.0
+    A0[1] = 0.0
+    with liefi.engine.trace.trace() as tr:
+        x = tr.symbols("x", 6)
+        A = np.empty(A0.shape, dtype=object)
+        for idx in np.ndindex(*A0.shape):
+            A[idx] = symbolic.mul(A0[idx], x[idx[-1]]) if A0[idx] else symbolic.const(0.0)
+        dense, sparse = np.einsum("...i,...i->...", x[None, :], A), _sparse.dot(x[None, :], A)
+        assert sparse.shape == dense.shape == (3,)
+        for k in range(3):
+            d = symbolic.as_sym(dense[k])
+            assert symbolic.as_sym(sparse[k]) is d or (d.op == "const" and float(sparse[k]) == 0.0)
+        assert symbolic.as_sym(_sparse.dot(A[0], x)) is symbolic.as_sym(np.einsum("...i,...i->...", A[0], x))
+    assert np.array_equal(_sparse.dot(A0, w0), np.einsum("...i,...i->...", A0, w0))
