@@ -136,9 +136,11 @@ def specified_inputs(model):
 
 
 class Own:
-    """The model's own equations at the constants ``c`` (a symbol -> float mapping), ready to integrate."""
+    """The model's own equations at the constants ``c`` (a symbol -> float mapping), ready to integrate;
+    ``inputs``: ``{name: (sympy expression of t, numpy callable)}`` for the specified inputs (default:
+    :func:`input_signal` of each)."""
 
-    def __init__(self, model, c, q0):
+    def __init__(self, model, c, q0, inputs=None):
         if isinstance(model, me.System):
             model = model.eom_method
         self.model, self.lagrange = model, isinstance(model, me.LagrangesMethod)
@@ -155,7 +157,8 @@ class Own:
         self.v, self.aux = v, aux
         c = {**c, **dict.fromkeys(list(aux) + [a.diff(t) for a in aux], 0)}
         self.c = c
-        self.inputs = {str(f.func): input_signal(str(f.func)) for f in specified_inputs(model)}
+        self.inputs = {str(f.func): (inputs or {}).get(str(f.func)) or input_signal(str(f.func))
+                       for f in specified_inputs(model)}
         with_inputs = lambda e: e.subs({sympy.Function(k)(t): x for k, (x, _) in self.inputs.items()}).doit()  # noqa: E731
         cons = cons.xreplace(dict.fromkeys(aux, 0))
         self.names = [str(s.func) for s in q]
