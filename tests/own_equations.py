@@ -127,12 +127,11 @@ def specified_inputs(model):
     """The specified inputs ``F(t)`` of ``model``'s equations (dynamicsymbols that are neither coordinates nor
     speeds nor auxiliary speeds), sorted by name."""
     m = model.eom_method if isinstance(model, me.System) else model
-    own = list(m.q) + (list(m.u) + list(m._uaux) if not isinstance(m, me.LagrangesMethod) else [])
+    own = set(m.q) | (set(m.lam_vec) if isinstance(m, me.LagrangesMethod) else set(m.u) | set(m._uaux))
     found = set()
     for e in (m.mass_matrix_full, m.forcing_full):
-        found |= set(me.find_dynamicsymbols(e, exclude=own))
-    return sorted({f for f in found if not isinstance(f, sympy.Derivative)} |
-                  {f.expr for f in found if isinstance(f, sympy.Derivative)}, key=str)
+        found |= {f.expr if isinstance(f, sympy.Derivative) else f for f in me.find_dynamicsymbols(e)}
+    return sorted(found - own, key=str)
 
 
 class Own:
