@@ -19,6 +19,11 @@ For any ``KanesMethod``, ``LagrangesMethod`` or ``System`` after its equations a
 * :func:`compare` -- the three together: ``dict(error=..., f=..., velocity=..., energy=...)``, where
   ``error`` is the largest difference in ``(q, q')`` over the times, relative to ``max(1, max |q'|)``.
 
+A model with non-conservative loads (``system.force`` of the built system is not ``None``): every specified input
+``F(t)`` left in sympy's equations gets the deterministic signal :func:`input_signal` (the same on both sides:
+substituted into sympy's equations, handed to liefi as ``inputs=``), an explicit ``t`` is the time, liefi's side
+is its forced field (state ``(g, z, W, time)``), and ``energy`` is the drift of the energy balance ``h - W``.
+
 Imported only by tests and benchmarks (``tests/test_mechanics_corpus.py``, ``benchmarks/mechanics_corpus.py``).
 """
 
@@ -110,10 +115,31 @@ def constants_of(model):
     return {s: value(s) for s in sorted(free, key=str)}
 
 
-class Own:
-    """The model's own equations at the constants ``c`` (a symbol -> float mapping), ready to integrate."""
+def input_signal(name):
+    """The value of the specified input ``name`` as a function of ``t``: ``(sympy expression, numpy callable)``,
+    ``a + sin(2 t) / 2`` with ``a`` = :func:`value` of the name (smooth, deterministic, the same on both sides)."""
+    a = value(name)
+    expr = a + sympy.sin(2 * t) / 2
+    return expr, (lambda tt: a + np.sin(2 * np.asarray(tt, float)) / 2)
 
-    def __init__(self, model, c, q0):
+
+def specified_inputs(model):
+    """The specified inputs ``F(t)`` of ``model``'s equations (dynamicsymbols that are neither coordinates nor
+    speeds nor auxiliary speeds), sorted by name."""
+    m = model.eom_method if isinstance(model, me.System) else model
+    own = set(m.q) | (set(m.lam_vec) if isinstance(m, me.LagrangesMethod) else set(m.u) | set(m._uaux))
+    found = set()
+    for e in (m.mass_matrix_full, m.forcing_full):
+        found |= {f.expr if isinstance(f, sympy.Derivative) else f for f in me.find_dynamicsymbols(e)}
+    return sorted(found - own, key=str)
+
+
+class Own:
+    """The model's own equations at the constants ``c`` (a symbol -> float mapping), ready to integrate;
+    ``inputs``: ``{name: (sympy expression of t, numpy callable)}`` for the specified inputs (default:
+    :func:`input_signal` of each)."""
+
+    def __init__(self, model, c, q0, inputs=None):
         if isinstance(model, me.System):
             model = model.eom_method
         self.model, self.lagrange = model, isinstance(model, me.LagrangesMethod)
@@ -130,6 +156,9 @@ class Own:
         self.v, self.aux = v, aux
         c = {**c, **dict.fromkeys(list(aux) + [a.diff(t) for a in aux], 0)}
         self.c = c
+        self.inputs = {str(f.func): (inputs or {}).get(str(f.func)) or input_signal(str(f.func))
+                       for f in specified_inputs(model)}
+        with_inputs = lambda e: e.subs({sympy.Function(k)(t): x for k, (x, _) in self.inputs.items()}).doit()  # noqa: E731
         cons = cons.xreplace(dict.fromkeys(aux, 0))
         self.names = [str(s.func) for s in q]
         self.speed_names = [str(s.func) for s in v] if not self.lagrange else None
@@ -142,8 +171,9 @@ class Own:
         ind = [s for s in v if s not in dep]
         self.ii, self.di = [v.index(s) for s in ind], [v.index(s) for s in dep]
         self.K = len(dep)
-        self.MM = _lam([q, v], model.mass_matrix_full, c, cse=True)
-        self.F = _lam([q, v], model.forcing_full, c, cse=True)
+        # explicit t (a clock, or the inputs' signals) is the first argument
+        self.MM = _lam([[t], q, v], with_inputs(model.mass_matrix_full), c, cse=True)
+        self.F = _lam([[t], q, v], with_inputs(model.forcing_full), c, cse=True)
         if self.K:
             self.Ad = _lam([q], cons.jacobian(dep), c)
             self.rest = _lam([q, ind], cons.xreplace(dict.fromkeys(dep, 0)), c)
@@ -164,10 +194,10 @@ class Own:
             vv[self.di] = np.linalg.solve(np.asarray(self.Ad(qq), float), -np.asarray(self.rest(qq, vi), float).ravel())
         return vv
 
-    def rates(self, y):
-        """``(q', v_ind')`` at ``y = (q, v_ind)``: ``mass_matrix_full \\ forcing_full``."""
+    def rates(self, y, tt=0.0):
+        """``(q', v_ind')`` at ``y = (q, v_ind)`` and the time ``tt``: ``mass_matrix_full \\ forcing_full``."""
         qq, vv = y[: self.n], self.speeds(y[: self.n], y[self.n:])
-        xd = np.linalg.solve(np.asarray(self.MM(qq, vv), float), np.asarray(self.F(qq, vv), float).ravel())
+        xd = np.linalg.solve(np.asarray(self.MM([tt], qq, vv), float), np.asarray(self.F([tt], qq, vv), float).ravel())
         return np.concatenate([xd[: self.n], xd[self.n:][self.ii]])
 
     def project(self, qq, vv):
@@ -180,12 +210,12 @@ class Own:
         r = J @ np.asarray(vv, float) + np.asarray(self.b(qq), float).ravel()
         return np.asarray(vv, float) - np.linalg.lstsq(J, r, rcond=None)[0]
 
-    def full_rates(self, y):
+    def full_rates(self, y, tt=0.0):
         """``(q', v')`` at ``y = (q, v)`` (every velocity) of a Lagrange model with constraints: ``v`` projected
         (:meth:`project`), then ``mass_matrix_full \\ forcing_full``."""
         qq = y[: self.n]
         vv = self.project(qq, y[self.n:])
-        xd = np.linalg.solve(np.asarray(self.MM(qq, vv), float), np.asarray(self.F(qq, vv), float).ravel())
+        xd = np.linalg.solve(np.asarray(self.MM([tt], qq, vv), float), np.asarray(self.F([tt], qq, vv), float).ravel())
         return xd[: 2 * self.n]
 
 
@@ -196,16 +226,16 @@ def own_trajectory(own, q0, v_ind0, t_eval):
         rates, y0 = own.full_rates, np.concatenate([q0, own.speeds(q0, v_ind0)])
     else:
         rates, y0 = own.rates, np.concatenate([q0, v_ind0])
-    sol = solve_ivp(lambda _, y: rates(y), (t_eval[0], t_eval[-1]), y0,
+    sol = solve_ivp(lambda tt, y: rates(y, tt), (t_eval[0], t_eval[-1]), y0,
                     method="DOP853", rtol=1e-12, atol=1e-12, t_eval=t_eval)
     if sol.status != 0 or sol.y.shape[1] != len(t_eval):
         raise RuntimeError(f"the model's own equations did not integrate: {sol.message} (at t = {sol.t[-1]:.6g})")
     Y = sol.y.T
     if own.projecting:
-        return Y[:, : own.n], np.array([rates(y)[: own.n] for y in Y]), np.array([own.project(y[: own.n], y[own.n:])
-                                                                                 for y in Y])
-    return Y[:, : own.n], np.array([own.rates(y)[: own.n] for y in Y]), np.array([own.speeds(y[: own.n], y[own.n:])
-                                                                                  for y in Y])
+        return Y[:, : own.n], np.array([rates(y, tt)[: own.n] for y, tt in zip(Y, sol.t)]), \
+            np.array([own.project(y[: own.n], y[own.n:]) for y in Y])
+    return Y[:, : own.n], np.array([own.rates(y, tt)[: own.n] for y, tt in zip(Y, sol.t)]), \
+        np.array([own.speeds(y[: own.n], y[own.n:]) for y in Y])
 
 
 def liefi_start(system, own, q0, v0):
@@ -222,19 +252,33 @@ def _model_columns(system, own, Y):
     return Y[:, idx], system.velocities(Y)[:, idx]
 
 
+def forced_integrator(system, own, z0, **kw):
+    """A forced model's :class:`~liefi.FeedbackIntegrator` from ``z0`` with the inputs' signals of ``own``
+    (:func:`input_signal`), or ``None`` for a conservative one."""
+    import liefi
+
+    if getattr(system, "force", None) is None:
+        return None
+    return liefi.FeedbackIntegrator(system, z0, inputs={k: own.inputs[k][1] for k in system.force.inputs}, **kw)
+
+
 def liefi_trajectory(system, own, z0, t_eval, tol=1e-12):
-    """``(Q, Qd)`` at ``t_eval`` in the model's coordinates: liefi's constrained field, DOP853 at ``tol``."""
-    sol = solve_ivp(lambda _, z: system.constrained_vector_field(z), (t_eval[0], t_eval[-1]), z0, method="DOP853",
-                    rtol=tol, atol=tol, t_eval=t_eval)
+    """``(Q, Qd)`` at ``t_eval`` in the model's coordinates: liefi's constrained field (a forced model's: the
+    forced field in ``(g, z, W, time)``, :func:`forced_integrator`), DOP853 at ``tol``."""
+    fi = forced_integrator(system, own, z0)
+    field = (lambda _, z: system.constrained_vector_field(z)) if fi is None else (lambda _, y: fi.vector_field(y))
+    y0 = z0 if fi is None else fi.y0
+    sol = solve_ivp(field, (t_eval[0], t_eval[-1]), y0, method="DOP853", rtol=tol, atol=tol, t_eval=t_eval)
     if sol.status != 0 or sol.y.shape[1] != len(t_eval):
         raise RuntimeError(f"liefi's field did not integrate: {sol.message}")
-    return _model_columns(system, own, sol.y.T)
+    return _model_columns(system, own, sol.y.T if fi is None else sol.y.T[:, : fi.nb])
 
 
-def declared_drift(system, own, run):
+def declared_drift(system, own, run, fi=None):
     """The model's declared constraints and the energy along liefi's run ``run`` (a solution):
-    ``dict(f=max |f(q)|, velocity=max |constraint(q, u)|, energy=max |H - H(0)| / max(1, |H(0)|))``."""
-    Y = run.y.T
+    ``dict(f=max |f(q)|, velocity=max |constraint(q, u)|, energy=max |H - H(0)| / max(1, |H(0)|))``; a forced
+    run (``fi``: its integrator): ``H`` is the energy balance ``h - W``."""
+    Y = run.y.T if fi is None else run.y.T[:, : fi.nb]
     Q, Qd = _model_columns(system, own, Y)
     if own.lagrange:
         V = Qd
@@ -244,7 +288,7 @@ def declared_drift(system, own, run):
     f = max((np.max(np.abs(np.asarray(own.hol(x), float))) for x in Q), default=0.0) if own.hol else 0.0
     vel = max((np.max(np.abs(np.asarray(own.cons(x, v), float))) for x, v in zip(Q, V)), default=0.0) \
         if own.cons else 0.0
-    h = system.hamiltonian(Y)
+    h = system.hamiltonian(Y) if fi is None else fi.invariant_values(run.y.T)["energy"]
     return dict(f=float(f), velocity=float(vel), energy=float(np.max(np.abs(h - h[0])) / max(1.0, abs(h[0]))))
 
 
@@ -271,7 +315,9 @@ def compare(model, constants, system, q0, v_ind0, t_final=2.0, run=None, tol=1e-
     (21 times), and the drift of the model's declared constraints and energy along liefi's run (``run``: keyword
     arguments of ``FeedbackIntegrator.run``; default imex-rk8, ``dt = 0.01``, numpy); ``tol``: DOP853's tolerances
     for liefi's field (liefi's state holds momenta, which for small inertias are small: the rattleback's,
-    about 1e-3, need 1e-14 for an absolute tolerance to be 1e-11 relative)."""
+    about 1e-3, need 1e-14 for an absolute tolerance to be 1e-11 relative).  A forced model (module docstring):
+    the inputs' signals :func:`input_signal` on both sides, liefi's forced field and run, ``energy`` the drift of
+    ``h - W``."""
     import liefi
 
     own = Own(model, constants, q0)
@@ -282,6 +328,6 @@ def compare(model, constants, system, q0, v_ind0, t_final=2.0, run=None, tol=1e-
     Ql, Qdl = liefi_trajectory(system, own, z0, t_eval, tol)
     scale = max(1.0, float(np.max(np.abs(Qd))))
     err = max(float(np.max(np.abs(Ql - Q))), float(np.max(np.abs(Qdl - Qd)))) / scale
-    sol = liefi.FeedbackIntegrator(system, z0).run(t_final, t_eval=t_eval,
-                                                    **(run or dict(dt=0.01, scheme="imex-rk8", backend="numpy")))
-    return dict(error=err, **declared_drift(system, own, sol))
+    fi = forced_integrator(system, own, z0) or liefi.FeedbackIntegrator(system, z0)
+    sol = fi.run(t_final, t_eval=t_eval, **(run or dict(dt=0.01, scheme="imex-rk8", backend="numpy")))
+    return dict(error=err, **declared_drift(system, own, sol, fi if getattr(system, "force", None) is not None else None))

@@ -140,18 +140,13 @@ def driven_pendulum():
 
 def sympy_run(system, consts, specified, value, q0):
     """sympy's own equations ``mass_matrix_full x' = forcing_full``, the input ``specified`` replaced by the sympy
-    expression ``value`` of ``t``, by DOP853 at rtol = atol = 1e-12."""
-    from scipy.integrate import solve_ivp
+    expression ``value`` of ``t``, by DOP853 at rtol = atol = 1e-12 (``own_equations.own_trajectory``)."""
+    import own_equations as OE
 
-    t = me.dynamicsymbols._t
     system.form_eoms()
-    y = list(system.q) + list(system.u)
-    sub = lambda e: e.subs(consts).subs(specified, value)  # noqa: E731
-    MM = sympy.lambdify([t] + y, sub(system.mass_matrix_full))
-    FF = sympy.lambdify([t] + y, sub(system.forcing_full))
-    r = solve_ivp(lambda tt, s: np.linalg.solve(MM(tt, *s), FF(tt, *s)).ravel(), (0, 2.0), [q0, 0.0],
-                  method="DOP853", rtol=1e-12, atol=1e-12, t_eval=T_EVAL)
-    return r.y
+    own = OE.Own(system, consts, [q0], inputs={str(specified.func): (value, None)})
+    Q, _, V = OE.own_trajectory(own, np.array([q0], float), np.array([0.0]), T_EVAL)
+    return np.array([Q[:, 0], V[:, 0]])
 
 
 @pytest.mark.parametrize("make", [damped_particle, driven_pendulum])
