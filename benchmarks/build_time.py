@@ -8,10 +8,10 @@
 * ``from_mechanics [s]``: CPU time of liefi's build right after;
 * ``ratio``: ``from_mechanics / sympy``; ``ratio, method too``: ``from_mechanics`` over the second column.
 
-liefi hands ``lambdify`` the numpy module object (``liefi.systems.sympy_input.lambdify_checked``), so sympy's
-one-time ``from numpy import *`` (which imports ``numpy.f2py``, ``numpy.testing`` ...: about 0.2 s) is not
-run; the import of sympy's code printers at liefi's first ``lambdify`` (a few hundredths of a second) is
-counted in ``from_mechanics``, since sympy's equations do not print code.
+liefi generates its data functions itself (``liefi.systems._sympy_code``: no ``lambdify``, no sympy printers
+imported), computes the kernel fingerprint of the system only when the compiled engine asks for it, and pauses
+Python's cyclic garbage collector during the build (collections resume after it); sympy's calls are timed with
+the collector on, as a user runs them.
 
 Each number is the best of ``--repeat`` (3) runs, each in a fresh Python process (so sympy's cache starts
 empty every time).  Run from the repository root: ``python benchmarks/build_time.py [name ...]``; compare

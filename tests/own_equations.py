@@ -107,10 +107,15 @@ def value(symbol):
 
 
 def constants_of(model):
+    """:func:`value` of every parameter of the model's equations and of its loads (a load's parameter may vanish
+    from sympy's equations, as a body-fixed force at a point moving with the auxiliary speeds only does, and still
+    be a parameter of liefi's: its power off the constraint set)."""
     m = model.eom_method if isinstance(model, me.System) else model
     free = set()
     for e in (m.mass_matrix_full, m.forcing_full):
         free |= e.free_symbols
+    for load in (getattr(model, "loads", None) or []):
+        free |= {s for f in load[1].args for s in f[0].free_symbols}
     free.discard(me.dynamicsymbols._t)
     return {s: value(s) for s in sorted(free, key=str)}
 

@@ -104,10 +104,11 @@ def _counting(monkeypatch, owner, name):
 
 
 def test_the_checks_generate_no_code(monkeypatch):
-    """The build lambdifies its data functions (in ``_bound``) and nothing else: the checks (the restored
+    """The build generates code for its data functions (in ``_bound``) and nothing else: the checks (the restored
     places of ``_restore``, the loads' power against ``-dU/dt``) evaluate their expressions at their few
     points by a walk (:mod:`liefi.systems._evaluate`); each was a ``lambdify`` with common-subexpression
-    elimination for four to eight evaluations (7 lambdify calls, 5 of them data functions)."""
+    elimination for four to eight evaluations (7 lambdify calls, 5 of them data functions).  The data
+    functions are liefi's own code (:mod:`liefi.systems._sympy_code`), no ``lambdify`` at all."""
     import test_mechanics_minimal as M
 
     import liefi.systems.mechanics as mech
@@ -127,11 +128,18 @@ def test_the_checks_generate_no_code(monkeypatch):
         lambdified.append(bool(inside))
         return original_lambdify(*args, **kw)
 
+    generated, original_generate = [], mech.sympy_function
+
+    def generate(*args, **kw):
+        generated.append(bool(inside))
+        return original_generate(*args, **kw)
+
     monkeypatch.setattr(mech, "_bound", bound)
     monkeypatch.setattr(sympy, "lambdify", lambdify)
+    monkeypatch.setattr(mech, "sympy_function", generate)
     system = liefi.from_mechanics(KM, consts)
     assert system.restored_coordinates == ("x_P", "y_P") and system.potential is not None
-    assert len(lambdified) >= 3 and all(lambdified)
+    assert len(generated) >= 3 and all(generated) and not lambdified
 
 
 def test_constant_data_are_not_lambdified():

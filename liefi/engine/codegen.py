@@ -16,63 +16,10 @@ compiled in memory (:mod:`liefi.engine.cache`), or as plain Python.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
-from .symbolic import _BINARY, _UNARY, as_sym
-
-def _literal(v):
-    if v != v:
-        return "math.nan"
-    if v in (math.inf, -math.inf):
-        return "math.inf" if v > 0 else "(-math.inf)"
-    r = repr(float(v))
-    return f"({r})" if v < 0 or r.startswith("-") else r
-
-
-def reachable(outputs):
-    """Every non-constant node reachable from ``outputs``, in creation order (a topological order of the graph)."""
-    seen = {}
-    stack = list(outputs)
-    while stack:
-        node = stack.pop()
-        if node.id in seen or node.op == "const":
-            continue
-        seen[node.id] = node
-        if node.op != "var":
-            stack.extend(node.args)
-    return sorted(seen.values(), key=lambda s: s.id)
-
-
-def node_expression(node, ref):
-    """The Python expression of an operation node, its arguments printed by ``ref[id]`` (constants as literals)."""
-    a = [_literal(x.value) if x.op == "const" else ref[x.id] for x in node.args]
-    if node.op == "pow" and node.args[1].op == "const":
-        return f"({a[0]} ** {_literal(node.args[1].value)})"
-    if node.op in _BINARY:
-        return _BINARY[node.op].format(*a)
-    return _UNARY[node.op].format(*a)
-
-
-def node_lines(outputs, var_ref, indent="    ", prefix="", ref=None):
-    """Assignments ``t<id> = ...`` (``<prefix>_t<id>`` with a prefix) of every node reachable from ``outputs``
-    (in creation order, a topological order of the graph) and the expressions of the outputs;
-    ``var_ref(name, index)`` prints an input.  ``ref`` (node id -> name; updated): nodes already computed,
-    which are not computed again."""
-    ref = {} if ref is None else ref
-    lines = []
-    for node in reachable(outputs):
-        if node.id in ref:
-            continue
-        if node.op == "var":
-            ref[node.id] = var_ref(*node.args)
-            continue
-        name = f"{prefix}_t{node.id}" if prefix else f"t{node.id}"
-        lines.append(f"{indent}{name} = {node_expression(node, ref)}")
-        ref[node.id] = name
-    return lines, [_literal(o.value) if o.op == "const" else ref[o.id] for o in outputs]
-
+from .._codeprint import _literal, node_expression, node_lines, reachable  # noqa: F401 (their home)
+from .symbolic import as_sym
 
 
 def _syms(outputs):
@@ -302,13 +249,17 @@ def scalar_loop_source(fname, scheme, N, P, *, split=False):
     return "\n".join(L) + "\n" + _batch_source(fname)
 
 
-def _batch_source(fname):
+def _batch_source(fname, call=None):
+    """Source of ``fname + '_batch'``: ``fname`` (or the expression ``call`` on the same arguments) per trajectory."""
+    each = ["        y0, p, out, bad, last, pp = Y0[b], P[b], OUT[b], BAD[b], LAST[b], PP[b]"] if call else []
+    call = call or f"{fname}(Y0[b], P[b], dt, n_steps, save_every, check_every, OUT[b], BAD[b], LAST[b], PP[b], maxit, tol)"
     return "\n".join([
         "",
         "@njit(parallel=True, cache=CACHE, error_model='numpy')",
         f"def {fname}_batch(Y0, P, dt, n_steps, save_every, check_every, OUT, BAD, LAST, PP, maxit, tol, STATUS):",
         "    for b in prange(Y0.shape[0]):",
-        f"        r = {fname}(Y0[b], P[b], dt, n_steps, save_every, check_every, OUT[b], BAD[b], LAST[b], PP[b], maxit, tol)",
+        *each,
+        f"        r = {call}",
         "        STATUS[b, 0] = r[0]",
         "        STATUS[b, 1] = r[1]",
         "        STATUS[b, 2] = r[2]",
@@ -498,9 +449,16 @@ def loops_source(N, *, projection=False, n_params=None):
 
 def split_loops_source(N, n_params):
     """The loops of the split schemes of :mod:`liefi.schemes.split` (``run_imex_euler``, ...), on
-    ``xrhs_s`` and ``fstep_s`` (:func:`scalar_loop_source`)."""
+    ``xrhs_s`` and ``fstep_s`` (:func:`scalar_loop_source`); for a system with more than
+    :data:`MAX_INLINE_ARGS` scalar arguments, one loop shared by the schemes, their tableaux read at
+    run time (:func:`liefi.engine._rolled.rolled_split_loops_source`: the same arithmetic, a fraction
+    of the compile)."""
     from ..schemes.split import SPLIT_SCHEMES
 
+    if N + n_params > MAX_INLINE_ARGS:
+        from ._rolled import rolled_split_loops_source
+
+        return rolled_split_loops_source(N, n_params, SPLIT_SCHEMES.values())
     return "\n".join(scalar_loop_source(split_loop_name(s), s.explicit, N, n_params, split=True)
                      for s in SPLIT_SCHEMES.values())
 

@@ -16,30 +16,7 @@ import threading
 
 import numpy as np
 
-#: unary operations: name -> code template (``math`` functions: numba compiles them to libm calls)
-_UNARY = {
-    "neg": "(-{0})",
-    "sin": "math.sin({0})",
-    "cos": "math.cos({0})",
-    "tan": "math.tan({0})",
-    "exp": "math.exp({0})",
-    "log": "math.log({0})",
-    "sqrt": "math.sqrt({0})",
-    "arcsin": "math.asin({0})",
-    "arccos": "math.acos({0})",
-    "arctan": "math.atan({0})",
-    "sinh": "math.sinh({0})",
-    "cosh": "math.cosh({0})",
-    "tanh": "math.tanh({0})",
-    "arcsinh": "math.asinh({0})",
-    "arccosh": "math.acosh({0})",
-    "arctanh": "math.atanh({0})",
-    "expm1": "math.expm1({0})",
-    "log1p": "math.log1p({0})",
-    "abs": "abs({0})",
-    "sign": "math.copysign(1.0, {0})",
-}
-_BINARY = {"add": "({0} + {1})", "sub": "({0} - {1})", "mul": "({0} * {1})", "div": "({0} / {1})", "pow": "({0} ** {1})"}
+from .._codeprint import _BINARY, _UNARY  # noqa: F401 (the templates' home: liefi/_codeprint.py)
 _NP_UNARY = {
     np.negative: "neg", np.sin: "sin", np.cos: "cos", np.tan: "tan", np.exp: "exp", np.log: "log",
     np.sqrt: "sqrt", np.arcsin: "arcsin", np.arccos: "arccos", np.arctan: "arctan", np.sinh: "sinh",
@@ -699,13 +676,14 @@ def derivative(expr: Sym, var: Sym, memo: dict, support=None, bit=0) -> Sym:
     ``bit`` (``var``'s): a node that does not depend on ``var`` has derivative ``0`` without a walk.
     """
     stack = [expr]
+    zero = None  # const(0.0), once formed (the same node each time: hash-consed)
     while stack:
         node = stack[-1]
         if node.id in memo:
             stack.pop()
             continue
         if support is not None and not support[node.id] & bit:
-            memo[node.id] = const(0.0)
+            memo[node.id] = zero = const(0.0) if zero is None else zero
             stack.pop()
             continue
         if node.op == "const" or node.op == "var":
@@ -723,6 +701,13 @@ def derivative(expr: Sym, var: Sym, memo: dict, support=None, bit=0) -> Sym:
             continue
         a, b = args
         da, db = memo[a.id], memo[b.id]
+        if zero is not None and (op == "add" or op == "sub") and (db is zero or (op == "add" and da is zero)):
+            # d(a +- b) with one side's derivative 0: add and sub return the other (or fold 0 +- 0 to 0), as
+            # they would; only -db is formed (a sum along a chain of N terms: N^2 calls otherwise)
+            other = da if db is zero else db
+            if other is zero or other.op != "const":
+                memo[node.id] = other
+                continue
         if op == "add":
             r = add(da, db)
         elif op == "sub":

@@ -164,9 +164,11 @@ def regularized_metric(metric, A, kw):
     eig = np.linalg.eigvalsh(m0)
     if eig.min() > 1e-9 * max(eig.max(), 1e-300):
         return metric
-    df = kw["holonomic_derivative"]
+    df = kw.get("holonomic_derivative")  # None: velocity constraints only (a restored root point, _restore)
 
     def rows(x):
+        if df is None:
+            return np.asarray(A(x))
         d = np.swapaxes(np.asarray(df(x)), -1, -2)
         return d if A is None else np.concatenate([d, np.asarray(A(x))], -2)
 
