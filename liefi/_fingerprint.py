@@ -86,8 +86,8 @@ def _encode(h, x, dummies):
             _encode(h, ("object array", x.shape, x.reshape(-1).tolist()), dummies)
         else:
             put(b"A", f"{x.dtype.str}{x.shape}".encode() + np.ascontiguousarray(x).tobytes())
-    elif getattr(x, ATTR, None) is not None:
-        put(b"X", getattr(x, ATTR).encode())
+    elif _resolved(x) is not None:
+        put(b"X", _resolved(x).encode())
     elif isinstance(x, types.FunctionType) and (x.__module__ or "").startswith("liefi."):
         # liefi's own function (its code is in sources()): named, with the data it closes over
         cells = tuple(c.cell_contents for c in (x.__closure__ or ()))
@@ -134,28 +134,62 @@ def of(obj, known=None):
     """The fingerprint of the function ``obj``: the one :func:`mark` gave it, or for liefi's own function
     that of its name and the data it closes over (``known`` as in :func:`digest`); ``None`` for any other
     (a user's function)."""
-    fp = getattr(obj, ATTR, None)
+    fp = _resolved(obj)
     return fp if fp is not None else digest(obj, known=known)
+
+
+class _Deferred:
+    """The fingerprint of a stamp's data, computed when first asked for (:func:`stamp`)."""
+
+    __slots__ = ("parts", "value")
+    _lock = threading.Lock()
+
+    def __init__(self, parts):
+        self.parts, self.value = parts, None
+
+    def get(self):
+        with self._lock:
+            if self.parts is not None:
+                self.value, self.parts = digest(*self.parts), None
+            return self.value
+
+
+def _frozen(x):
+    """``x`` with its lists, tuples, dicts and arrays copied (a later change to them does not change a stamp)."""
+    if isinstance(x, (list, tuple)):
+        return type(x)(_frozen(v) for v in x) if type(x) in (list, tuple) else x
+    if type(x) is dict:
+        return {k: _frozen(v) for k, v in x.items()}
+    if isinstance(x, np.ndarray):
+        return x.copy()
+    return x
+
+
+def _resolved(obj):
+    """The fingerprint ``obj`` carries (a deferred stamp's computed now), or ``None``."""
+    fp = getattr(obj, ATTR, None)
+    return fp.get() if isinstance(fp, _Deferred) else fp
 
 
 def stamp(system, *parts):
     """Stamp ``system`` (built by liefi from the data ``parts`` alone) with their fingerprint; return it.
 
-    Nothing is stamped when a part cannot be fingerprinted.  The ids of the system's
-    attributes are kept: an attribute assigned afterwards (new data in the same object)
-    voids the stamp (:func:`of_system`).
+    The fingerprint is computed when it is first asked for (:func:`of_system`: the compiled engine's
+    kernel lookup), from the data as they were at the stamp (its containers and arrays are copied now):
+    printing a large model's expressions (``sympy.srepr``) cost a build up to 40 % of its time, and a
+    run on the numpy path never needs it.  Nothing is stamped (``of_system`` gives ``None``) when a
+    part cannot be fingerprinted.  The ids of the system's attributes are kept: an attribute
+    assigned afterwards (new data in the same object) voids the stamp (:func:`of_system`).
     """
-    fp = digest(*parts)
-    if fp is not None:
-        ids = {k: id(v) for k, v in vars(system).items()}
-        setattr(system, ATTR, fp)
-        setattr(system, _IDS, ids)
+    ids = {k: id(v) for k, v in vars(system).items()}
+    setattr(system, ATTR, _Deferred(_frozen(parts)))
+    setattr(system, _IDS, ids)
     return system
 
 
 def of_system(system):
     """The stamp of ``system``, or ``None`` (not built from pure data, or one of its attributes replaced since)."""
-    fp = getattr(system, ATTR, None)
+    fp = _resolved(system)
     ids = getattr(system, _IDS, None)
     if fp is None or ids is None:
         return None

@@ -49,8 +49,9 @@ _PEELS = 8
 
 def _addresses(a):
     """``id`` of every entry of the C-contiguous object array ``a`` (int), read from its buffer of object
-    pointers without a Python call per entry (CPython's ``id`` is the address), or by ``id`` if not so."""
-    ptr = np.ctypeslib.as_array((ctypes.c_ssize_t * a.size).from_address(a.ctypes.data)).copy()
+    pointers without a Python call per entry (CPython's ``id`` is the address), or by ``id`` if not so.
+    A view of that buffer (no copy: a chain's ``dE`` holds ``9 N^3`` pointers), valid while ``a`` lives."""
+    ptr = np.ctypeslib.as_array((ctypes.c_ssize_t * a.size).from_address(a.ctypes.data))
     flat = a.reshape(-1)
     if ptr[0] != id(flat[0]) or ptr[-1] != id(flat[-1]):
         return _ID(flat).astype(np.int64)
@@ -112,52 +113,123 @@ def is_object(a) -> bool:
     return isinstance(a, np.ndarray) and a.dtype == object
 
 
-def matmul(a, b):
+def exact_zeros(a):
+    """The exact-zero mask of ``a`` (bool, ``a``'s shape), or ``None`` if it holds a non-finite number or
+    constant: what :func:`matmul` takes as ``zeros=`` to classify an operand used twice once."""
+    got = _zeros(a)
+    return None if got is None else got[0]
+
+
+def matmul(a, b, *, zeros=None):
     """``a @ b`` (shapes ``(..., i, j)`` and ``(..., j, l)``, batches broadcast).
 
     On object arrays: the sum of the structurally nonzero products (module
     docstring), an exact ``0.0`` where there is none.  Otherwise ``a @ b``.
+    ``zeros``: ``(za, zb)``, the operands' exact-zero masks where known (:func:`exact_zeros`; ``None``
+    entries are computed): on a chain's ``(3N, N, 3N)`` derivatives each pass over the entries is ``N^3``.
+    ``a`` may be :class:`Rows` (:func:`matmul_rows`).
     """
-    if not (is_object(a) or is_object(b)):
-        return a @ b
-    a, b = np.asarray(a), np.asarray(b)
-    if a.ndim < 2 or b.ndim < 2 or a.shape[-1] != b.shape[-2]:
-        return a @ b  # numpy's own message for mismatched shapes
-    masks = _zeros(a, b)
+    out, rows = _matmul(a, b, zeros)
+    return rows.dense() if out is None else out
+
+
+def matmul_rows(a, b, *, zeros=None):
+    """:func:`matmul` on traced arrays as :class:`Rows` (its nonzero entries, no dense result); ``a`` may be
+    :class:`Rows` too.  A dense array where :func:`matmul` falls back to numpy."""
+    out, rows = _matmul(a, b, zeros, dense=False)
+    return rows if out is None else out
+
+
+class Rows:
+    """The nonzero entries of a traced product of shape ``shape`` (``(..., i, l)``), in C order:
+    ``entries[batch] = [(i, l, value), ...]``; ``written`` every sum formed, zeros included."""
+
+    def __init__(self, shape, entries, written):
+        self.shape, self.entries, self.written = shape, entries, written
+        #: whether an entry is a non-finite number or constant (then nothing may be skipped)
+        self.unknown = any(_kind(v) == 2 for *_, v in written)
+
+    def dense(self):
+        out = np.empty(self.shape, dtype=object)
+        out.fill(0.0)
+        for bi, i, l, v in self.written:
+            out[bi + (i, l)] = v
+        return out
+
+
+def _matmul(a, b, zeros, dense=True):
+    """``(out, rows)``: ``a @ b`` dense (``dense=True``, or numpy's fallback, then ``rows`` is ``None``) and
+    its :class:`Rows` (``out`` ``None`` when not ``dense``)."""
+    if isinstance(a, Rows):
+        if a.unknown:  # a non-finite entry: nothing is skipped (numpy's product of the dense array)
+            return _matmul(a.dense(), b, None if zeros is None else (None, zeros[1]), dense)
+        a_rows, a_shape = a, a.shape
+    else:
+        if not (is_object(a) or is_object(b)):
+            return a @ b, None
+        a = np.asarray(a)
+        a_rows, a_shape = None, a.shape
+    b = np.asarray(b)
+    if len(a_shape) < 2 or b.ndim < 2 or a_shape[-1] != b.shape[-2]:
+        return (a.dense() if a_rows else a) @ b, None  # numpy's own message for mismatched shapes
+    za, zb = zeros if zeros is not None else (None, None)
+    todo = [x for x, z in ((a, za if a_rows is None else 0), (b, zb)) if z is None]
+    masks = _zeros(*todo) if todo else []
     if masks is None:
-        return a @ b
-    a, b = a.astype(object), b.astype(object)
-    batch = np.broadcast_shapes(a.shape[:-2], b.shape[:-2])
+        return (a.dense() if a_rows else a) @ b, None
+    if a_rows is None and za is None:
+        za = masks.pop(0)
+    zb = masks.pop(0) if zb is None else zb
+    b = b.astype(object, copy=False)
+    batch = np.broadcast_shapes(a_shape[:-2], b.shape[:-2])
     nb = len(batch)
-    a, za = a.reshape((1,) * (nb + 2 - a.ndim) + a.shape), masks[0].reshape((1,) * (nb + 2 - a.ndim) + a.shape)
-    b, zb = b.reshape((1,) * (nb + 2 - b.ndim) + b.shape), masks[1].reshape((1,) * (nb + 2 - b.ndim) + b.shape)
+    a_full = (1,) * (nb + 2 - len(a_shape)) + a_shape
+    b, zb = b.reshape((1,) * (nb + 2 - b.ndim) + b.shape), zb.reshape((1,) * (nb + 2 - b.ndim) + b.shape)
     # the nonzero l of each row j of b, per b's own batch index
     cols = {}
-    for idx in zip(*np.nonzero(~zb)):
+    for idx in map(tuple, np.argwhere(~zb).tolist()):
         cols.setdefault(idx[:-1], []).append(idx[-1])
-    out = np.empty(batch + (a.shape[-2], b.shape[-1]), dtype=object)
-    out.fill(0.0)
-    a_batch = [n != 1 for n in a.shape[:nb]]
+    a_batch = [n != 1 for n in a_full[:nb]]
     b_batch = [n != 1 for n in b.shape[:nb]]
-    a_nz = np.argwhere(~za)  # C order: batch, then i, then j ascending
+    if a_rows is not None:  # (its batch is the full one of a_shape: pad on the left)
+        pad = (0,) * (nb + 2 - len(a_shape))
+        groups = {pad + k: v for k, v in a_rows.entries.items()}
+    else:
+        a, za = a.astype(object, copy=False).reshape(a_full), za.reshape(a_full)
+        a_nz = np.argwhere(~za)  # C order: batch, then i, then j ascending
+        # the rows of a_nz of each batch index of a (contiguous in C order)
+        if nb and len(a_nz):
+            keys = a_nz[:, :nb]
+            cut = np.flatnonzero(np.any(keys[1:] != keys[:-1], axis=1)) + 1
+            groups = {tuple(keys[s0].tolist()): a_nz[s0:e0, nb:].tolist()
+                      for s0, e0 in zip(np.r_[0, cut], np.r_[cut, len(a_nz)])}
+        else:
+            groups = {(): a_nz[:, nb:].tolist()} if len(a_nz) else {}
+    shape = batch + (a_full[-2], b.shape[-1])
+    written, entries = [], {}
     for bi in np.ndindex(*batch):
         ai = tuple(x if f else 0 for x, f in zip(bi, a_batch))
+        sel = groups.get(ai)
+        if not sel:
+            continue
         bj = tuple(x if f else 0 for x, f in zip(bi, b_batch))
-        A, B, o = a[ai], b[bj], out[bi]
-        sel = a_nz[np.all(a_nz[:, :nb] == ai, axis=1)] if nb else a_nz
-        acc, row = {}, None
-        for i, j in sel[:, nb:]:
+        B = b[bj]
+        if a_rows is None:
+            A = a[ai]
+            sel = [(i, j, A[i, j]) for i, j in sel]
+        acc, row, mine = {}, None, []
+        for i, j, x in sel:
             if i != row:
-                for l, v in acc.items():
-                    o[row, l] = v
+                mine.extend((row, l, v) for l, v in sorted(acc.items()))
                 acc, row = {}, i
-            x = A[i, j]
             for l in cols.get(bj + (j,), ()):
                 p = x * B[j, l]
                 acc[l] = p if l not in acc else acc[l] + p
-        for l, v in acc.items():
-            o[row, l] = v
-    return out
+        mine.extend((row, l, v) for l, v in sorted(acc.items()))
+        written.extend((bi, i, l, v) for i, l, v in mine)
+        entries[bi] = [(i, l, v) for i, l, v in mine if _kind(v) != 1]
+    rows = Rows(shape, entries, written)
+    return (rows.dense() if dense else None), rows
 
 
 def quadratic(w, C):
@@ -171,7 +243,7 @@ def quadratic(w, C):
     masks = _zeros(w, C)
     if masks is None:
         return np.einsum("...i,...kij,...j->...k", w, C, w)
-    w, C = w.astype(object), C.astype(object)
+    w, C = w.astype(object, copy=False), C.astype(object, copy=False)
     batch = np.broadcast_shapes(w.shape[:-1], C.shape[:-3])
     w, zw = np.broadcast_to(w, batch + w.shape[-1:]), np.broadcast_to(masks[0], batch + w.shape[-1:])
     C, zC = np.broadcast_to(C, batch + C.shape[-3:]), np.broadcast_to(masks[1], batch + C.shape[-3:])
@@ -186,6 +258,86 @@ def quadratic(w, C):
             acc[k] = p if k not in acc else acc[k] + p
         for k, v in acc.items():
             out[idx + (k,)] = v
+    return out
+
+
+def symmetrized(C):
+    """``C + swapaxes(C, -1, -2)`` (the last two axes square).
+
+    On object arrays: the sum taken only where ``C_ij`` or ``C_ji`` is not an exact zero, entry by entry in C
+    order with Python's ``+`` (numpy's object loop: the same expressions); an exact zero ``0.0`` elsewhere (the
+    sign of a zero is not kept: :func:`quadratic` and :func:`matmul` skip exact zeros).  Otherwise numpy's sum.
+    A dense object sum of a chain's ``(n, K, K)`` Gram derivative made ``n K^2`` Python calls and as many
+    distinct float zeros, ``N^3`` (:func:`liefi.reduction.core.evaluate`).
+    """
+    Ct = np.swapaxes(C, -1, -2)
+    if not is_object(C):
+        return C + Ct
+    masks = _zeros(C)
+    if masks is None:
+        return C + Ct
+    z = masks[0]
+    out = np.empty(C.shape, dtype=object)
+    out.fill(0.0)
+    for idx in map(tuple, np.argwhere(~(z & np.swapaxes(z, -1, -2)))):  # C order
+        out[idx] = C[idx] + Ct[idx]
+    return out
+
+
+def _positive_zero(v) -> bool:
+    """Whether ``v`` is the float ``+0.0`` or a traced constant ``+0.0``."""
+    if type(v) is not float:
+        if getattr(v, "op", None) != "const":
+            return False
+        v = v.value
+    return v == 0 and math.copysign(1.0, v) > 0
+
+
+def accumulate(y, a, x):
+    """``y + a[..., None] * x``: the sum of a gradient ``x`` scaled by ``a`` into ``y``.
+
+    On a traced (non-constant) scalar ``a`` and a traced vector ``x`` with exact zeros: numpy's two passes
+    (every product, then every sum, in order), where a term with ``x_i`` an exact zero is ``a * x_i = 0``
+    (the tracer's constant ``+0.0``) and ``y_i + 0`` is ``y_i`` for a non-constant ``y_i`` and ``0`` for a
+    zero ``y_i = +0.0``, so neither is formed again: the same expressions with a Python call per nonzero
+    term.  (:meth:`liefi.FeedbackIntegrator.field_parts` sums ``k_i r_i dJ_i`` over a chain's ``N``
+    constraints, ``6 N^2`` products of mostly zeros.)  Otherwise numpy's expression.
+    """
+    op = getattr(a, "op", None)
+    if not (is_object(x) and x.ndim == 1 and op is not None and op != "const"
+            and (np.ndim(y) == 0 or np.shape(y) == x.shape)):
+        return y + np.asarray(a)[..., None] * x
+    kx = _kinds(x)
+    if np.any(kx == 2):
+        return y + np.asarray(a)[..., None] * x
+    zero = kx == 1
+    at = np.flatnonzero(zero)
+    if at.size:  # a float -0.0 would be a new constant to the tracer: each distinct zero object checked once
+        xc = np.ascontiguousarray(x)  # (alive while its addresses are read)
+        _, first = np.unique(_addresses(xc)[at], return_index=True)
+        if not all(getattr(x[at[f]], "op", None) == "const" or _positive_zero(x[at[f]]) for f in first):
+            return y + np.asarray(a)[..., None] * x
+    prod = np.empty(x.shape, dtype=object)
+    z0 = None
+    for i in range(x.size):  # numpy's first pass: the products
+        if not zero[i]:
+            prod[i] = a * x[i]
+        elif z0 is None:
+            z0 = prod[i] = a * x[i]
+        else:
+            prod[i] = z0
+    if z0 is not None and not _positive_zero(z0):
+        return y + np.asarray(a)[..., None] * x  # (not the tracer's 0 * a = +0: every term formed)
+    ys = np.broadcast_to(np.asarray(y, dtype=object), x.shape)
+    out = np.empty(x.shape, dtype=object)
+    for i in range(x.size):  # the second: the sums
+        v = ys[i]
+        if zero[i] and getattr(v, "op", "const") != "const":
+            out[i] = v
+        elif zero[i] and _positive_zero(v):
+            out[i] = z0
+        else:
+            out[i] = v + prod[i]
     return out
 
 

@@ -55,6 +55,7 @@ import io
 import os
 import pickle
 import sys
+import threading
 import warnings
 
 import numba
@@ -244,13 +245,61 @@ def _attach(disp):
     return disp
 
 
+# --- typing a generated kernel: each scalar operation's signature resolved once ----------------------
+#
+# numba types every operation of a function by trying each template of the operator in turn (``+`` on two
+# floats tries numpy's ufunc rules, formats their failures...), and again when it lowers it: about 40 % of
+# the compile of a generated field, whose thousands of operations are a handful of (operator, float64,
+# float64).  While a generated kernel compiles, :func:`_memo_call_type` remembers the signature numba
+# resolved for a function type and plain scalar arguments (non-literal floats, integers, booleans), and
+# gives it again: the same signature numba's own resolution returns, so the same code.  Other compiles
+# in the process are untouched.
+
+_BaseFunction = getattr(getattr(numba.core.types, "functions", None), "BaseFunction", None)
+_PLAIN = (numba.core.types.Float, numba.core.types.Integer, numba.core.types.Boolean)
+_local = threading.local()
+_SIGS: dict = {}
+
+
+def _memo_call_type(self, context, args, kws, _resolve=getattr(_BaseFunction, "get_call_type", None)):
+    if not getattr(_local, "on", 0) or kws or not all(type(a) in _PLAIN for a in args):
+        return _resolve(self, context, args, kws)
+    key = (self, context, args)
+    sig = _SIGS.get(key)
+    if sig is None:
+        sig = _SIGS[key] = _resolve(self, context, args, kws)
+    return sig
+
+
+if _BaseFunction is not None and callable(getattr(_BaseFunction, "get_call_type", None)):
+    _BaseFunction.get_call_type = _memo_call_type
+
+
+def _memo_compile(disp):
+    """``disp.compile`` with :func:`_memo_call_type` on in this thread for its duration."""
+    compile_ = disp.compile
+
+    def compile(sig):
+        _local.on = getattr(_local, "on", 0) + 1
+        try:
+            return compile_(sig)
+        finally:
+            _local.on -= 1
+
+    disp.compile = compile
+    return disp
+
+
 def njit(*args, cache=False, **kwargs):
-    """``numba.njit``; with ``cache=True`` the dispatcher caches through :class:`TrustedCache`."""
+    """``numba.njit``; with ``cache=True`` the dispatcher caches through :class:`TrustedCache`.  Its compiles
+    resolve each scalar operation's type once (:func:`_memo_call_type`)."""
     if args and callable(args[0]) and len(args) == 1:
         return njit(cache=cache, **kwargs)(args[0])
 
     def decorate(func):
         disp = numba.njit(*args, cache=False, **kwargs)(func)
+        if hasattr(disp, "py_func"):  # not under NUMBA_DISABLE_JIT
+            _memo_compile(disp)
         return _attach(disp) if cache else disp
 
     return decorate

@@ -78,28 +78,46 @@ def _gauss_solve(A, B):
     if k in (2, 3):  # closed form: no elimination chain (each division waited for the previous one)
         X = cramer_solve(A, X)
         return X[:, 0] if vec else X
+    zero = None  # the tracer's 0 / a (a not a constant): +0.0, once formed
+
+    def _zero(v):
+        return v.op == "const" and v.value == 0.0
+
     for i in range(k):
+        pivot = A[i, i]
         for r in range(i + 1, k):
-            f = div(A[r, i], A[i, i])
-            if f.op == "const" and f.value == 0.0:
+            if zero is not None and _zero(A[r, i]) and pivot.op != "const":
+                continue  # f = 0 / pivot = 0 (as below, without forming it again)
+            f = div(A[r, i], pivot)
+            if _zero(f):
+                if _zero(A[r, i]) and pivot.op != "const":
+                    zero = f
                 continue  # the row update would subtract exact zeros (folded away): k^2, not k^3, on sparse A
             for c in range(i, k):
                 A[r, c] = sub(A[r, c], mul(f, A[i, c]))
             for c in range(X.shape[1]):
                 X[r, c] = sub(X[r, c], mul(f, X[i, c]))
     for i in reversed(range(k)):
+        pivot = A[i, i]
+        nonzero = [j for j in range(i + 1, k) if not _zero(A[i, j])]  # s - 0 x = s (folded away)
         for c in range(X.shape[1]):
             s = X[i, c]
-            for j in range(i + 1, k):
-                if not (A[i, j].op == "const" and A[i, j].value == 0.0):  # s - 0 x = s (folded away)
-                    s = sub(s, mul(A[i, j], X[j, c]))
-            X[i, c] = div(s, A[i, i])
+            for j in nonzero:
+                s = sub(s, mul(A[i, j], X[j, c]))
+            if zero is not None and _zero(s) and pivot.op != "const":
+                X[i, c] = zero  # div(0, pivot), as formed before
+            else:
+                X[i, c] = div(s, pivot)
+                if zero is None and _zero(s) and pivot.op != "const":
+                    zero = X[i, c]
     return X[:, 0] if vec else X
 
 
 def _traced_solve(a, b):
     """``np.linalg.solve`` on traced arrays (numpy 2 semantics: ``b`` is a vector only if 1-D)."""
-    a, b = np.asarray(a, dtype=object), np.asarray(b, dtype=object)
+    a, b = np.asarray(a, dtype=object), np.asarray(b)
+    if b.dtype.kind != "f":  # (float numbers stay: _sym makes a constant per distinct number)
+        b = b.astype(object)
     vec = b.ndim == 1
     B = b[:, None] if vec else b
     batch = np.broadcast_shapes(a.shape[:-2], B.shape[:-2])
@@ -117,9 +135,59 @@ def _traced_inv(a):
 
 
 def _sym(a):
-    """Object array of Syms (numbers become constants); 0-d stays a 0-d array."""
+    """Object array of Syms (numbers become constants); 0-d stays a 0-d array.
+
+    A float array: one constant per distinct number (bit pattern), formed in the order of first occurrence
+    (as an entry-by-entry loop forms them), not a Python call per entry (``inv`` of a ``K x K`` matrix
+    solves against the identity: ``K^2`` entries).
+    """
+    a = np.asarray(a)
+    if a.ndim and a.dtype.kind == "f":
+        flat = a.astype(np.float64).reshape(-1)
+        _, first, inverse = np.unique(flat.view(np.int64), return_index=True, return_inverse=True)
+        syms = np.empty(first.size, dtype=object)
+        for u in np.argsort(first):
+            syms[u] = as_sym(float(flat[first[u]]))
+        return syms[inverse.reshape(-1)].reshape(a.shape)
     a = np.asarray(a, dtype=object)
+    if a.ndim and a.size > _SYM_EACH:
+        return _sym_objects(a)
     return _to_sym_array(a) if a.ndim else _obj0(as_sym(a.item()))
+
+
+#: object arrays up to this size go through ``as_sym`` entry by entry
+_SYM_EACH = 64
+_TYPE = np.frompyfunc(type, 1, 1)
+
+
+def _sym_objects(a):
+    """:func:`_sym` of a (non-empty) object array: ``Sym`` entries kept, Python floats one constant per distinct
+    number, anything else by ``as_sym``; the constants formed in the order of their first occurrence, as an
+    entry-by-entry loop forms them (a traced datum's array of mostly zeros, ``N x 3N`` for a chain's
+    constraints: a Python call per distinct number, not per entry)."""
+    flat = a.reshape(-1)
+    kind = _TYPE(flat)
+    is_sym, is_float = np.asarray(kind == Sym, dtype=bool), np.asarray(kind == float, dtype=bool)
+    out = flat.copy()
+    at_f = np.flatnonzero(is_float)
+    firsts, members = [], {}
+    if at_f.size:
+        vals = flat[at_f].astype(np.float64)
+        _, first, inverse = np.unique(vals.view(np.int64), return_index=True, return_inverse=True)
+        inverse = inverse.reshape(-1)
+        for u, f in enumerate(first):
+            firsts.append((int(at_f[f]), u))
+        members = inverse
+    at_o = np.flatnonzero(~(is_sym | is_float))
+    syms = np.empty(len(firsts), dtype=object)
+    for i, u in sorted(firsts + [(int(i), None) for i in at_o]):
+        if u is None:
+            out[i] = as_sym(flat[i])
+        else:
+            syms[u] = as_sym(flat[i])
+    if at_f.size:
+        out[at_f] = syms[members]
+    return out.reshape(a.shape)
 
 
 class trace:
