@@ -1,5 +1,6 @@
 """Operation counts of the adjoint's cost estimate (docs/gradients.md, "Reverse mode"): Suslov's traced field and
-feedback step, their primal nodes, the forward tangent of one direction (JVP, the code the fused loop prints) and a
+feedback step, their primal nodes, the forward tangent of one direction (JVP; with the gains held, as they are in a
+run, the code the fused loop prints) and a
 reverse-mode sweep (VJP: every node's adjoint accumulated from its users, built on the same trace).
 
 Run from the repository root: ``python benchmarks/adjoint_estimate.py`` (plain Python, a few seconds).
@@ -30,7 +31,11 @@ for name, build in (("field", lambda y, p, h: fi.unforced_vector_field(y, p, dat
         d = tr.symbols("d", n + size)
         fT = jvp_graph(f, [*y, *p], d)
         jv = {x.id for x in reachable(fT[1]) if x.op != "var"} - prim
+        lay = fi.parameter_layout  # the fused loop's activity: the gains are held, only the targets move
+        moving = [*range(n), *(n + q for q in range(size) if q == lay.energy_target or q in lay.user_target)]
+        jv_held = {x.id for x in reachable(jvp_graph(f, [*y, *p], d, moving)[1]) if x.op != "var"} - prim
         lam = tr.symbols("lam", n)
         outs = vjp_graph(f, [*y, *p], list(lam))
         vj = {x.id for x in reachable(outs) if x.op != "var"} - prim
-        print(f"{name}: primal {len(prim)}, JVP (one direction) {len(jv)}, VJP {len(vj)}")
+        print(f"{name}: primal {len(prim)}, JVP (one direction) {len(jv)}, JVP with the gains held (the fused "
+              f"loop's) {len(jv_held)}, VJP {len(vj)}")

@@ -56,10 +56,12 @@ def test_from_mechanics_example_rolls_and_sweeps(capsys):
 def test_steering_example_improves_the_distance_and_holds_the_constraints_on_every_iterate(capsys):
     """The roller racer steered by minimize(jac=liefi's forced-run sensitivities): the loss drops from the start,
     the gradient is that of the loss (central differences of whole runs), and every iterate's run keeps both
-    constraints and the energy balance h~ - W within 1e-12."""
+    constraints and the energy balance h~ - W within 1e-12, with the torque piecewise constant (held over whole
+    steps)."""
     mod = load("steering")
     out = mod.main(T=1.0, n=5, dt=0.05, maxiter=3, compare=False)
     res, racer = out["exact"], out["racer"]
+    assert racer.kind == "piecewise" and racer.signal(np.zeros(racer.n)).grid_kind == "piecewise"  # as issue 28 asks
     tau0 = 0.2 * np.sin(4 * np.pi * np.arange(racer.n) / racer.n)
     assert res.fun < racer.loss(tau0) - 1e-3
     assert len(res.drift) == res.nit + 1 and max(res.drift) <= 1e-12

@@ -8,6 +8,8 @@ into such a force; ``linearize`` gains ``B``.
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -73,20 +75,39 @@ def test_chaplygin_sleigh_driven_by_a_torque_holds_the_balance_and_the_constrain
     assert abs(free["Pi_theta"][-1] - sol["Pi_theta"][-1]) > 0.1
 
 
-def test_a_piecewise_constant_torque_switching_at_step_ends_is_restored_by_the_feedback():
-    """A stage at a switch reads the new value (the step ending there is first order in it): the balance
-    leaves rounding at the two switches (1.1e-11) and the feedback brings it back within the next steps."""
+def sleigh_with(tau):
     scene = Chaplygin()
     system, y0 = scene.build_system(), scene.initial_state(None)
     law = ForceLaw(lambda t, q, v, u: np.stack([u[..., 0], 0 * u[..., 0], 0 * u[..., 0]], -1), inputs=("tau",))
+    return liefi.FeedbackIntegrator(system, y0, force=law, inputs={"tau": tau})
+
+
+def test_a_piecewise_constant_torque_is_held_over_whole_steps_across_its_switches():
+    """A zero-order hold: every stage of a step reads the value of the interval that contains the step, so a
+    switch at a step end is exact. The balance and the constraint stay at rounding across the two switches
+    (read per stage, the last stage of the step ending at a switch saw the new value: 1.1e-11), and the run
+    equals the three runs with constant torques chained at the switches."""
     tau = piecewise_constant([0.0, 0.3, 0.6, 1.0], [0.5, -1.0, 2.0])
     assert tau(0.29) == 0.5 and tau(0.3) == -1.0 and tau(5.0) == 2.0 and tau(-1.0) == 0.5
-    fi = liefi.FeedbackIntegrator(system, y0, force=law, inputs={"tau": tau})
-    sol = fi.run(1.0, **RUN)
+    fi = sleigh_with(tau)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # switches on the step grid: no warning
+        sol = fi.run(1.0, **RUN)
     dE, J, inv = held(fi, sol)
-    assert dE < 1e-10 and J < 1e-12, (dE, J)
-    r = np.abs(inv["energy"] - inv["energy"][0])
-    assert r[-1] < 1e-14 and np.max(r[(sol.t > 0.65)]) < 1e-14
+    assert dE < 1e-14 and J < 1e-14, (dE, J)
+    y = fi.y0
+    for (a, b), value in zip([(0.0, 0.3), (0.3, 0.6), (0.6, 1.0)], [0.5, -1.0, 2.0]):
+        y = sleigh_with(value).run((a, b), y0=y, **RUN).y[:, -1]
+    np.testing.assert_allclose(y[:-1], sol.y[:-1, -1], rtol=0, atol=1e-13)
+
+
+def test_a_switch_between_steps_is_named_in_a_warning_and_acts_at_the_nearest_step_end():
+    tau = piecewise_constant([0.0, 0.304, 1.0], [0.5, -1.0])
+    with pytest.warns(liefi.integrator.forced.InputGridWarning,
+                      match=r"input 'tau' switches at t = 0.304, which is not a step end .*Choose a dt that divides"):
+        sol = sleigh_with(tau).run(0.5, **RUN)
+    aligned = sleigh_with(piecewise_constant([0.0, 0.3, 1.0], [0.5, -1.0])).run(0.5, **RUN)
+    np.testing.assert_array_equal(sol.y, aligned.y)  # the step [0.30, 0.31] held at its midpoint 0.305: -1
 
 
 def test_a_damped_model_loses_energy_and_holds_h_minus_W():
@@ -242,8 +263,8 @@ def test_bad_inputs_get_named_errors():
     fi = FI(system, z0, force=knife_force(), inputs={"tau": 1.0})
     with pytest.raises(ValueError, match="backend: a forced run .* numpy path only"):
         fi.run(0.1, dt=1e-2, backend="numba")
-    with pytest.raises(ValueError, match=r"sensitivities: \['y0'\] are not inputs of this forced run"):
-        fi.run(0.1, dt=1e-2, sensitivities=("y0",))
+    with pytest.raises(ValueError, match=r"sensitivities: \['m'\] are neither inputs of this forced run nor 'y0'"):
+        fi.run(0.1, dt=1e-2, sensitivities=("m",))
     with pytest.raises(ValueError, match="the input 'tau' is constant; sensitivities are taken with respect to"):
         fi.run(0.1, dt=1e-2, sensitivities=("tau",))
     with pytest.raises(ValueError, match=r"inputs: \['x'\] are not inputs of the force"):

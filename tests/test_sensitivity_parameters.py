@@ -168,10 +168,11 @@ def test_chaplygin_ball_two_declared_parameters_through_a_split_scheme_with_auto
 # --- Suslov's body built by hand, with weight: its centre-of-mass offset and weight declared ----------
 
 
-def weighted_suslov():
+def weighted_suslov(gradient=False):
     """Suslov's constrained rigid body (inertia and constraint of ``liefi.scenes.suslov``) under gravity, on the
     space with the advected vertical ``Gamma``: ``U = mg chi . Gamma``, ``chi = (0.1, 0, h)``; ``mg`` and ``h``
-    declared (Suslov's own data are constant arrays, which parameters do not reach: the weight is a function)."""
+    declared (Suslov's own data are constant arrays, which parameters do not reach: the weight is a function).
+    ``gradient=True`` also gives the weight's analytic gradient (then a complex step through a run is exact)."""
     from liefi.groups import SO3
     from liefi.groups.representation import Representation
     from liefi.scenes.suslov import Suslov
@@ -181,10 +182,14 @@ def weighted_suslov():
     def potential(x, G):
         return par["mg"] * (0.1 * G[..., 0] + par["h"] * G[..., 2])
 
+    def potential_gradient(x, G):
+        return par["mg"] * np.stack(np.broadcast_arrays(0.1 + 0 * G[..., 0], 0 * G[..., 1], par["h"] + 0 * G[..., 2]), -1)
+
     I, a = Suslov.inertia, Suslov.a
     e = np.linalg.solve(I, a) / np.sqrt(a @ np.linalg.solve(I, a))
     space = liefi.LieGroupPhaseSpace(SO3(), advected=Representation(SO3()), a0=[0.0, 0.0, 1.0])
-    system = declare(liefi.NonholonomicSystem(space, I, e, potential=potential), par)
+    grad = dict(potential_gradient=potential_gradient) if gradient else {}
+    system = declare(liefi.NonholonomicSystem(space, I, e, potential=potential, **grad), par)
     g0 = SO3().exp(np.array([0.4, 0.1, 0.0])).ravel()
     return system, par, np.concatenate([g0, space.advected_vector(g0), [0.0, 1.0, 1.0]])
 

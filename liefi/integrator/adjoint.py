@@ -20,21 +20,41 @@ backward step of a split scheme (the tableau ``(A, b)`` on ``X``, then the feedb
 ``lambda_s = ybar``.  The transposed products are generated from the same trace as the forward
 tangents, by reverse accumulation over the graph (:func:`liefi.integrator._tangent_loop.vjp_graph`),
 and printed as scalar code: the step's nodes are recomputed from the kept state ``y_s``.
+
+**Checkpoints** (:func:`segment_steps`).  Keeping every ``y_s`` costs ``8 n (N + 1)`` bytes.  With
+``c`` checkpoints the forward pass keeps the first state of ``c`` segments of ``m = ceil(N / c)``
+steps, and the backward sweep recomputes a segment's states from it, then sweeps it:
+``8 n (c + m + 1)`` bytes, least at ``c ~ sqrt(N)``, for one more forward run.  ``lambda``, ``pbar``
+and ``cbar`` pass from one segment to the next through the kernel's ``out`` (read at the segment's
+end, written at its start), so the operations and their order are those of one sweep over all the
+states: the result does not depend on ``c``, bitwise.
+
+**The entry point** (``fi.run(..., adjoint=True)``, then ``sol.vjp(W)``: :class:`RunAdjoint`).
+diffrax chooses the adjoint in the solve (``diffeqsolve(..., adjoint=RecursiveCheckpointAdjoint(
+checkpoints=...))``) and SciMLSensitivity takes a solution and the loss's derivative at the saved
+times (``adjoint_sensitivities(sol, alg; dgdu_discrete=...)``); liefi has no tracer for a user's
+Python loss, so it does both: the run checks that it can be differentiated and keeps what the sweep
+needs (:func:`check`, :func:`attach`), and the solution takes ``W = dL/dy`` at its saved states and
+returns ``{name: dL/dname}`` for ``"y0"`` and every parameter, one sweep whatever their number.
+Opt-in like ``sensitivities=``: a plain run keeps nothing.
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
 from . import _tangent_loop as tl
 from . import sensitivity as _sens
 
-__all__ = ["vjp"]
+__all__ = ["vjp", "segment_steps", "RecursiveCheckpointAdjoint"]
 
 
 def _source(f_vjp, g_vjp, f, tab, n, size, P, split):
     """Source of ``adjoint_forward(y0, p, c, dt, n_steps, Yall)`` and
-    ``adjoint_backward(Yall, p, c, dt, n_steps, W, wsteps, out)`` (``out``: ``lambda_0, pbar, cbar``)."""
+    ``adjoint_backward(Yall, p, c, dt, n_steps, W, wsteps, out)`` (``out``: ``lambda, pbar, cbar``, read
+    at ``n_steps`` and written at step 0, so that consecutive segments chain with the same roundings)."""
     I1, I2, I3 = "    ", "        ", "            "
     coeff = tl._coeff_source(tab)
 
@@ -73,8 +93,8 @@ def _source(f_vjp, g_vjp, f, tab, n, size, P, split):
 
     L += ["@njit(cache=CACHE, error_model='numpy')", "def adjoint_backward(Yall, p, c, dt, n_steps, W, wsteps, out):"]
     L += [f"{I1}p_{q} = p[{q}]" for q in range(size)] + [f"{I1}c_{q} = c[{q}]" for q in range(P)] + coeff
-    L += [f"{I1}l_{r} = 0.0" for r in range(n)] + [f"{I1}pb_{q} = 0.0" for q in range(size)]
-    L += [f"{I1}cb_{q} = 0.0" for q in range(P)]
+    L += [f"{I1}l_{r} = out[{r}]" for r in range(n)] + [f"{I1}pb_{q} = out[{n + q}]" for q in range(size)]
+    L += [f"{I1}cb_{q} = out[{n + size + q}]" for q in range(P)]
     L += [f"{I1}js = wsteps.size - 1", f"{I1}for step in range(n_steps, 0, -1):",
           f"{I2}if js >= 0 and wsteps[js] == step:"]
     L += [f"{I3}l_{r} += W[{r}, js]" for r in range(n)] + [f"{I3}js -= 1"]
@@ -143,7 +163,28 @@ def adjoint_kernel(fi, sch, *, engine="numba"):
     return _sens._kept(fi, ("adjoint", sch.name), engine, make)
 
 
-def vjp(fi, sch, y0, dt, n_steps, saved_steps, W, *, engine="python", schedule=None):
+#: the default ``checkpoints`` keeps every state of a run while they take at most this many bytes
+STORE_ALL_BYTES = 1 << 24
+
+
+def segment_steps(n_steps, n, checkpoints=None):
+    """The steps ``m`` of a segment of the backward sweep (``m >= n_steps``: every state kept).
+
+    ``checkpoints``: ``None`` (``"all"`` while ``8 n (N + 1) <=`` :data:`STORE_ALL_BYTES`, else
+    ``ceil(sqrt(N))``), ``"all"``, or the number ``c >= 1`` of kept states: ``m = ceil(N / c)``.
+    """
+    N = int(n_steps)
+    if checkpoints is None:
+        checkpoints = "all" if 8 * n * (N + 1) <= STORE_ALL_BYTES else math.isqrt(max(N - 1, 0)) + 1
+    if isinstance(checkpoints, str) and checkpoints == "all":
+        return max(N, 1)
+    if isinstance(checkpoints, (bool, np.bool_)) or not isinstance(checkpoints, (int, np.integer)) or checkpoints < 1:
+        raise ValueError(f"checkpoints: expected None (the default), 'all' or the number of kept states, an integer "
+                         f">= 1 (e.g. {math.isqrt(max(N - 1, 0)) + 1}, about sqrt(n_steps)), got {checkpoints!r}")
+    return max(N, 1) if checkpoints >= N else -(-N // int(checkpoints))
+
+
+def vjp(fi, sch, y0, dt, n_steps, saved_steps, W, *, engine="python", schedule=None, checkpoints=None):
     """``(dL/dy0, dL/dtheta)`` for the cotangents ``W`` (``(n, n_t)``, ``dL/dy`` at ``saved_steps``).
 
     Arguments as :func:`liefi.integrator.sensitivity.tangents` (``fi`` holding the run's gains,
@@ -151,7 +192,22 @@ def vjp(fi, sch, y0, dt, n_steps, saved_steps, W, *, engine="python", schedule=N
     :func:`~liefi.integrator.sensitivity.parameter_names`.  It equals
     ``sum_t S_t^T W[:, t]`` of the forward tangents, at the cost of two runs and a backward sweep
     whatever the number of parameters.  ``engine="numba"`` compiles the loops.
+
+    ``checkpoints`` (:func:`segment_steps`): the states kept for the backward sweep.  ``"all"`` keeps
+    every state (``8 n (N + 1)`` bytes); a number ``c`` keeps the first state of ``c`` segments of
+    ``m = ceil(N / c)`` steps, and the backward sweep recomputes each segment's states from it
+    (``8 n (c + m + 1)`` bytes, least at ``c = sqrt(N)``, for one more forward run).  The recomputed
+    states are the same steps of the same code, and the adjoint and the sums ``pbar``, ``thetabar``
+    are carried from one segment to the next in the same order of operations, so the result does not
+    depend on ``checkpoints``: bitwise.  Default: all while they take at most
+    :data:`STORE_ALL_BYTES`, else ``ceil(sqrt(N))``.
     """
+    return _sweep(fi, sch, y0, dt, n_steps, saved_steps, W, engine=engine, schedule=schedule,
+                  checkpoints=checkpoints)[:2]
+
+
+def _sweep(fi, sch, y0, dt, n_steps, saved_steps, W, *, engine, schedule, checkpoints):
+    """:func:`vjp`, and the state its forward pass reached at ``n_steps`` (the replay's check)."""
     if isinstance(sch, str):
         from ..schemes import registry
 
@@ -171,33 +227,140 @@ def vjp(fi, sch, y0, dt, n_steps, saved_steps, W, *, engine="python", schedule=N
         schedule = [(0, fi.parameters())]
     schedule = [(int(a), np.ascontiguousarray(q, dtype=float)) for a, q in schedule]
     size = schedule[0][1].size
+    N = int(n_steps)
+    m = segment_steps(N, n, checkpoints)
     mod = adjoint_kernel(fi, sch, engine=engine).kernel.module
     buf = np.empty(size + size * (n + P))
     _sens.targets_kernel(fi).kernel.module.ptargets(y0, schedule[0][1], c, buf)
     p_at, Jp = buf[:size], buf[size:].reshape(size, n + P)
     follow = np.abs(p_at - schedule[0][1]) <= 1e-14 * np.maximum(1.0, np.abs(schedule[0][1]))
-    segments, y = [], y0
+    pieces = []  # (a, b, q): the gain schedule's segments, cut in segments of at most m steps
+    for i, (a, q) in enumerate(schedule):
+        b = min(schedule[i + 1][0], N) if i + 1 < len(schedule) else N
+        pieces += [(s, min(s + m, b), q) for s in range(a, b, m)]
+    kept, y, dt = [], y0, float(dt)
+    out = np.zeros(n + size + P)  # lambda, pbar, cbar: carried across the segments
+    bufs = {}  # checkpointed: one buffer per segment length, reused
+
+    def states(length):
+        return np.empty((n, length + 1)) if m >= N else bufs.setdefault(length, np.empty((n, length + 1)))
+
     with np.errstate(all="ignore"):
-        for i, (a, q) in enumerate(schedule):  # forward: the states of every step, segment by segment
-            b = schedule[i + 1][0] if i + 1 < len(schedule) else int(n_steps)
-            if b <= a:
-                continue
-            Yall = np.empty((n, b - a + 1))
-            mod.adjoint_forward(y, q, c, float(dt), b - a, Yall)
-            segments.append((a, b, q, Yall))
-            y = np.ascontiguousarray(Yall[:, -1])
-        lam, pbar, cbar = np.zeros(n), np.zeros(size), np.zeros(P)
-        out = np.empty(n + size + P)
-        for a, b, q, Yall in reversed(segments):  # backward: lambda carried across the segments
-            inside = (saved_steps > a) & (saved_steps <= b)
-            Ws = W[:, inside].copy()
-            Ws[:, -1:] += lam[:, None] if inside.any() and saved_steps[inside][-1] == b else 0.0
-            ws = saved_steps[inside] - a
-            if not (inside.any() and saved_steps[inside][-1] == b):  # the carried adjoint enters at the end
-                Ws = np.concatenate([Ws, lam[:, None]], 1)
-                ws = np.r_[ws, b - a]
-            mod.adjoint_backward(Yall, q, c, float(dt), b - a, np.ascontiguousarray(Ws), ws.astype(np.int64), out)
-            lam, pbar, cbar = out[:n].copy(), pbar + out[n:n + size], cbar + out[n + size:]
-    lam = lam + (W[:, saved_steps == 0].sum(1) if np.any(saved_steps == 0) and segments else 0.0)
+        for a, b, q in pieces:  # forward: every state (m = N) or the first state of each segment
+            Y = states(b - a)
+            mod.adjoint_forward(y, q, c, dt, b - a, Y)
+            kept.append(Y if m >= N else y)
+            y = np.ascontiguousarray(Y[:, -1])
+        lo = np.searchsorted(saved_steps, [a for a, _, _ in pieces], "right")
+        hi = np.searchsorted(saved_steps, [b for _, b, _ in pieces], "right")
+        if pieces and saved_steps.size and saved_steps[0] == 0:
+            lo[0] = 0  # W at step 0: added by the first segment's sweep at its end
+        for i in reversed(range(len(pieces))):  # backward, the segments recomputed from their first state
+            (a, b, q), Y = pieces[i], kept[i]
+            if Y.ndim == 1:
+                Y0, Y = Y, states(b - a)
+                mod.adjoint_forward(Y0, q, c, dt, b - a, Y)
+            mod.adjoint_backward(Y, q, c, dt, b - a, np.ascontiguousarray(W[:, lo[i]:hi[i]]),
+                                 saved_steps[lo[i]:hi[i]] - a, out)
+    if not pieces:  # no step: y = y0
+        out[:n] = W[:, saved_steps == 0].sum(1)
+    lam, pbar, cbar = out[:n], out[n:n + size], out[n + size:]
     pb = pbar * follow
-    return lam + Jp[:, :n].T @ pb, cbar + Jp[:, n:].T @ pb
+    return lam + Jp[:, :n].T @ pb, cbar + Jp[:, n:].T @ pb, y
+
+
+class RecursiveCheckpointAdjoint:
+    """How a run keeps what its adjoint needs: ``fi.run(..., adjoint=RecursiveCheckpointAdjoint(checkpoints=c))``.
+
+    diffrax's name and meaning (``diffeqsolve(..., adjoint=RecursiveCheckpointAdjoint(checkpoints=...))``):
+    ``checkpoints`` the number of states kept for the backward sweep, the others recomputed
+    (:func:`segment_steps`; ``None``: every state while they take at most :data:`STORE_ALL_BYTES`,
+    else ``ceil(sqrt(N))`` of them; ``"all"``: every state).  ``adjoint=True`` is this with the default.
+    The gradient does not depend on ``checkpoints`` (bitwise), only its memory and CPU do.
+    """
+
+    def __init__(self, checkpoints=None):
+        segment_steps(1, 1, checkpoints)  # the checkpoints' own check, before the run
+        self.checkpoints = checkpoints
+
+    def __repr__(self):
+        return f"RecursiveCheckpointAdjoint(checkpoints={self.checkpoints!r})"
+
+
+def check(fi, adjoint, *, t_eval=None, events=None, dense_output=False, y0=None):
+    """``fi.run``'s ``adjoint=``, checked before the run: ``None`` or a :class:`RecursiveCheckpointAdjoint`."""
+    if adjoint is None or adjoint is False:
+        return None
+    if adjoint is True:
+        adjoint = RecursiveCheckpointAdjoint()
+    if not isinstance(adjoint, RecursiveCheckpointAdjoint):
+        raise TypeError(f"adjoint: expected True, None or liefi.integrator.adjoint.RecursiveCheckpointAdjoint"
+                        f"(checkpoints=...), got {adjoint!r}")
+    from .forced import ForcedFeedbackIntegrator
+
+    if isinstance(fi, ForcedFeedbackIntegrator):
+        raise ValueError("adjoint: a forced run (force=, inputs=) has no adjoint yet; take its forward sensitivities "
+                         "to an input's values instead (sensitivities=('tau',), liefi.integrator._forced_sensitivity)")
+    _sens.check(fi, ("y0",), t_eval=t_eval, events=events, dense_output=dense_output, y0=y0, what="adjoint")
+    return adjoint
+
+
+class RunAdjoint:
+    """``sol.vjp(W)`` of a run made with ``fi.run(..., adjoint=...)``: what the backward sweep needs, held.
+
+    The run's integrator (its gains, its dropped invariants), scheme, start, step and gain schedule;
+    the sweep itself runs at each call (:func:`vjp`), with the run's ``checkpoints``.
+    """
+
+    def __init__(self, sol, fi, sch, y0, dt, n_steps, saved_steps, adjoint, *, report=None, t0=0.0):
+        from ..engine import cache as _cache
+
+        self.fi, self.sch, self.y0, self.dt, self.n_steps = fi, sch, np.array(y0, float), float(dt), int(n_steps)
+        self.saved_steps = np.asarray(saved_steps, np.int64)
+        self.checkpoints = adjoint.checkpoints
+        self.schedule = _sens.gain_schedule(fi, report, dt, t0)
+        self.engine = "numba" if getattr(sol, "backend", "numpy") != "numpy" and _cache.available() else "python"
+        self.names = ("y0",) + _sens.parameter_names(fi.system)
+        self.failed = None if sol.success else sol.message
+        self.end = np.array(sol.y[..., -1], float) if self.saved_steps.size else None
+
+    def __call__(self, cotangent, wrt=None):
+        names = self.names if wrt is None else _sens.check(self.fi, wrt, what="wrt")
+        if self.failed is not None:
+            raise ValueError(f"vjp: the run failed ({self.failed}); it has no gradient")
+        if np.any(self.saved_steps < 0):
+            raise ValueError("vjp: the run ended with a step shortened to reach t_final (dt does not divide the "
+                             "span); take a dt that divides it")
+        n, n_t = self.fi.n, self.saved_steps.size
+        try:
+            W = np.asarray(cotangent, dtype=float)
+        except (TypeError, ValueError):
+            W = None
+        if W is None or W.shape != (n, n_t):
+            raise ValueError(f"cotangent: expected dL/dy at the saved states, the shape of sol.y, (n, n_t) = "
+                             f"({n}, {n_t}), got {np.shape(cotangent)}")
+        if not np.all(np.isfinite(W)):
+            raise ValueError("cotangent: contains non-finite numbers")
+        from ..engine.trace import NotCompilable
+
+        try:
+            gy, gc, end = _sweep(self.fi, self.sch, self.y0, self.dt, self.n_steps, self.saved_steps, W,
+                                 engine=self.engine, schedule=self.schedule, checkpoints=self.checkpoints)
+        except NotCompilable as exc:
+            raise ValueError(f"vjp: liefi differentiates the run's step through its trace, and this system's step "
+                             f"cannot be traced: {exc}") from None
+        if self.saved_steps[-1] == self.n_steps:
+            scale = np.maximum(1.0, np.max(np.abs(self.end)))
+            err = float(np.max(np.abs(end - self.end)) / scale)
+            if not err <= _sens.REPLAY_RTOL:
+                raise ValueError(f"vjp: the replay of the run's steps ends {err:.3g} (relative) away from the run's "
+                                 "last state: the run changed something the replay does not see; please report it, "
+                                 "and meanwhile pass adaptive=False")
+        full = dict(zip(self.names, [gy, *gc]))
+        return {k: full[k] for k in names}
+
+
+def attach(sol, fi, sch, y0, dt, n_steps, saved_steps, adjoint, *, report=None, t0=0.0):
+    """Set ``sol.adjoint`` (a :class:`RunAdjoint`, which ``sol.vjp`` calls): the one call of the run loop."""
+    sol.adjoint = RunAdjoint(sol, fi, sch, y0, dt, n_steps, saved_steps, adjoint, report=report, t0=t0)
+    return sol

@@ -30,13 +30,30 @@ clock is no invariant and the feedback never moves it.  The state is
 ``y = (g, z, W, time)`` (:attr:`FeedbackIntegrator.names` ends in ``"W", "time"``);
 a conservative system's runs are untouched (no force: no extra states).
 
+**Piecewise-constant inputs are held over whole steps** (a zero-order hold): every
+stage of a step reads such an input at the step's midpoint ``t_n + dt/2``, not at its
+own time, so the step integrates a field that is smooth in time and the balance and
+the constraints stay at rounding across a switch.  (Read per stage, a switch at a step
+end ``t_{n+1}`` would be seen by that step's last stage, ``c = 1``, and the step would
+be first order in the jump.)  The step tells the field its start and size through
+:meth:`ForcedFeedbackIntegrator.holding`, which the Runge--Kutta step enters around its
+stages.  A switch that is not a step end ``t0 + k dt`` then acts at the step end nearest
+to it (the midpoint decides); the run warns (:class:`InputGridWarning`), naming the input and the
+switch: choose a ``dt`` that divides the switch times' offsets from the start, or give
+the input as a spline.  Splines, callables and constants are read per stage, at each
+stage's own time ``t_n + c_i dt``.
+
 Forced runs use the numpy path (``backend="numpy"``; the compiled engine cannot
 trace a user's force): ``backend="numba"`` gets a ``ValueError`` saying so.  Their
 sensitivities are those with respect to the values of an input over its grid
-(``sensitivities=("tau",)``, :mod:`liefi.integrator._forced_sensitivity`).
+(``sensitivities=("tau",)``), to the start (``"y0"``) and to the system's constants
+(:mod:`liefi.integrator._forced_sensitivity`).
 """
 
 from __future__ import annotations
+
+import contextlib
+import warnings
 
 import numpy as np
 
@@ -47,6 +64,12 @@ from .feedback import FeedbackIntegrator, per_member
 
 #: the names of the two states a forced run appends: the work done and the clock
 EXTRA_NAMES = ("W", "time")
+#: a switch of a piecewise-constant input is a step end when within this fraction of dt of one
+SWITCH_RTOL = 1e-9
+
+
+class InputGridWarning(UserWarning):
+    """A switch of a piecewise-constant input falls between the steps of a forced run (module docstring)."""
 
 
 class ForcedFeedbackIntegrator(FeedbackIntegrator):
@@ -64,6 +87,10 @@ class ForcedFeedbackIntegrator(FeedbackIntegrator):
             raise ValueError(f"field: a forced system runs the extended field (the force enters it), got {field!r}")
         self.force_law = law
         self.signals = bind_inputs(law, inputs)
+        #: the inputs held over whole steps (the piecewise-constant ones) and the running step's midpoint
+        self.held_inputs = frozenset(s for s, sig in self.signals.items() if getattr(sig, "grid_kind", None)
+                                     == "piecewise")
+        self._hold_time = None
         sp = system.space
         nb = (sp.group.config_dim if configuration and sp.group.config_dim > 0 else 0) + sp.nz
         y0 = as_float_array(y0, "y0")
@@ -85,11 +112,57 @@ class ForcedFeedbackIntegrator(FeedbackIntegrator):
 
     # --- the force -------------------------------------------------------------------------
     def input_values(self, t):
-        """The inputs at the times ``t`` (any shape): ``(..., m)`` in the order of ``force_law.inputs``."""
+        """The inputs at the times ``t`` (any shape): ``(..., m)`` in the order of ``force_law.inputs``.
+
+        Inside a step (:meth:`holding`) the piecewise-constant inputs are read at the step's midpoint.
+        """
         t = np.asarray(t)
         if not self.signals:
             return np.zeros(t.shape + (0,))
-        return np.stack([np.broadcast_to(s(t), t.shape) for s in self.signals.values()], -1)
+        mid = self._hold_time
+        return np.stack([np.broadcast_to(s(mid if mid is not None and name in self.held_inputs else t), t.shape)
+                         for name, s in self.signals.items()], -1)
+
+    @contextlib.contextmanager
+    def holding(self, y, dt):
+        """The context of one step from the states ``y`` (``(..., n)``) of size ``dt`` (a number, or one per
+        state shaped as the Runge--Kutta step broadcasts it): inside, the piecewise-constant inputs read the
+        step's midpoint ``t_n + dt/2`` (module docstring).  Without such inputs, nothing changes."""
+        if not self.held_inputs:
+            yield
+            return
+        h = np.asarray(dt, float)
+        if h.ndim:  # (m, ..., 1): one step size per state, against the state's last axis
+            h = h[..., 0]
+        previous = self._hold_time
+        self._hold_time = np.real(np.asarray(y)[..., self.n - 1]) + 0.5 * h
+        try:
+            yield
+        finally:
+            self._hold_time = previous
+
+    def warn_off_grid_switches(self, t0, t_final, dt, stacklevel=3):
+        """Warn (:class:`InputGridWarning`) for each held input with a switch inside ``(t0, t_final)`` that is
+        not a step end ``t0 + k dt``; returns the ``[(name, switch time)]`` warned about."""
+        out = []
+        for name in sorted(self.held_inputs):
+            sig = self.signals[name]
+            N = np.asarray(sig.values).shape[0]
+            switches = np.asarray(sig.t_grid, float)[1:N]  # the starts of the intervals after the first
+            inside = switches[(switches > t0) & (switches < t_final)]
+            k = (inside - t0) / dt
+            bad = inside[np.abs(k - np.rint(k)) > SWITCH_RTOL * np.maximum(1.0, np.abs(k))]
+            if bad.size:
+                spacing = np.diff(switches).min() if switches.size > 1 else float(switches[0] - t0)
+                out.append((name, float(bad[0])))
+                warnings.warn(
+                    f"inputs: the piecewise-constant input {name!r} switches at t = {bad[0]:.6g}"
+                    f"{f' (and {bad.size - 1} more)' if bad.size > 1 else ''}, which is not a step end "
+                    f"t0 + k dt (t0 = {t0:g}, dt = {dt:.6g}); a forced run holds it over each step at its value at "
+                    "the step's midpoint, so the switch acts at the step end nearest to it. Choose a dt "
+                    f"that divides the switch times' offsets from t0 (e.g. a divisor of the switch spacing "
+                    f"{spacing:.6g}), or give the input as a spline", InputGridWarning, stacklevel=stacklevel)
+        return out
 
     def generalized_force(self, y, v=None):
         """The force ``F(t, q, v, u)`` at full states ``y`` (``(..., n)``), shape ``(..., D)``.
@@ -178,9 +251,10 @@ class ForcedFeedbackIntegrator(FeedbackIntegrator):
     def run(self, t_span=None, *more, backend=None, sensitivities=None, y0=None, **kw):
         """:meth:`FeedbackIntegrator.run` on the numpy path, the clock started at the span's start.
 
-        ``sensitivities=("tau", ...)``: names of inputs given as ``piecewise_constant`` or ``spline``;
-        ``sol.sensitivities[name]`` of shape ``(n, N, n_t)`` is ``d y_i(t_k) / d values_j`` (``dt=`` required;
-        :mod:`liefi.integrator._forced_sensitivity`).
+        ``sensitivities=("tau", "y0", "m", ...)``: names of inputs given as ``piecewise_constant`` or ``spline``
+        (``sol.sensitivities[name]`` of shape ``(n, N, n_t)``: ``d y_i(t_k) / d values_j``), ``"y0"``
+        (``(n, n, n_t)``, rows ``y``, columns ``y0``) and the system's constants (``(n, n_t)``); ``dt=``
+        required (:mod:`liefi.integrator._forced_sensitivity`).
         """
         from .run import positional_span
 
@@ -205,6 +279,8 @@ class ForcedFeedbackIntegrator(FeedbackIntegrator):
             y = y.copy()
             y[..., self.n - 1] = t0
         sol = super().run(span, backend="numpy", y0=y, **kw)
+        if self.held_inputs and len(sol.t):
+            self.warn_off_grid_switches(t0, float(sol.t[-1]), float(sol.dt))
         if names:
             from . import _forced_sensitivity as _fs
 

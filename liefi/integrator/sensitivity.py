@@ -90,12 +90,13 @@ def parameter_names(system):
         return ()
 
 
-def check(fi, sensitivities, *, t_eval=None, events=None, dense_output=False, y0=None):
+def check(fi, sensitivities, *, t_eval=None, events=None, dense_output=False, y0=None, what="sensitivities"):
     """The checked tuple of names of ``sensitivities=`` (``None`` or empty: ``()``); a clear error otherwise.
 
     Before the run (:meth:`liefi.FeedbackIntegrator.run`): the names, and the run's options the
     sensitivities do not cover (the states between steps of ``t_eval``, ``dense_output`` and
-    ``events``, an ensemble) are refused with what to do instead.
+    ``events``, an ensemble) are refused with what to do instead.  ``what`` names the argument in the
+    messages (the adjoint's checks, :mod:`liefi.integrator.adjoint`, are these).
     """
     if sensitivities is None:
         return ()
@@ -104,7 +105,7 @@ def check(fi, sensitivities, *, t_eval=None, events=None, dense_output=False, y0
     try:
         names = tuple(sensitivities)
     except TypeError:
-        raise TypeError(f"sensitivities: expected a sequence of names (e.g. ('y0', 'm')), got {sensitivities!r}") \
+        raise TypeError(f"{what}: expected a sequence of names (e.g. ('y0', 'm')), got {sensitivities!r}") \
             from None
     known = ("y0",) + parameter_names(fi.system)
     for nm in names:
@@ -112,18 +113,18 @@ def check(fi, sensitivities, *, t_eval=None, events=None, dense_output=False, y0
             extra = (f"the system's parameters are {list(known[1:])}" if len(known) > 1 else
                      "this system declares no parameters (the constants of liefi.mechanics.from_mechanics are; "
                      "declare them on data built by hand with liefi.systems.parameters.declare)")
-            raise ValueError(f"sensitivities: unknown name {nm!r}; use 'y0' (d y / d y0) or a parameter; {extra}")
+            raise ValueError(f"{what}: unknown name {nm!r}; use 'y0' (d y / d y0) or a parameter; {extra}")
     if len(set(names)) != len(names):
-        raise ValueError(f"sensitivities: a name is repeated in {names!r}; give each once")
-    for what, given in (("t_eval", t_eval is not None), ("events", bool(events)), ("dense_output", dense_output)):
+        raise ValueError(f"{what}: a name is repeated in {names!r}; give each once")
+    for opt, given in (("t_eval", t_eval is not None), ("events", bool(events)), ("dense_output", dense_output)):
         if given:
-            raise ValueError(f"sensitivities: not available with {what}= (the sensitivities are those of the steps' "
+            raise ValueError(f"{what}: not available with {opt}= (the derivatives are those of the steps' "
                              "states); save the steps (save_every=) and read the times there")
     if y0 is not None and np.ndim(y0) > 1:
-        raise ValueError("sensitivities: one trajectory only (y0 of shape (n,)); run the members of an ensemble "
+        raise ValueError(f"{what}: one trajectory only (y0 of shape (n,)); run the members of an ensemble "
                          "one by one")
     if names and np.ndim(_constants(fi.system)) > 1:
-        raise ValueError("sensitivities: per-member constants (an ensemble) are not supported; set one value each")
+        raise ValueError(f"{what}: per-member constants (an ensemble) are not supported; set one value each")
     return names
 
 
@@ -248,11 +249,13 @@ def tangent_kernel(fi, sch, *, engine="python"):
     return _kept(fi, "tangent-split" if split else "tangent", engine, make)
 
 
-def fused_kernel(fi, sch, k, *, engine="numba"):
-    """The compiled loop that steps the state and ``k`` tangents together (:mod:`._tangent_loop`).
+def fused_kernel(fi, sch, *, engine="numba"):
+    """The compiled loop that steps the state and its tangents together (:mod:`._tangent_loop`).
 
-    One kernel per system, integrator layout, scheme and ``k`` (``k <= K_MAX``); the traces are those of
-    :func:`tangent_kernel` (the field, the feedback step), their tangents printed inline in one loop.
+    One kernel per system, integrator layout and scheme, for every number of directions (a run-time
+    size); the traces are those of :func:`tangent_kernel` (the field, the feedback step), their tangents
+    printed inline in one loop over the directions.  The parameters that carry a direction are those
+    :func:`tangents` may move: the invariants' targets (:func:`_targets`), not the gains.
     """
     from ..engine.trace import TRACED_DATA, traced_call
     from ..schemes.split import feedback_step
@@ -268,18 +271,21 @@ def fused_kernel(fi, sch, k, *, engine="numba"):
         d = tr.symbols("d", len(inputs))
         field = fi.unforced_vector_field if split else fi.vector_field
         with _SwappedConstants(fi.system, c):
+            # a parameter moves only if it is a target (the start's Jacobian row of a gain is zero)
+            p0 = np.asarray(traced_call("the invariants' targets", _targets, fi, y, p, TRACED_DATA), dtype=object)
+            active = [*range(n), *(n + q for q in range(size) if tl.as_sym(p0[q]) is not p[q]),
+                      *range(n + size, n + size + P)]
             f = traced_call("the field", field, y, p, data=TRACED_DATA)
-            fT = tl.jvp_graph(np.asarray(f, dtype=object).reshape(-1), inputs, d)
+            fT = tl.jvp_graph(np.asarray(f, dtype=object).reshape(-1), inputs, d, active)
             gT = None
             if split:
                 h = tr.symbols("hh", 1)[0]
                 g = traced_call("the feedback step", feedback_step, fi, y, h, p, data=TRACED_DATA)
-                gT = tl.jvp_graph(np.asarray(g, dtype=object).reshape(-1), inputs, d)
-        gen = tl.fused_lanes_source if tl.as_lanes(k, fT, gT) else tl.fused_loop_source
-        src = gen(fT, gT, tab, n, size, P, k, split=split)
+                gT = tl.jvp_graph(np.asarray(g, dtype=object).reshape(-1), inputs, d, active)
+        src = tl.fused_source(fT, gT, tab, n, size, P, split=split)
         return src, size, "tangent-fused", 0
 
-    return _kept(fi, ("tangent-fused", sch.name, int(k)), engine, make)
+    return _kept(fi, ("tangent-lanes", sch.name), engine, make)
 
 
 def _step(mod, sch, y, S, p, c, Wt, Ct, dt, bufs):
@@ -399,8 +405,9 @@ def tangents(fi, sch, y0, dt, n_steps, saved_steps, V, C=None, *, engine="python
 def _segment(mod, sch, y0, S0, p, c, Wt, C, dt, n_steps, saved, engine, fi):
     """``n_steps`` steps from ``(y0, S0)`` with the parameters ``p``: states and tangents at ``saved`` (from 1).
 
-    Compiled (``engine="numba"``, ``fi`` given): the fused loop (:func:`fused_kernel`), the directions in
-    blocks of at most ``K_MAX``, each block stepping the state again (the same arithmetic every time).
+    Compiled (``engine="numba"``, ``fi`` given): the fused loop (:func:`fused_kernel`, one kernel for
+    every number of directions), the directions in blocks of at most ``K_MAX``, each block stepping the
+    state again (the same arithmetic every time).
     """
     n, k = S0.shape
     m = n + p.size + c.size
@@ -410,9 +417,9 @@ def _segment(mod, sch, y0, S0, p, c, Wt, C, dt, n_steps, saved, engine, fi):
         from ._tangent_loop import K_MAX
 
         PC = np.concatenate([Wt, C.T], 0)
+        fmod = fused_kernel(fi, sch, engine=engine).kernel.module
         for lo in range(0, k, K_MAX):
             hi = min(k, lo + K_MAX)
-            fmod = fused_kernel(fi, sch, hi - lo, engine=engine).kernel.module
             Sb = np.empty((n, hi - lo, saved.size))
             with np.errstate(all="ignore"):
                 fmod.tangent_fused(y0, np.ascontiguousarray(S0[:, lo:hi]), p, c, np.ascontiguousarray(PC[:, lo:hi]),
@@ -455,6 +462,20 @@ def propagate(fi, sch, y0, dt, n_steps, saved_steps, names, *, engine="python", 
     return Y, result
 
 
+def gain_schedule(fi, report, dt, t0=0.0):
+    """``[(step, p), ...]``: the parameters of ``fi`` with the gains of the run's ``report`` from each update on.
+
+    ``report`` the policy's :class:`~liefi.integrator.guard.RunReport` (``gains``, ``gain_times``,
+    ``gain_history``), ``t0`` the run's start; ``None`` without gains (``fi``'s own parameters).
+    """
+    if report is None or not report.gains:
+        return None
+    schedule = [(0, fi.parameters(gains=report.gains))]
+    for t, g in zip(report.gain_times, report.gain_history):
+        schedule.append((int(round((t - t0) / dt)), fi.parameters(gains=g)))
+    return schedule
+
+
 def attach(sol, fi, sch, y0, dt, n_steps, saved_steps, names, *, report=None, t0=0.0, engine=None):
     """Set ``sol.sensitivities`` (``{name: array}``) for the run ``sol`` of ``fi``: the one call of the run loop.
 
@@ -483,11 +504,7 @@ def attach(sol, fi, sch, y0, dt, n_steps, saved_steps, names, *, report=None, t0
         raise ValueError("sensitivities: the run ended with a step shortened to reach t_final (dt does not divide the "
                          "span); take a dt that divides it")
     start = time.process_time()
-    schedule = None
-    if report is not None and report.gains:
-        schedule = [(0, fi.parameters(gains=report.gains))]
-        for t, g in zip(report.gain_times, report.gain_history):
-            schedule.append((int(round((t - t0) / dt)), fi.parameters(gains=g)))
+    schedule = gain_schedule(fi, report, dt, t0)
     from ..engine.trace import NotCompilable
 
     try:

@@ -85,6 +85,8 @@ class Solution:
     sensitivities : dict or None
         With ``run(..., sensitivities=names)``: ``{name: d y / d name}`` at the saved
         states (:mod:`liefi.integrator.sensitivity`).
+    adjoint : RunAdjoint or None
+        With ``run(..., adjoint=True)``: what :meth:`vjp` needs (:mod:`liefi.integrator.adjoint`).
     """
 
     t: np.ndarray
@@ -103,6 +105,18 @@ class Solution:
     sol: object = None
     integrator: object = field(default=None, repr=False, compare=False)
     sensitivities: dict = field(default=None, repr=False, compare=False)
+    adjoint: object = field(default=None, repr=False, compare=False)
+
+    def vjp(self, cotangent, wrt=None):
+        """``{name: dL/dname}`` for ``cotangent = dL/dy`` (the shape of :attr:`y`), by reverse mode.
+
+        For a run made with ``fi.run(..., adjoint=True)`` (:mod:`liefi.integrator.adjoint`): ``"y0"``
+        and the system's parameters, or the names ``wrt``; one backward sweep whatever their number.
+        """
+        if self.adjoint is None:
+            raise ValueError("vjp: this run kept no adjoint; run it with fi.run(..., adjoint=True) (or "
+                             "adjoint=liefi.integrator.adjoint.RecursiveCheckpointAdjoint(checkpoints=...))")
+        return self.adjoint(cotangent, wrt=wrt)
 
     @property
     def nfev(self):
