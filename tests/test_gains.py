@@ -104,3 +104,22 @@ def test_exactly_kept_means_kept_by_the_feedback_field():
 
     assert drift_J("roller-racer", "J_2", {"J_1": 10.0, "J_2": 0.0, "energy": 10.0}) < 1e-13
     assert drift_J("suslov", "J_1", {"J_1": 0.0, "energy": 10.0}) > 1e-9
+
+
+def test_the_gains_of_a_run_replay_as_they_are_with_what_it_dropped():
+    """gains="auto" leaves J_2 of the roller racer out of V (kept exactly by imex-rk4): the run's gains have no
+    entry for it, and carry it as dropped, so that FeedbackIntegrator(gains=sol.stability.gains) is the run's
+    integrator (without fi.without(sol.dropped)): the same steps, bitwise."""
+    import pickle
+
+    from liefi.scenes import get
+
+    fi0 = get("roller-racer").integrator(gains="auto")
+    sol = fi0.run(0.05, dt=0.001, scheme="imex-rk4", backend="numpy", adaptive=False)
+    assert [d["name"] for d in sol.dropped] == ["J_2"] and "J_2" not in sol.stability.gains
+    fi = FeedbackIntegrator(fi0.system, fi0.y0, gains=sol.stability.gains, configuration=fi0.configuration)
+    assert set(sol.stability.gains.dropped) == {"J_2"}
+    assert [d["name"] for d in fi.dropped] == ["J_2"] and fi.gains == dict(sol.stability.gains)
+    again = fi.run(0.05, dt=0.001, scheme="imex-rk4", backend="numpy", adaptive=False, drop_exact=False)
+    assert np.array_equal(again.y, sol.y)
+    assert pickle.loads(pickle.dumps(sol.stability.gains)).dropped == sol.stability.gains.dropped

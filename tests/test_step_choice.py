@@ -108,3 +108,55 @@ def test_scene_run_fi_run_and_the_cli_choose_the_same_on_the_compiled_backend(ca
     assert r.method["scheme"] == sol.method["scheme"] == cli["scheme"]
     assert r.method["dt"] == sol.method["dt"] == cli["dt"]
     assert "checked by two short runs" in cli["why"]
+
+
+def test_the_invariants_are_evaluated_only_where_the_drift_rule_needs_them(monkeypatch):
+    """Perturbed Kepler over ``[0, 50]`` at ``1e-6``: the check's first try is untrusted and repeated, then a longer
+    step is run and measured.  The invariants are evaluated at the runs the step depends on only: the last try's
+    coarse run, the shorter run beside a drift only where the drift is above rounding (the cap is ``inf`` whatever
+    that floor), and their scales at the start once (every run starts there).  Before: both runs of every try and
+    of every candidate (6 drifts, 12 evaluations of the scales); the step is the same."""
+    from liefi.integrator import drift as _drift, tolerance_check
+
+    sc = scenes.get("perturbed-kepler")
+    fi = sc.integrator(sc.variant(None), gains="auto")
+    calls = {"drift": 0, "scales": 0, "check": 0}
+
+    def counted(name, f):
+        def g(*a, **k):
+            calls[name] += 1
+            return f(*a, **k)
+        return g
+
+    monkeypatch.setattr(_drift, "drift", counted("drift", _drift.drift))
+    monkeypatch.setattr(_drift, "drift_scales", counted("scales", _drift.drift_scales))
+    monkeypatch.setattr(tolerance_check, "_global_check", counted("check", tolerance_check._global_check))
+    dt, info = tol.choose_step(fi, REGISTRY["imex-rk4"], fi.y0, 0.0, 50.0, 1e-6, choose_order=True, backend="auto")
+    assert calls["check"] == 2 and info["check_trusted"] and info["verified_step"] is not None, (calls, info)
+    # one drift for the last try's coarse run (at rounding: no floor), one or two for the longer step's runs
+    assert calls["drift"] <= 3, calls
+    assert calls["scales"] <= calls["drift"] + 1, calls  # each drift's own, and the start's once
+    assert info["check_drift"] <= tol.DRIFT_LEVEL
+
+
+def test_the_checks_set_up_finds_the_exactly_kept_invariants_once(monkeypatch):
+    """:class:`CheckRuns`' set-up asks :func:`liefi.integrator.gains.exactly_kept` once, for the invariants left
+    out and for the gains of the others (before: twice, 2--9 ms each on the rolling bodies), and its gains are
+    those of :func:`~liefi.integrator.gains.run_gains` on its own."""
+    from liefi.integrator import gains
+
+    sc = scenes.get("suslov")
+    fi = sc.integrator(sc.variant(None), gains="auto")
+    sch = REGISTRY["imex-rk8"]
+    made = []
+    orig = gains.exactly_kept
+    monkeypatch.setattr(gains, "exactly_kept", lambda *a, **k: made.append(1) or orig(*a, **k))
+    runs = CheckRuns(fi, sch, fi.y0, "auto")
+    runs(0.0, 20.0, 20.0 / 64, 1)
+    assert len(made) == 1
+    monkeypatch.setattr(gains, "exactly_kept", orig)
+    run_fi = runs._set[0]
+    drops = gains.exact_drops(fi.for_batch(()), sch, fi.y0)
+    base = fi.for_batch(()).without(drops) if drops else fi.for_batch(())
+    ref = gains.run_gains(base, fi.y0, 20.0 / 64, sch, 20.0).fi
+    assert run_fi.gains == ref.gains and run_fi.invariant_names == ref.invariant_names

@@ -39,16 +39,33 @@ class CheckRuns:
         self._fast = backend != "numpy" and getattr(sch, "kind", None) == "split" and self.y0.ndim == 1
         self._set = None  # (run_fi, kernel, h1, gains at h1) once the first fast run is set up
         self._done = {}  # (t0, tau, h) -> (save_every, states): the runs made, for the check's next try
+        self._scales = False  # the invariants' scales at the start, once (drift_scales)
+
+    def drift_scales(self):
+        """:func:`liefi.integrator.drift.drift_scales` at the start of every run, evaluated once (``None`` where
+        they cannot be: each drift then evaluates, and fails, on its own)."""
+        if self._scales is False:
+            from .drift import drift_scales
+
+            try:
+                with np.errstate(all="ignore"):
+                    self._scales = drift_scales(self.fi, self.y0)
+            except Exception:  # noqa: BLE001 -- as _run_drift's: its own evaluation says what fails
+                self._scales = None
+        return self._scales
 
     def _setup(self, h, tau):
         from ..engine.kernels import prepare_feedback
-        from .gains import exact_drops, run_gains
+        from .gains import exact_drops, exactly_kept, run_gains
 
         fi = self.fi.for_batch(())
-        drops = exact_drops(fi, self.sch, self.y0)
+        # the invariants the scheme keeps exactly, evaluated once: for the drops and for the gains (those of
+        # the integrator without the drops are the others; kept(fi without d) = kept(fi) minus d)
+        kept = exactly_kept(fi, self.sch, self.y0) if fi.invariant_names else ()
+        drops = exact_drops(fi, self.sch, self.y0, kept=kept)
         if drops:
             fi = fi.without(drops)
-        got = run_gains(fi, self.y0, h, self.sch, tau)
+        got = run_gains(fi, self.y0, h, self.sch, tau, kept=tuple(k for k in kept if k not in drops))
         if got.adaptive:  # gains re-chosen along the run: only the run loop does that
             return None
         with warnings.catch_warnings():

@@ -28,12 +28,13 @@ from functools import cached_property
 
 import numpy as np
 
-from .. import _diff
+from .. import _diff, _sparse
 from ..reduction import core as _core
 from .._keywords import RUN_FOREIGN, keywords, unknown_keyword
 from .._parameters import gain_number, parse_gains, per_member, target_number, target_value  # noqa: F401
 from ..systems.invariant import Invariant  # noqa: F401  (liefi.Invariant: a first integral the user adds)
 from ..systems.system import NonholonomicSystem
+from . import _run_gains
 
 
 @dataclass(frozen=True)
@@ -273,6 +274,7 @@ class FeedbackIntegrator:
         #: "auto": gains chosen from dt and the Hessian of V when a run knows dt
         #: (liefi.integrator.gains.auto_gains); until then unit-rate gains (see below).
         self.gains_mode = "auto" if isinstance(gains, str) and gains == "auto" else "fixed"
+        gains, drops = _run_gains.split(gains)  # a run's gains (sol.stability.gains) carry what it dropped
         self._set_gains(self._parse_gains(1.0 if self.gains_mode == "auto" else gains))
 
         # --- A --------------------------------------------------------------------
@@ -312,6 +314,7 @@ class FeedbackIntegrator:
             from .gains import unit_rate_gains
 
             self._set_gains(unit_rate_gains(self, y0))
+        _run_gains.apply(self, drops)
 
     # --- gains -----------------------------------------------------------------------
     def _parse_gains(self, gains):
@@ -598,7 +601,7 @@ class FeedbackIntegrator:
         for _, r, grad, k in self.invariant_terms(z, t, p, data):
             kr = k * r
             V = V + 0.5 * kr * r
-            gz = gz + np.asarray(kr)[..., None] * grad
+            gz = _sparse.accumulate(gz, kr, grad)  # traced: the nonzero terms only
         gz = np.broadcast_to(gz, z.shape)
 
         if self.configuration:
@@ -676,7 +679,7 @@ class FeedbackIntegrator:
     def run(self, t_span=None, *more, dt=None, scheme=None, t_eval=None, events=None, dense_output=False, y0=None,
             save_every=None, check_every=1, backend=None, check_stability=True, adaptive=None, monitor_every=None,
             progress=None, drop_exact=True, errors="raise", rtol=None, atol=None, max_step=None, method=None,
-            sensitivities=None, **unknown):
+            sensitivities=None, adjoint=None, **unknown):
         """Integrate from ``y0`` (default: the one given at construction) over ``t_span``, as ``solve_ivp``.
 
         The loop is :func:`liefi.integrator.run.run_feedback`.  The default method is the best one
@@ -755,6 +758,10 @@ class FeedbackIntegrator:
             (the constants of :func:`liefi.mechanics.from_mechanics`; shape ``(n, n_t)``).  The
             exact derivatives of the numbers returned, by the tangents of the scheme's own
             steps with ``dt`` and the gains held (:mod:`liefi.integrator.sensitivity`).
+        adjoint : bool or RecursiveCheckpointAdjoint, optional
+            Keep what ``solution.vjp(W)`` needs: ``{name: dL/dname}`` for ``W = dL/dy`` at the saved
+            states, by reverse mode, for ``"y0"`` and every parameter at once (as diffrax's
+            ``adjoint=``; :mod:`liefi.integrator.adjoint` holds the design and ``checkpoints``).
 
         Returns
         -------
@@ -777,10 +784,15 @@ class FeedbackIntegrator:
 
             sensitivities = check(self, sensitivities, t_eval=t_eval, events=events, dense_output=dense_output,
                                   y0=self.y0 if y0 is None else y0)
+        if adjoint is not None:
+            from .adjoint import check as check_adjoint
+
+            adjoint = check_adjoint(self, adjoint, t_eval=t_eval, events=events, dense_output=dense_output, y0=y0)
         with compile_notice():  # a long first compile is announced on stderr
             return run_feedback(
                 self, t_span, dt=dt, scheme=scheme, t_eval=t_eval, events=events, dense_output=dense_output,
                 errors=errors, y0=y0, save_every=save_every, check_every=check_every, backend=backend,
                 check_stability=check_stability, adaptive=adaptive, monitor_every=monitor_every, progress=progress,
                 drop_exact=drop_exact, rtol=rtol, atol=atol, max_step=max_step, sensitivities=sensitivities,
+                adjoint=adjoint,
             )

@@ -281,6 +281,10 @@ def _polynomials(scheme):
     rows ``l = 2 .. p + 1``.  Evaluated at many rates (and many members) at once.
     """
     sch, A, b, c = _tableau(scheme)
+    try:
+        return _POLYNOMIALS[sch]
+    except (KeyError, TypeError):
+        pass
     s = len(b)
     powers = [np.linalg.matrix_power(A, k) for k in range(s)]
     P = np.array([(-1.0) ** k * b @ powers[k] @ np.ones(s) for k in range(s)])
@@ -289,7 +293,17 @@ def _polynomials(scheme):
         E.append(b @ c ** (l - 1) / math.factorial(l - 1) - 1.0 / math.factorial(l))
         d = A @ c ** (l - 1) / math.factorial(l - 1) - c**l / math.factorial(l)
         Q.append([(-1.0) ** k * b @ powers[k] @ d for k in range(s)])
-    return sch, np.array(E), np.array(Q), P
+    out = (sch, np.array(E), np.array(Q), P)
+    for a in out[1:]:
+        a.setflags(write=False)  # shared by every later call (_POLYNOMIALS)
+    try:
+        _POLYNOMIALS[sch] = out  # a scheme of the registry is hashable: computed once per scheme
+    except TypeError:
+        pass
+    return out
+
+
+_POLYNOMIALS = {}
 
 
 def _polyval(coef, z):
@@ -516,10 +530,11 @@ def exactly_kept(fi, scheme="rk4", y=None, *, n_samples=6, rel=1e-2, tol=1e-10):
     return tuple(jet.names[j] for j in kept)
 
 
-def _accurate(fi, dt, scheme, t_final, y, omega):
+def _accurate(fi, dt, scheme, t_final, y, omega, kept=None):
     """``(z*, gains, unit, omega)``: :func:`accurate_setting`, with the unit-rate gains and the unforced rates.
 
-    ``omega`` is computed only where :func:`rate_needs_omega` (``None`` otherwise, unless given).
+    ``omega`` is computed only where :func:`rate_needs_omega` (``None`` otherwise, unless given); ``kept``: the
+    names of :func:`exactly_kept` at ``y`` when the caller has them (else they are evaluated here).
     """
     dt = positive_number(dt, "dt")
     T = 1000.0 * dt if t_final is None else positive_number(t_final, "t_final")
@@ -531,7 +546,7 @@ def _accurate(fi, dt, scheme, t_final, y, omega):
     gains = rate_gains(unit, z, dt)
     if np.ndim(z) == 0:
         gains = {k: float(v) for k, v in gains.items()}
-    for name in exactly_kept(fi, scheme, y):
+    for name in exactly_kept(fi, scheme, y) if kept is None else kept:
         gains[name] = 0.0
     return z, gains, unit, omega
 
@@ -559,21 +574,22 @@ def accurate_gains(fi, dt, scheme="rk4", t_final=None, y=None) -> dict:
     return accurate_setting(fi, dt, scheme, t_final, y)[1]
 
 
-def exact_drops(fi, sch, y0, *, rtol=1e-12):
+def exact_drops(fi, sch, y0, *, rtol=1e-12, kept=None):
     """``{name: reason}``: the penalized invariants the scheme ``sch`` keeps exactly from ``y0`` (left out of ``V``).
 
     :func:`exactly_kept` (a first integral with a constant gradient, untouched by
     the other invariants' feedback: every Runge--Kutta step keeps it to
     rounding), for an explicit tableau, and only where the invariant is on its
     target at every member of ``y0`` (relative ``rtol``): off it, its own
-    feedback is what brings it back.  One vectorized evaluation over the batch.
+    feedback is what brings it back.  One vectorized evaluation over the batch.  ``kept``: :func:`exactly_kept`
+    at the first member when the caller has it.
     """
     if getattr(sch, "kind", None) not in ("explicit", "split") or not fi.invariant_names:
         return {}
     Y = np.asarray(y0, float).reshape(-1, fi.n)
     flat = fi.for_batch(np.shape(y0)[:-1]).members()  # every member's own target
     with np.errstate(all="ignore"):
-        kept = exactly_kept(flat.members(0), sch, Y[0])
+        kept = exactly_kept(flat.members(0), sch, Y[0]) if kept is None else kept
         if not kept:
             return {}
         jet = flat.invariant_gradients(Y)
@@ -619,7 +635,7 @@ def _merge(old, new, sel):
     return {k: np.where(sel, new[k], old[k]) for k in new}
 
 
-def run_gains(fi, y, dt, scheme, t_final, *, adaptive=None) -> RunGains:
+def run_gains(fi, y, dt, scheme, t_final, *, adaptive=None, kept=None) -> RunGains:
     """The gains a fixed-step run of ``fi`` from ``y`` starts with, and whether they adapt along it.
 
     ``scheme``: a registry scheme (explicit or split); ``t_final``: the run's
@@ -630,7 +646,7 @@ def run_gains(fi, y, dt, scheme, t_final, *, adaptive=None) -> RunGains:
     the scheme's bound -- never on a split scheme, whose feedback substep is
     stable at every rate.  Numeric gains are kept, or with ``adaptive=True``
     lowered where ``dt lambda_max`` passes the scheme's ``optimal_rate``
-    (:func:`lowered_gains`).
+    (:func:`lowered_gains`).  ``kept``: :func:`exactly_kept` of ``fi`` at ``y`` when the caller has it.
     """
     batch = tuple(getattr(fi, "batch", ()))
     auto = getattr(fi, "gains_mode", "fixed") == "auto"
@@ -640,7 +656,7 @@ def run_gains(fi, y, dt, scheme, t_final, *, adaptive=None) -> RunGains:
     if not auto:
         run_fi = fi.with_gains(lowered_gains(fi, y, rate, dt, split=scheme.kind == "split")) if adapt else fi
         return RunGains(run_fi, rate, adapt, mask, None)
-    z, acc, unit, omega = _accurate(fi, dt, scheme, t_final, y, None)
+    z, acc, unit, omega = _accurate(fi, dt, scheme, t_final, y, None, kept)
     if adaptive is None:
         mask = np.broadcast_to(z >= AUTO_ADAPT_FRACTION * float(scheme.real_stability_bound), batch)
         adapt = bool(np.any(mask))

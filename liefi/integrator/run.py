@@ -53,6 +53,7 @@ from ..schemes.core import step_grid, step_loop
 from ..schemes import registry as _registry
 from ..schemes import split as _split
 from .tolerance import MAX_RUN_STEPS  # a run of more steps is refused before it starts (``--max-steps``)
+from . import _run_gains
 
 #: Saved output kept by default (``save_every=None``): at most this many bytes.
 DEFAULT_SAVE_BYTES = 256 * 2**20
@@ -273,7 +274,7 @@ def method_scheme(method, scheme):
 def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, dense_output=False, errors="raise",
                  y0=None, save_every=None, check_every=1, backend=None, check_stability=True, adaptive=None,
                  monitor_every=None, progress=None, max_saved_bytes=None, drop_exact=True, rtol=None, atol=None,
-                 stacklevel=3, resolution_limit=None, max_step=None, sensitivities=None) -> Solution:
+                 stacklevel=3, resolution_limit=None, max_step=None, sensitivities=None, adjoint=None) -> Solution:
     """Integrate the feedback integrator ``fi`` over ``t_span`` with a fixed step (module docstring).
 
     The parameters are those of :meth:`liefi.FeedbackIntegrator.run`;
@@ -297,7 +298,8 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
     ``max_step``: as ``solve_ivp``'s, the largest step: a step chosen for the tolerance is shortened to
     ``(t_final - t0) / ceil((t_final - t0) / max_step)``; a given ``dt`` above it is refused.
     ``sensitivities``: names (``"y0"``, the system's parameters) whose derivatives of the saved states
-    ``solution.sensitivities`` holds (:mod:`liefi.integrator.sensitivity`).
+    ``solution.sensitivities`` holds (:mod:`liefi.integrator.sensitivity`); ``adjoint``: a
+    :class:`~liefi.integrator.adjoint.RecursiveCheckpointAdjoint` (checked), for ``solution.vjp``.
 
     Returns the :class:`~liefi.schemes.Solution` with ``method`` (which method
     ran and why: :func:`liefi.integrator.tolerance.describe`), ``stability`` (the
@@ -482,8 +484,13 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
         from .sensitivity import attach
 
         attach(sol, run_fi, sch, y0, dt, n_steps, grid[:k], sensitivities, report=policy.report, t0=t_start)
+    if adjoint is not None:  # sol.vjp: the gradient of a scalar loss by reverse mode (liefi.integrator.adjoint)
+        from .adjoint import attach as attach_adjoint
+
+        attach_adjoint(sol, run_fi, sch, y0, dt, n_steps, grid[:k], adjoint, report=policy.report, t0=t_start)
     sol.stability = policy.report
     sol.dropped = list(run_fi.dropped)
+    _run_gains.carry_dropped(sol.stability, run_fi.dropped)  # its gains replay as they are (gains=)
     sol.plan = pl
     sol.method = _tol.describe(sch.name, dt, getattr(user_fi, "gains_mode", "fixed"), sol.backend, chosen=chosen,
                                scheme_given=scheme_given, dt_given=dt_given)

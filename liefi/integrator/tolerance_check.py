@@ -15,7 +15,7 @@ import numpy as np
 
 from ._check_runs import CheckRuns
 from .tolerance_local import TARGET, _size
-from .tolerance_drift import _drift_cap, _run_drift
+from .tolerance_drift import _drift_cap, _drift_pair
 
 #: The floor of the error scale (:data:`PART_FLOOR`) in the check's comparisons, over the whole horizon
 #: (where each component's size is seen, not a pilot's window of it): a position beside a winding angle is
@@ -92,17 +92,20 @@ def _check_plan(fi, sch, tab, y0, t0, T, dt0, rtol, atol, p, backend, runs=None)
     H = dt0 * min(max(1.0, (CHECK_ERROR / rtol) ** (1.0 / p)), CHECK_COARSEST)
     H = min(max(H, 7.0 * T / budget), T / n_min)
     spent, chk = 0.0, None
+    runs = CheckRuns(fi, sch, y0, backend) if runs is None else runs
     while spent + 7.0 * T / H <= CHECK_TRIES_BUDGET * budget or chk is None:
         spent += 7.0 * T / H
-        chk = _global_check(fi, sch, y0, t0, T, H, T, rtol, atol, p, backend, runs=runs, n_min=n_min)
+        chk = _global_check(fi, sch, y0, t0, T, H, T, rtol, atol, p, backend, runs=runs, n_min=n_min, drift=False)
         if chk is None or chk[4]:
             break
         H = chk[2]  # outside the asymptotic regime: halve the coarse step while the budget allows (the runs at
         # the two finer steps are made: CheckRuns keeps them)
-    return chk
+    # the drift of the last try only: an untrusted try that is repeated is not used (its runs' invariants are
+    # not evaluated)
+    return None if chk is None else chk[:6] + _drift_pair(fi, chk[6], chk[7], runs.drift_scales()) + chk[8:]
 
 
-def _global_check(fi, sch, y0, t0, T, H, tau, rtol, atol, p, backend, runs=None, n_min=64):
+def _global_check(fi, sch, y0, t0, T, H, tau, rtol, atol, p, backend, runs=None, n_min=64, drift=True):
     """The measured global error over ``[t0, t0 + tau]`` (step 5 of the module docstring), or ``None``.
 
     Three runs of the scheme itself, at ``H``, ``H/2`` and ``H/4``, compared at every coarse step while
@@ -119,6 +122,10 @@ def _global_check(fi, sch, y0, t0, T, H, tau, rtol, atol, p, backend, runs=None,
       ``2^p max_t |y_{H/2} - y_{H/4}|`` (``T / tau`` as ``E``): scaled to a step by the order it is
       conservative wherever the convergence is slower than ``p`` at ``H/4`` only because ``H`` is
       outside the regime.
+
+    Then ``(drift, floor)`` of the runs at ``H`` and ``H/4`` (:func:`liefi.integrator.tolerance_drift._drift_pair`)
+    and ``E_1``, the run at ``H``'s error (:func:`measured_order`).  ``drift=False``: in their place the
+    two runs' saved states, for the caller to evaluate only if this check is the one kept (:func:`_check_plan`).
     """
     from ..schemes.core import IntegrationError
 
@@ -150,7 +157,9 @@ def _global_check(fi, sch, y0, t0, T, H, tau, rtol, atol, p, backend, runs=None,
     if not (math.isfinite(E) and math.isfinite(E_safe)):
         return None
     trusted = d1 <= CHECK_TRUST and not (d2 > 1e3 * np.finfo(float).eps and d1 < 2.0 ** (p - 1) * d2)
-    return E, E_safe, H / 2, tau, trusted, m == 1, _run_drift(fi, ys[0]), _run_drift(fi, ys[2][::fine]), E1
+    states = (ys[0], ys[2][::fine])
+    return (E, E_safe, H / 2, tau, trusted, m == 1) + (_drift_pair(fi, *states, runs.drift_scales()) if drift
+                                                      else states) + (E1,)
 
 
 def measured_order(chk, p):
@@ -242,4 +251,4 @@ def _measure(fi, sch, y0, t0, T, dt, h, E, rtol, atol, p, backend, runs=None):
         return None
     size = _size(fi, np.max(np.abs(ys[1]), axis=0), CHECK_PART_FLOOR)
     e = float(np.max(np.abs(ys[0] - ys[1]) / (atol + rtol * size))) + E * (dt / (q * h)) ** p
-    return (e, m == 1, dt, _run_drift(fi, ys[0]), _run_drift(fi, ys[1])) if math.isfinite(e) else None
+    return (e, m == 1, dt) + _drift_pair(fi, ys[0], ys[1], runs.drift_scales()) if math.isfinite(e) else None

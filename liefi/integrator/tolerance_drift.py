@@ -33,20 +33,29 @@ DRIFT_AIM = 0.25
 DRIFT_SAMPLES = 512
 
 
-def _run_drift(fi, ys):
+def _run_drift(fi, ys, scales=None):
     """The largest relative drift of the invariants over a run's saved states ``ys`` (:func:`liefi.integrator.drift.drift`,
     scales at the start; at :data:`DRIFT_SAMPLES` of them at most); ``0`` where it cannot be evaluated (no
-    invariant: nothing to keep)."""
+    invariant: nothing to keep).  ``scales``: :func:`liefi.integrator.drift.drift_scales` at ``ys[0]`` when the
+    caller has them (every run of a step choice starts from the same state: they are evaluated once)."""
     from .drift import drift, drift_scales
 
     if len(ys) > DRIFT_SAMPLES:
         ys = np.asarray(ys)[np.unique(np.linspace(0, len(ys) - 1, DRIFT_SAMPLES).astype(int))]
     try:
         with np.errstate(all="ignore"):
-            d = drift(fi, np.asarray(ys, float), drift_scales(fi, ys[0]))[0]
+            d = drift(fi, np.asarray(ys, float), drift_scales(fi, ys[0]) if scales is None else scales)[0]
     except (ArithmeticError, np.linalg.LinAlgError, ValueError, TypeError, KeyError, IndexError):
         return 0.0
     return float(d) if math.isfinite(d) else math.inf
+
+
+def _drift_pair(fi, coarse, fine, scales=None):
+    """``(drift, floor)``: the drift of the run ``coarse`` (:func:`_run_drift`) and, only where it is above
+    :data:`DRIFT_LEVEL`, of the run at a shorter step ``fine`` (else ``0.0``: :func:`_drift_cap` is ``inf``
+    whatever the floor, so the values of the invariants at ``fine``'s states are not needed)."""
+    d = _run_drift(fi, coarse, scales)
+    return d, (_run_drift(fi, fine, scales) if d > DRIFT_LEVEL else 0.0)
 
 
 def _drift_cap(dt, drift, floor, p):

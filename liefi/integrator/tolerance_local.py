@@ -41,7 +41,8 @@ def _parts(fi):
 
 def unforced_field(fi, Y, backend):
     """``f(y)``: ``X`` at a batch ``y`` of shape ``(k, n)``, compiled when ``backend`` allows and the
-    system compiles (the split kernel's ``xrhs``, the one the run loads anyway), else numpy."""
+    system compiles (the split kernel's ``xrhs_s``, the function the run's loop calls: no entry point
+    compiled for the step choice alone), else numpy."""
     if backend != "numpy" and Y.shape[0] == 1:
         try:
             import warnings
@@ -52,15 +53,12 @@ def unforced_field(fi, Y, backend):
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 cf = compile_split(fi)
-                p = np.ascontiguousarray(fi.parameters(), dtype=float)
-                out = np.empty(fi.n)
-                cf._first_call("xrhs", "xrhs", np.ascontiguousarray(Y[0]), p, out)
-            xrhs = cf.module.xrhs
+                p = [float(v) for v in fi.parameters()]
+                cf._first_call("xrhs_s", "xrhs_s", *[float(v) for v in Y[0]], *p)
+            xrhs = cf.module.xrhs_s
 
             def f(y):
-                out = np.empty(fi.n)
-                xrhs(np.ascontiguousarray(y[0]), p, out)
-                return out[None]
+                return np.array([xrhs(*y[0].tolist(), *p)])
 
             return f
         except (NotCompilable, ImportError, RuntimeError, AttributeError, TypeError, ValueError):

@@ -238,8 +238,10 @@ def evaluate(system, z, *, data=NUMPY_DATA, derivatives=True) -> Terms:
             Et = np.swapaxes(E, -1, -2)
             dC = 0.0
             if dE is not None:
+                # traced: dE's exact zeros found once for its two products (a chain's dE is (3N, N, 3N))
+                zE = (_sparse.exact_zeros(dE), None) if is_traced(dE) else None
                 if is_traced(dE) or is_traced(Pi):  # the same sums over the nonzero terms (liefi._sparse)
-                    dJ_dx = dJ_dx + _sparse.matmul(dE, Pi[..., None, :, None])[..., 0]
+                    dJ_dx = dJ_dx + _sparse.matmul(dE, Pi[..., None, :, None], zeros=zE)[..., 0]
                 else:
                     dJ_dx = dJ_dx + np.einsum("...kij,...j->...ki", dE, Pi)
                 if not (is_traced(dE) or is_traced(m) or is_traced(w)) and n * K * D * D > _DENSE_DC_PRODUCTS:
@@ -248,9 +250,12 @@ def evaluate(system, z, *, data=NUMPY_DATA, derivatives=True) -> Terms:
                     u = np.einsum("...de,...e->...d", m, np.einsum("...id,...i->...d", E, w))
                     dht_dx = dht_dx + np.einsum("...kd,...d->...k", np.einsum("...i,...kid->...kd", w, dE), u)
                 else:
-                    dEm = _sparse.matmul(dE, m[..., None, :, :])
-                    dC = _sparse.matmul(dEm, Et[..., None, :, :])
-                    dC = dC + np.swapaxes(dC, -1, -2)
+                    if zE is None:
+                        dC = _sparse.matmul(_sparse.matmul(dE, m[..., None, :, :]), Et[..., None, :, :])
+                    else:
+                        dEm = _sparse.matmul_rows(dE, m[..., None, :, :], zeros=zE)  # its nonzeros only
+                        dC = _sparse.matmul(dEm, Et[..., None, :, :])
+                    dC = _sparse.symmetrized(dC)  # traced: the nonzero sums only (liefi._sparse)
             if dm is not None:
                 dC = dC + _sparse.matmul(_sparse.matmul(E[..., None, :, :], dm), Et[..., None, :, :])
             dht_dx = dht_dx - _sparse.matvec("...ij,...j->...i", dJ_dx, w)

@@ -50,7 +50,18 @@ class ExplicitRungeKutta:
         return len(self.b)
 
     def step(self, f, y, dt):
-        """One step ``y -> y + dt sum_i b_i k_i``, ``k_i = f(y + dt sum_j a_ij k_j)``."""
+        """One step ``y -> y + dt sum_i b_i k_i``, ``k_i = f(y + dt sum_j a_ij k_j)``.
+
+        A field bound to an integrator with ``holding(y, dt)`` (a context: a forced run's zero-order
+        hold, :mod:`liefi.integrator.forced`) is told the step's start and size around its stages.
+        """
+        hold = getattr(getattr(f, "__self__", None), "holding", None)
+        if hold is not None:
+            with hold(y, dt):
+                return self._stages(f, y, dt)
+        return self._stages(f, y, dt)
+
+    def _stages(self, f, y, dt):
         ks = []
         for i in range(self.stages):
             yi = y
