@@ -255,3 +255,66 @@ def test_changed_constants_refuse_the_old_integrator_and_a_new_one_is_a_fresh_bu
     s.constants = {"m": 2.0}
     one = liefi.FeedbackIntegrator(_sleigh({"m": 2.0, "I": 1.0, "a": 0.8}), z, gains=1.0, invariants=("constraints",))
     _agree(kept.run(0.5, dt=0.01, backend=backend).y, one.run(0.5, dt=0.01, backend=backend).y)
+
+
+def test_a_forced_run_with_per_member_constants_is_each_members_own():
+    """A forced from_mechanics sleigh (torque input, damper c): an ensemble with per-member m and c equals
+    each member alone; one state with per-member constants is refused by name (was a raw numpy broadcast error
+    on the sensitivities' path)."""
+    from test_forced_sensitivity import sleigh_model as forced_sleigh
+    from liefi.systems.forcing import piecewise_constant
+
+    tau = piecewise_constant(np.linspace(0.0, 0.3, 5), [0.3, -0.2, 0.5, 0.1])
+    m, c, th = np.array([2.0, 1.0, 3.0]), np.array([0.5, 0.1, 1.0]), np.array([0.3, 0.1, -0.2])
+    s = forced_sleigh()
+    s.constants = {"m": m, "c": c}
+    z = s.state(np.stack([np.zeros(3), np.zeros(3), th], -1),
+                np.stack([0.5 * np.cos(th), 0.5 * np.sin(th), np.full(3, 0.4)], -1))
+    sol = liefi.FeedbackIntegrator(s, z, inputs={"tau": tau}, gains=10.0).run(0.3, dt=0.025, backend="numpy")
+    for k in range(3):
+        one = forced_sleigh()
+        one.constants = {"m": m[k], "c": c[k]}
+        _agree(sol.y[k], liefi.FeedbackIntegrator(one, z[k], inputs={"tau": tau}, gains=10.0).run(
+            0.3, dt=0.025, backend="numpy").y)
+    with pytest.raises(ValueError, match=r"y0: the system holds per-member constants"):
+        liefi.FeedbackIntegrator(s, z[0], inputs={"tau": tau}).run(0.3, dt=0.025, sensitivities=("m",))
+
+
+def test_a_scene_keys_what_it_keeps_by_its_systems_constants(monkeypatch):
+    """scene.system.constants = ...: the scene's reference and its step for a tolerance are those of the new
+    constants (they were the old ones', kept on the scene and in the store by keys without the constants)."""
+    from liefi.scenes import store
+    from liefi.scenes.base import Scene, Variant
+
+    monkeypatch.setenv("LIEFI_REFERENCE_STORE", "0")
+
+    class Sleigh(Scene):
+        name = "members-sleigh"
+        reference = "numerical"
+        dt, t_final, scheme, gains = 0.01, 1.0, "rk4", 1.0
+        variants = {"v": Variant("v", "a from_mechanics sleigh")}
+        error_variables = ("x", "theta")
+        in_paper = False
+        mass = 1.0
+
+        def build_system(self):
+            return _sleigh({"m": self.mass, "I": 1.0, "a": 0.5})
+
+        def initial_state(self, variant):  # fixed momenta: with another mass, other velocities
+            return np.array([0.0, 0.0, 0.0, 0.5, 0.0, 0.4])
+
+    t = np.linspace(0.0, 1.0, 5)
+    sc, v = Sleigh(), Sleigh.variants["v"]
+    before = sc.reference_values(t, v)
+    key = store.key(sc, v, ("reference", t))
+    sc.system.constants = {"m": 2.0, "a": 0.3}
+    fresh = Sleigh()
+    fresh.system.constants = {"m": 2.0, "a": 0.3}  # the same constants, set on a scene never used before
+    after, want = sc.reference_values(t, v), fresh.reference_values(t, v)
+    for name in ("x", "theta"):
+        _agree(after[name], want[name], 1e-12)
+    assert np.max(np.abs(after["x"] - before["x"])) > 1e-2
+    assert store.key(sc, v, ("reference", t)) not in (None, key)
+    assert store.key(sc, v, ("reference", t)) == store.key(fresh, v, ("reference", t))
+    sc.system.constants = {"m": 1.0, "a": 0.5}  # back as built: the key as built
+    assert store.key(sc, v, ("reference", t)) == key

@@ -103,7 +103,7 @@ def selection(fi):
 
 
 def check_data(fi):
-    """Refuse a run or a field of this integrator once its system's constants changed since it was built.
+    """Refuse a run of this integrator once its system's constants changed since it was built.
 
     The targets taken at ``y0`` (the energy's ``h~_0``, a user invariant's value) and the unit-rate
     gains of ``gains="auto"`` are the old constants': the feedback would steer every member to the

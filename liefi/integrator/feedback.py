@@ -371,7 +371,6 @@ class FeedbackIntegrator:
         ``b``'s own gains and targets (its initial energy, ...), which the numpy
         field and the compiled ensemble kernel both read per member.
         """
-        self._check_data()
         if gains is None and self._parameters is not None:
             return self._parameters
         g = self.gains if gains is None else gains
@@ -395,7 +394,7 @@ class FeedbackIntegrator:
         return p
 
     def _check_data(self):
-        """Refuse a run or a field once the system's constants changed since this integrator was built
+        """Refuse a run once the system's constants changed since this integrator was built
         (:func:`liefi.integrator._ensemble.check_data`)."""
         _ensemble.check_data(self)
 
@@ -775,6 +774,7 @@ class FeedbackIntegrator:
 
         if unknown:
             raise unknown_keyword("run", unknown, FeedbackIntegrator.run, RUN_FOREIGN)
+        self._check_data()  # its targets taken at y0 hold the system's constants at the construction
         t_span = positional_span(t_span, more, scheme=scheme)
         scheme = method_scheme(method, scheme)
         if t_span is None:

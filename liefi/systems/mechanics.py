@@ -29,7 +29,10 @@ function of ``x`` and of the constants vector :attr:`MechanicsSystem.constants`,
 PyDy's ``constants``.  Changing a mass is an assignment, not a rebuild; constants of
 shape ``(N, P)`` give each member of an ensemble of ``N`` states its own parameters
 (the constants' batch axes are the last batch axes of the states: an ensemble
-``(N, n)`` or a time-major stack ``(T, N, n)``, as the per-member gains and targets).
+``(N, n)`` or a time-major stack ``(T, N, n)``, as the per-member gains and targets; where liefi
+evaluates a few members standing for the ensemble it names them, :mod:`liefi._members`, and any
+other states -- one state, a batch of another shape -- are refused with a ``ValueError`` naming
+``constants``, never read with another member's values: :mod:`liefi.systems._constants`).
 
 sympy is an optional dependency (``pip install "liefi[sympy]"``), imported only here.
 """
