@@ -281,3 +281,29 @@ def test_names_like_code_or_like_the_generated_codes_own_are_labels_only(tmp_pat
                  for s in (plain, odd)]
     assert texts[0] == texts[1] and "pathlib" not in texts[1]
     assert not marker.exists()
+
+
+def test_a_constant_named_like_liefis_clock_stays_a_constant():
+    """The loads' force law had its clock as ``sympy.Symbol("t_")``, equal to a model's constant of that name.
+    Before: the constant ``t_ = 5`` was taken for the time: the force ``sin(t) + t_`` read 4.04 at ``t = 2``
+    (not 5.91), silently."""
+    x, y = me.dynamicsymbols("x y")
+    m = sympy.Symbol("m")
+    N, O = me.ReferenceFrame("N"), me.Point("O")
+    O.set_vel(N, 0)
+    P = O.locatenew("P", x * N.x + y * N.y)
+    P.set_vel(N, x.diff(t) * N.x + y.diff(t) * N.y)
+
+    def force(name):
+        c = sympy.Symbol(name)
+        lm = me.LagrangesMethod(m * (x.diff(t) ** 2 + y.diff(t) ** 2) / 2, [x, y], frame=N,
+                                forcelist=[(P, (sympy.sin(t) + c) * N.x)], nonhol_coneqs=[x.diff(t) - y * y.diff(t)])
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            system = liefi.from_mechanics(lm, {m: 1.0, c: 5.0})
+        return system.force(2.0, np.array([0.1, 0.2]), np.array([0.0, 0.0]), None)
+
+    for name in ("c", "t_"):
+        np.testing.assert_allclose(force(name), [np.sin(2.0) + 5.0, 0.0], rtol=1e-15, err_msg=name)
+    with pytest.raises(ValueError, match=r"constants: 't' is the time of sympy.physics.mechanics"):
+        force("t")  # sympy's own time symbol (Symbol("t") is dynamicsymbols._t): before, its value was ignored

@@ -675,6 +675,9 @@ def _parameters(sympy, free, constants):
     if not isinstance(constants, dict):
         raise TypeError(f"constants: expected a dict {{symbol or name: value}}, got {type(constants).__name__}")
     sympy_only(sympy, [k for k in constants if isinstance(k, sympy.Basic)], "constants")  # before they are printed
+    if any(k in ("t", sympy.physics.vector.dynamicsymbols._t) for k in constants):  # not a constant: the time
+        raise ValueError("constants: 't' is the time of sympy.physics.mechanics (dynamicsymbols._t), not a constant; "
+                         "rename the parameter")
     by_name = {str(s): s for s in free}
     params, values = [], {}
     for key, val in constants.items():
