@@ -28,7 +28,6 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import os
-import re
 import sys
 import threading
 import types
@@ -40,8 +39,6 @@ import numpy as np
 ATTR = "_liefi_fingerprint"
 #: the attribute holding the ids of a stamped system's attributes at the time it was stamped
 _IDS = "_liefi_fingerprint_ids"
-
-_DUMMY = re.compile(r"dummy_index=(\d+)")
 
 
 class _Unknown(Exception):
@@ -135,13 +132,32 @@ def _encode(h, x, dummies):
         _encode(h, (type(x).__module__, type(x).__qualname__,
                     {f.name: getattr(x, f.name) for f in dataclasses.fields(x)}), dummies)
     elif _is_sympy(x):
-        import sympy
-
-        text = _DUMMY.sub(lambda m: "dummy_index=#%d" % dummies.setdefault(m.group(1), len(dummies)),
-                          sympy.srepr(x))
-        put(b"Y", text.encode())
+        put(b"Y", _sympy_text(x, dummies).encode())
     else:
         raise _Unknown(type(x).__name__)
+
+
+_PRINTER = []
+
+
+def _sympy_text(x, dummies):
+    """``sympy.srepr(x)`` with each ``Dummy``'s process-local index written as its number of first appearance
+    (``dummy_index=#0`` ...), by the printer itself: a symbol's *name* holding the text ``dummy_index=5`` stays
+    as it is (a substitution in the text renumbered it too, and two different names had one encoding)."""
+    if not _PRINTER:
+        from sympy.printing.repr import ReprPrinter
+
+        class Printer(ReprPrinter):
+            def _print_Dummy(self, expr):
+                d = dict(expr._assumptions_orig)
+                d["dummy_index"] = "#%d" % self.dummies.setdefault(str(expr.dummy_index), len(self.dummies))
+                return "%s(%s, %s)" % (type(expr).__name__, self._print(expr.name),
+                                       ", ".join("%s=%s" % kv for kv in d.items()))
+
+        _PRINTER.append(Printer)
+    printer = _PRINTER[0]()
+    printer.dummies = dummies
+    return printer.doprint(x)
 
 
 def digest(*parts, known=None):

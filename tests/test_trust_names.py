@@ -307,3 +307,14 @@ def test_a_constant_named_like_liefis_clock_stays_a_constant():
         np.testing.assert_allclose(force(name), [np.sin(2.0) + 5.0, 0.0], rtol=1e-15, err_msg=name)
     with pytest.raises(ValueError, match=r"constants: 't' is the time of sympy.physics.mechanics"):
         force("t")  # sympy's own time symbol (Symbol("t") is dynamicsymbols._t): before, its value was ignored
+
+
+def test_a_name_holding_dummy_index_text_is_not_renumbered():
+    """The fingerprint writes each ``Dummy``'s process-local index as its number of first appearance.  Before: the
+    renumbering was a substitution in ``srepr``'s text, which reached into names too: ``Symbol("dummy_index=1")``
+    and ``Symbol("dummy_index=2")`` had one encoding (the digest promises that no two values share one)."""
+    one, two = sympy.Symbol("dummy_index=1"), sympy.Symbol("dummy_index=2")
+    assert _fingerprint.digest(one) != _fingerprint.digest(two)
+    a, b = sympy.Dummy("x"), sympy.Dummy("x")
+    assert _fingerprint.digest(a + 2 * b) == _fingerprint.digest(sympy.Dummy("x") + 2 * sympy.Dummy("x"))
+    assert _fingerprint.digest((a, a)) != _fingerprint.digest((a, b))
