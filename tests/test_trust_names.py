@@ -318,3 +318,10 @@ def test_a_name_holding_dummy_index_text_is_not_renumbered():
     a, b = sympy.Dummy("x"), sympy.Dummy("x")
     assert _fingerprint.digest(a + 2 * b) == _fingerprint.digest(sympy.Dummy("x") + 2 * sympy.Dummy("x"))
     assert _fingerprint.digest((a, a)) != _fingerprint.digest((a, b))
+
+
+def test_names_given_as_one_string_are_refused_not_split_into_letters():
+    """Before: ``names="abc"`` named three coordinates ``a``, ``b``, ``c``, silently."""
+    x, y, z, xd, yd, zd = sympy.symbols("x y z xd yd zd")
+    with pytest.raises(ValueError, match=r"names: expected a sequence of 3 shape-coordinate names, got the string"):
+        liefi.from_sympy((xd**2 + yd**2 + zd**2) / 2, [x, y, z], [xd, yd, zd], [xd - z * yd], names="abc")
