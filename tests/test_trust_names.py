@@ -325,3 +325,27 @@ def test_names_given_as_one_string_are_refused_not_split_into_letters():
     x, y, z, xd, yd, zd = sympy.symbols("x y z xd yd zd")
     with pytest.raises(ValueError, match=r"names: expected a sequence of 3 shape-coordinate names, got the string"):
         liefi.from_sympy((xd**2 + yd**2 + zd**2) / 2, [x, y, z], [xd, yd, zd], [xd - z * yd], names="abc")
+
+
+def test_a_model_named_like_liefis_own_variables_is_the_same_model():
+    """Coordinates named ``x0``, ``v0`` (liefi's plain symbols for q and qdot are ``Dummy("x0")``, ``Dummy("v0")``),
+    constants named ``a0``, ``t1`` (the generated code's arguments and nodes), ``__builtins__``: the same numbers as
+    plain names, in values and in the compiled kernel's source."""
+    from liefi.engine import kernels
+
+    def build(qn, cn):
+        x, y = me.dynamicsymbols(qn)
+        m, k, b = sympy.symbols(cn)
+        L = m * (x.diff(t) ** 2 + y.diff(t) ** 2) / 2 - k * sympy.cos(x) * b - k * y**2 / 2
+        lm = me.LagrangesMethod(L, [x, y], nonhol_coneqs=[x.diff(t) - y * y.diff(t)])
+        return liefi.from_mechanics(lm, {m: 1.5, k: 2.0, b: 0.5})
+
+    plain, odd = build("q r", "m n o"), build("x0 v0", "a0 t1 __builtins__")
+    z = np.array([0.3, -0.2, 0.4, 0.1])
+    np.testing.assert_allclose(odd.hamiltonian(z), plain.hamiltonian(z), rtol=1e-15)
+    np.testing.assert_allclose(odd.constraints(z[:2]), plain.constraints(z[:2]), rtol=1e-15)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        texts = [kernels.compile_feedback(liefi.FeedbackIntegrator(s, z, gains=1.0), engine="python").kernel.text
+                 for s in (plain, odd)]
+    assert texts[0] == texts[1]

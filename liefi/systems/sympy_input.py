@@ -20,6 +20,7 @@ sympy is an optional dependency (``pip install "liefi[sympy]"``), imported only 
 
 from __future__ import annotations
 
+import abc
 import keyword
 import sys
 
@@ -100,6 +101,8 @@ def _foreign(sympy, cls):
             if extra or not isinstance(d.get("name"), str):
                 return (f"the function {_shown(k.__name__)} made by sympy.Function with attributes "
                         f"{[_shown(e, 30) for e in extra]} besides assumptions")
+            continue
+        if k is abc.ABC:  # no code of its own (sympy's tensors derive from it)
             continue
         mod = getattr(k, "__module__", None) or ""
         found = sys.modules.get(mod) if mod.split(".")[0] == "sympy" else None
