@@ -7,7 +7,8 @@ Part of :mod:`liefi.integrator.feedback` (the methods :meth:`~liefi.FeedbackInte
 ensemble (the stability pilot, the members due for adaptation, the step choice's flattened states), the
 integrator of :func:`members` holds their gains and targets and names which members they are; inside
 :func:`selection` the system's data read those members' constants (:mod:`liefi._members`).  Outside it
-the system refuses states that are not the whole ensemble's: never another member's constants.
+the system refuses states that are not the whole ensemble's: never another member's constants.  And
+:func:`check_data`: a run after the constants changed retakes what the integrator took at its start.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import copy
 import numpy as np
 
 from .. import _members
+from .._parameters import per_member
 
 
 def data_state(system):
@@ -103,21 +105,29 @@ def selection(fi):
 
 
 def check_data(fi):
-    """Refuse a run of this integrator once its system's constants changed since it was built.
+    """Before a run: what ``fi`` took at ``y0`` retaken when its system's constants changed since it was built.
 
-    The targets taken at ``y0`` (the energy's ``h~_0``, a user invariant's value) and the unit-rate
-    gains of ``gains="auto"`` are the old constants': the feedback would steer every member to the
-    old system's invariant set.
+    The targets taken at ``y0`` (the energy's ``h~_0``, a user invariant's value; not those given) and the
+    unit-rate gains of ``gains="auto"`` hold the system's constants at the construction: a run after
+    ``system.constants = ...`` (or a declared parameter set) would steer to the old system's energy.  They
+    are taken again at ``y0`` with the new constants, as a new ``FeedbackIntegrator(system, y0)`` takes them,
+    so the run is the one of the new system.
     """
     if fi._data_key is None:
         return
     now = data_state(fi.system)
     if now is None or now == fi._data_key:
         return
-    if fi._y0_targets or fi.gains_mode == "auto":
-        taken = ", ".join(sorted(fi._y0_targets)) or "the unit-rate gains"
-        raise ValueError(
-            "constants: system.constants changed since this FeedbackIntegrator was built, and what it took "
-            f"at y0 with the old ones ({taken}) would steer the run to the old system's invariants; build "
-            "a new FeedbackIntegrator(system, y0, ...) after setting the constants")
-    fi._data_key = now  # nothing taken at y0 depends on them (targets given, constraints): the new data
+    member_states(fi.system, fi.batch, "y0")  # constants now per member of another ensemble: refused by name
+    if fi._y0_targets:
+        values = fi.invariant_values(fi.y0)
+        for k in fi._y0_targets:
+            fi.targets[k] = per_member(values[k], fi.batch, f"the value of {k!r} at y0")
+        fi.energy_target = fi.targets.get("energy", 0.0)
+        fi.user_targets = [fi.targets[u.name] for u in fi.user]
+        fi._parameters = None
+    if fi.gains_mode == "auto":
+        from .gains import unit_rate_gains
+
+        fi._set_gains(unit_rate_gains(fi, fi.y0))
+    fi._data_key = now

@@ -394,7 +394,7 @@ class FeedbackIntegrator:
         return p
 
     def _check_data(self):
-        """Refuse a run once the system's constants changed since this integrator was built
+        """Retake what this integrator took at ``y0`` once the system's constants changed since it was built
         (:func:`liefi.integrator._ensemble.check_data`)."""
         _ensemble.check_data(self)
 
@@ -774,7 +774,7 @@ class FeedbackIntegrator:
 
         if unknown:
             raise unknown_keyword("run", unknown, FeedbackIntegrator.run, RUN_FOREIGN)
-        self._check_data()  # its targets taken at y0 hold the system's constants at the construction
+        self._check_data()  # targets taken at y0 with constants changed since: taken again
         t_span = positional_span(t_span, more, scheme=scheme)
         scheme = method_scheme(method, scheme)
         if t_span is None:
