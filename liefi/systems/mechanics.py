@@ -29,12 +29,17 @@ function of ``x`` and of the constants vector :attr:`MechanicsSystem.constants`,
 PyDy's ``constants``.  Changing a mass is an assignment, not a rebuild; constants of
 shape ``(N, P)`` give each member of an ensemble of ``N`` states its own parameters
 (the constants' batch axes are the last batch axes of the states: an ensemble
-``(N, n)`` or a time-major stack ``(T, N, n)``, as the per-member gains and targets).
+``(N, n)`` or a time-major stack ``(T, N, n)``, as the per-member gains and targets; where liefi
+evaluates a few members standing for the ensemble it names them, :mod:`liefi._members`, and any
+other states -- one state, a batch of another shape -- are refused with a ``ValueError`` naming
+``constants``, never read with another member's values: :mod:`liefi.systems._constants`).
 
 sympy is an optional dependency (``pip install "liefi[sympy]"``), imported only here.
 """
 
 from __future__ import annotations
+
+import contextlib
 
 import numpy as np
 
@@ -44,88 +49,11 @@ from ._components import model_expressions
 from ._sympy_code import gc_paused, sympy_function
 from .sympy_input import _sympy, coordinate_names, is_zero, lagrangian_data, sympy_only
 from . import _mechanics_constraints as _mc
-from .. import _fingerprint
+from .. import _fingerprint, _members
+from ._constants import _Constants
 from .system import NonholonomicSystem
 
 __all__ = ["from_mechanics", "MechanicsSystem", "NonConservativeLoadError", "MinimalSpeedsError"]
-
-
-class _Constants:
-    """The runtime constants shared by the data functions of one system: ``values`` of shape ``(..., P)``."""
-
-    def __init__(self, symbols, values):
-        self.symbols = tuple(symbols)
-        self.names = tuple(str(s) for s in symbols)
-        self.values = values
-        #: the inputs of every data function bound so far (:func:`_bound`): the system's fingerprint
-        self.bound = []
-
-    def parse(self, constants):
-        """An array ``(..., P)`` from a mapping ``{symbol or name: value(s)}`` or an array."""
-        from .. import _data
-
-        P = len(self.symbols)
-        if isinstance(constants, dict):
-            given = {}
-            for key, val in constants.items():
-                name = key if isinstance(key, str) else str(key)
-                if name not in self.names:
-                    raise ValueError(f"constants: {name!r} is not a parameter of the model; its parameters are {list(self.names)}")
-                given[name] = _data.as_float_array(val, f"constants[{name!r}]", "a real number (or one per member)")
-            missing = [s for s in self.names if s not in given and self.values is None]
-            if missing:
-                raise ValueError(f"constants: no value for {missing}; pass constants={{{', '.join(f'{s}: ...' for s in missing)}}}")
-            old = self.values
-            cols = [given[s] if s in given else old[..., k] for k, s in enumerate(self.names)]
-            try:
-                cols = np.broadcast_arrays(*cols) if cols else []
-            except ValueError:
-                raise ValueError("constants: the values have shapes that do not broadcast "
-                                 f"({[np.shape(c) for c in cols]})") from None
-            arr = np.stack(cols, -1) if cols else np.zeros((0,))
-        else:
-            from .._data import as_float_array
-
-            arr = as_float_array(constants, "constants")
-            if arr.shape[-1:] != (P,):
-                raise ValueError(f"constants: expected {P} values {list(self.names)} on the last axis, got shape {arr.shape}")
-        if not np.all(np.isfinite(arr)):
-            raise ValueError("constants: contains non-finite numbers")
-        return arr
-
-    def aligned(self, batch):
-        """The constants shaped to broadcast against a data function's argument of batch shape ``batch``.
-
-        The member axes are explicit, never matched by length: per-member constants
-        ``(*B, P)`` belong to the *last* axes of the states' batch, as the per-member gains
-        and targets of a :class:`~liefi.FeedbackIntegrator` do (numpy broadcasting): an
-        ensemble's states ``(*B, n)``, and liefi's time-major stacks of saved states
-        ``(T, *B, n)``.  The axis a complex-step derivative appends to the states
-        (:data:`liefi._diff.STATE_AXES`) is not a state axis.  A single state (no batch)
-        gets the first member's constants (the checks at a sample point); states whose
-        batch does not end in ``B`` get a ``ValueError`` when ``B`` sits elsewhere in it (a
-        member-major stack ``(*B, T, n)``: put the members last) and otherwise the first
-        member's constants (states that are not the ensemble's, e.g. a few members standing
-        for it in a stiffness estimate).
-        """
-        from .._diff import state_batch
-
-        c = self.values
-        cb = c.shape[:-1]
-        if not cb:
-            return c
-        batch = tuple(batch)
-        states, k = state_batch(batch + (0,)), len(cb)
-        if len(states) >= k and states[len(states) - k :] == cb:
-            lead = len(states) - k
-            return c.reshape((1,) * lead + cb + (1,) * (len(batch) - len(states)) + c.shape[-1:])
-        if any(states[i : i + k] == cb for i in range(len(states) - k + 1)):
-            raise ValueError(
-                f"constants: per-member constants for an ensemble of shape {cb}, but states of batch shape {states} "
-                f"hold its members on other than their last axes; stack the states time-major, shape (T, *{cb}, n) "
-                "(the members last, as liefi's own stacks)"
-            )
-        return c.reshape(-1, c.shape[-1])[0]
 
 
 def _numbers(exprs):
@@ -218,6 +146,14 @@ class MechanicsSystem(NonholonomicSystem):
     def constants(self, value):
         holder = self._mech["constants"]
         holder.values = holder.parse(value)
+
+    @property
+    def member_shape(self):
+        """The ensemble's shape the constants are given per member of (``constants.shape[:-1]``), else ``()``.
+
+        A :class:`~liefi.FeedbackIntegrator` of this system runs states whose batch ends in it.
+        """
+        return self._mech["constants"].values.shape[:-1]
 
     @property
     def data_key(self):
@@ -568,12 +504,15 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
         x0 = _mc.generic_points(n + r, 1)[0] if kw.get("sample") is None else kw["sample"]
         metric = _mc.regularized_metric(metric, A, {"sample": x0})
     space = CotangentBundle(n + r, names=coordinate_names(sympy, q_all) if names is None else names)
-    if A is None:
-        system = MechanicsSystem(space, metric, None, pot, vector_potential=vp, mechanics=mech, **kw)
-    else:
-        system = MechanicsSystem.from_velocity_constraints(
-            space, metric, A, pot, scaling=scaling, vector_potential=vp, mechanics=mech, **kw
-        )
+    # the build's checks at a sample point (symmetry, definiteness of the data): the first member's constants
+    # stand for all when they are given per member (liefi._members)
+    with _members.selected(holder.values.shape[:-1], 0) if holder.values.ndim > 1 else contextlib.nullcontext():
+        if A is None:
+            system = MechanicsSystem(space, metric, None, pot, vector_potential=vp, mechanics=mech, **kw)
+        else:
+            system = MechanicsSystem.from_velocity_constraints(
+                space, metric, A, pot, scaling=scaling, vector_potential=vp, mechanics=mech, **kw
+            )
     if forced:  # the non-conservative loads: a ForceLaw (liefi.systems.forcing), inputs by name; numpy runs only,
         system.force = forced  # so no kernel fingerprint
         return system
