@@ -454,24 +454,22 @@ def test_horizon_row_reads_prefixes():
 
 
 def test_interrupt_stops_a_process_pool_at_once():
-    """Ctrl-C while process-pool workers run long tasks: the workers are stopped and the sweep returns
-    within seconds, not after the running tasks finish."""
+    """Ctrl-C while process-pool workers run long tasks: the workers are stopped and the sweep returns,
+    not after the running tasks finish.  The tasks last an hour: a process that ends at all (within the
+    120 s timeout; about 3 s) stopped them -- no bound on how fast (before: under 50 s for tasks of 60 s)."""
     code = (
         "import os, signal, threading, time, sys\n"
         "from liefi.sweep import run_sweep, open_executor, SweepInterrupted\n"
         "threading.Timer(1.0, lambda: os.kill(os.getpid(), signal.SIGINT)).start()\n"
-        "t = time.time()\n"
         "try:\n"
         "    with open_executor('processes:2') as ex:\n"
-        "        run_sweep(time.sleep, [60.0] * 4, ex)\n"
+        "        run_sweep(time.sleep, [3600.0] * 4, ex)\n"
         "except SweepInterrupted as e:\n"
-        "    print('interrupted', e.done, round(time.time() - t, 1))\n"
+        "    print('interrupted', e.done, e.results)\n"
     )
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    t = time.time()
     out = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, timeout=120)
-    assert out.stdout.startswith("interrupted 0"), out.stderr
-    assert time.time() - t < 50  # the 60 s tasks did not run to the end
+    assert out.stdout.split() == ["interrupted", "0", "[None,", "None,", "None,", "None]"], out.stdout + out.stderr
 
 
 def test_split_schemes_are_feedback_integrator_rows_of_the_harness():
