@@ -40,12 +40,13 @@ at ``t_k`` (:meth:`StepMap.switch`: the schedule of an ``adaptive`` run, the one
 :func:`liefi.integrator.sensitivity.gain_schedule` replays), so that ``Phi_h``
 is the map of that step and ``Phi_{dt}(y_k) = y_{k+1}`` to rounding.  The gains
 do not act only on the drift: an explicit tableau steps the feedback's stiff
-mode by ``R(-h lambda)``, and gains raised later in the run (Kepler with rk4,
-gains adapted from 4 down to 0.94 near the apocentre and back up to 4) put
-``dt lambda`` of the apocentre's steps past the tableau's stability bound
-(``|R(-6.8)| = 54`` for RK4): one partial step multiplied the drift by 54, and
-``save_every = 50`` re-made steps overflowed to ``nan`` -- silently, before
-the schedule (the run's own steps were within 1.2e-5 of the exact orbit).
+mode by ``R(-h lambda)``.  Kepler with rk4, ``dt = 0.02``, the paper's gains
+adapted from 4 down to 0.94 towards the apocentre and back up to 4 at the end:
+with the gains of the end, ``dt lambda`` at the apocentre is 6.8, past RK4's
+bound ``beta = 2.79`` (``|R(-6.8)| = 53``); before the schedule a step from
+``y_k`` missed the run's own ``y_{k+1}`` by 1e-6 and ``sol(t)`` between states
+saved every 10 or 50 steps was ``nan`` -- silently, while the run's steps were
+within 1.2e-5 of the exact orbit.
 
 The same primitive gives a run whose ``dt`` does not divide the span its last,
 shortened step (:func:`liefi.integrator.run.run_feedback`), and the state at an event:
