@@ -3,6 +3,13 @@
 A full disk (``ENOSPC``), a file size limit (``EFBIG``, "File too large") or a
 quota (``EDQUOT``) surface from ``write()`` or ``close()`` as an ``OSError``
 with no file name.  :func:`writing` turns it into one that names the file.
+
+An output file is written whole or not at all (:func:`replacing`): into a
+temporary file next to it, renamed over it at the end (``os.replace``, one
+step on a POSIX filesystem).  Ctrl-C, ``SIGTERM`` or a full disk in the middle
+of a write leaves the file as it was before (or absent), never half of it -- a
+truncated figure, CSV or ``.npz`` that a later command would read and trust or
+crash on.
 """
 
 from __future__ import annotations
@@ -29,6 +36,31 @@ class WriteError(OSError):
 
     def __str__(self):
         return self.strerror
+
+
+@contextlib.contextmanager
+def replacing(path):
+    """Write ``path`` whole or not at all: the block writes the yielded temporary path (in ``path``'s folder,
+    ending with ``path``'s suffix, so that matplotlib and numpy choose the format from it), which then replaces
+    ``path`` in one rename.  If the block fails or is interrupted (``KeyboardInterrupt``), the temporary file is
+    removed and ``path`` is untouched.  An ``OSError`` names ``path`` (:func:`writing`).  The new file gets the
+    usual mode (``0666`` less the umask), as ``open(path, "w")`` would."""
+    import os
+    import secrets
+
+    folder, base = os.path.split(os.path.abspath(path))
+    tmp = os.path.join(folder, f".{base}.{os.getpid()}-{secrets.token_hex(4)}.tmp{os.path.splitext(base)[1]}")
+    try:
+        with writing(path):
+            os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+            yield tmp
+            os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.remove(tmp)
+        except OSError:
+            pass
+        raise
 
 
 @contextlib.contextmanager

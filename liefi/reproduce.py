@@ -51,7 +51,7 @@ import warnings
 
 from . import __version__
 from . import _json
-from ._files import writing
+from ._files import replacing
 from ._progress import Progress
 from ._signals import ignore_in_worker
 from . import scenes as _scenes
@@ -107,15 +107,8 @@ class Output:
 
     def _atomic(self, name, write):
         final = os.path.join(self.path, name)
-        tmp = os.path.join(self.path, f".{name}.tmp{os.getpid()}")
-        try:
-            with writing(final), open(tmp, "w") as f:
-                write(f)
-        except OSError:
-            if os.path.exists(tmp):  # half a file (a full disk): the old one stays as it was
-                os.remove(tmp)
-            raise
-        os.replace(tmp, final)
+        with replacing(final) as tmp, open(tmp, "w") as f:  # half a file (a full disk, Ctrl-C): the old one stays
+            write(f)
         return final
 
     def files(self):

@@ -27,7 +27,7 @@ import sys
 from .. import _json
 from .. import engine as _engine
 from .. import scenes as _scenes
-from .._files import writing
+from .._files import replacing, writing
 from .._signals import describe, exit_code, terminate_as_interrupt
 from ..results.sweep import ResultStore, StoreError, SweepInterrupted, TaskError, task_key
 from .core import (FI_GAINS, FIXED_SCHEMES, IVP_METHODS, METHODS, REPEATS, STORE, applicable_methods, build_tasks,
@@ -185,15 +185,8 @@ def write_summary(out_dir, tasks=None, arguments=None):
     if tasks is not None:
         doc["other_runs_in_store"] = other
     out = os.path.join(out_dir, "summary.json")
-    tmp = os.path.join(out_dir, f".summary.json.tmp{os.getpid()}")
-    try:
-        with writing(out), open(tmp, "w") as fh:
-            fh.write(_json.dumps(doc, indent=1))
-    except OSError:
-        if os.path.exists(tmp):  # half a file (a full disk): the old summary.json stays as it was
-            os.remove(tmp)
-        raise
-    os.replace(tmp, out)
+    with replacing(out) as tmp, open(tmp, "w") as fh:  # half a file (a full disk, Ctrl-C): the old one stays
+        fh.write(_json.dumps(doc, indent=1))
     return doc
 
 
