@@ -9,6 +9,7 @@ stays (or none), and no temporary file is left behind; a later write works.
 from __future__ import annotations
 
 import csv
+import json
 import os
 
 import numpy as np
@@ -96,3 +97,110 @@ def _umask():
     m = os.umask(0)
     os.umask(m)
     return m
+
+
+# --- a run interrupted in a script keeps what it finished ------------------------------------------------------
+def _suslov():
+    from liefi.scenes import get
+
+    return get("suslov").integrator()
+
+
+RUN = dict(dt=1e-3, scheme="rk4", backend="numpy", progress=True, save_every=10)
+
+
+def test_a_run_interrupted_keeps_its_finished_steps_on_the_interrupt_and_continues_from_them(monkeypatch):
+    """Ctrl-C landing in ``FeedbackIntegrator.run``'s stepping loop (simulated at the third segment) propagates
+    as the ``KeyboardInterrupt`` itself, which carries the saved states so far (``.solution``, status -1),
+    the last finished state (``.t``, ``.y``) and says so; the states are those of the uninterrupted run, and a
+    run continued from ``.y`` ends where the uninterrupted run ends (before: a bare KeyboardInterrupt, the
+    finished part lost)."""
+    from liefi.integrator import run as run_module
+
+    fi, T = _suslov(), 2.0
+    full = fi.run(T, **RUN)
+    real = run_module.Progress
+    calls = []
+
+    class Cut(real):
+        def update(self, n=1, **kw):
+            super().update(n, **kw)
+            calls.append(n)
+            if len(calls) == 3:
+                raise KeyboardInterrupt
+
+    monkeypatch.setattr(run_module, "Progress", Cut)
+    monkeypatch.setattr(run_module, "PROGRESS_SECONDS", 0.0)  # a run in segments of 1 % (as a long one is)
+    with pytest.raises(KeyboardInterrupt) as info:
+        fi.run(T, **RUN)
+    monkeypatch.setattr(run_module, "Progress", real)
+    exc = info.value
+    assert type(exc) is KeyboardInterrupt  # not a subclass: an uncaught one still ends a script as SIGINT does
+    part = exc.solution
+    assert part.status == -1 and not part.success and "interrupted at t = " in part.message
+    assert 0 < exc.t < T and exc.t_final == T and exc.t == pytest.approx(sum(calls) * RUN["dt"], rel=1e-12)
+    assert part.t[-1] <= exc.t and part.t.size == int(exc.t / RUN["dt"]) // RUN["save_every"] + 1
+    np.testing.assert_array_equal(part.t, full.t[: part.t.size])
+    np.testing.assert_allclose(part.y, full.y[..., : part.t.size], rtol=1e-12, atol=1e-15)
+    assert f"continue with fi.run(({exc.t:.17g}, 2), y0=exc.y" in str(exc) and ".solution" in str(exc)
+    rest = fi.run((exc.t, T), y0=exc.y, **RUN)
+    assert rest.t[-1] == pytest.approx(T, rel=1e-14)
+    np.testing.assert_allclose(rest.y[..., -1], full.y[..., -1], rtol=1e-10, atol=1e-13)
+
+
+SCRIPT = r"""
+import json, sys, time
+import liefi._progress as progress
+import liefi.integrator.run as run_module
+from liefi.scenes import get
+
+run_module.PROGRESS_SECONDS = 0.0  # a run in segments of 1 % of its steps, as a long one is
+
+real = progress.Progress.update
+def update(self, n=1, **kw):  # for the test: a marker file once the first segment of steps is done, then wait
+    real(self, n, **kw)
+    if not getattr(self, "marked", False):
+        self.marked = True
+        open(sys.argv[1], "w").close()
+        time.sleep(120)  # the test's SIGINT lands here, inside the run's loop
+progress.Progress.update = update
+fi = get("suslov").integrator()
+try:
+    fi.run(20.0, dt=1e-3, scheme="rk4", backend="numpy", progress=True, save_every=100)
+except KeyboardInterrupt as exc:
+    print(json.dumps({"t": exc.t, "last": float(exc.solution.t[-1]), "n": int(exc.solution.t.size),
+                      "status": exc.solution.status}), flush=True)
+    raise
+print("not interrupted")
+"""
+
+
+def test_ctrl_c_on_a_script_running_a_long_run_keeps_the_finished_part_and_ends_as_sigint(tmp_path, monkeypatch):
+    """A real SIGINT on a script in the middle of a long run (sent once its first segment is done: a marker file,
+    no timing): the script's ``except KeyboardInterrupt`` finds the finished part on the exception, and the
+    uncaught interrupt ends the process as SIGINT does (return code -2, 130 in a shell), with the message that
+    says where the run stopped as the traceback's last line."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    marker = tmp_path / "segment-done"
+    p = subprocess.Popen([sys.executable, "-c", SCRIPT, str(marker)], cwd=root, stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, text=True,
+                         env=dict(os.environ, PYTHONPATH=root))
+    try:
+        deadline = time.monotonic() + 300
+        while not marker.exists() and p.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert marker.exists(), p.communicate(timeout=60)
+        p.send_signal(signal.SIGINT)
+        out, err = p.communicate(timeout=120)
+    finally:
+        p.kill()
+        p.wait(timeout=60)
+    got = json.loads(out.strip().splitlines()[-1])
+    assert got["status"] == -1 and 0 < got["last"] <= got["t"] < 20.0 and got["n"] >= 1
+    assert p.returncode == -signal.SIGINT
+    assert err.strip().splitlines()[-1].startswith("KeyboardInterrupt: run interrupted at t = ")
