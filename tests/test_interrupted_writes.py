@@ -204,3 +204,24 @@ def test_ctrl_c_on_a_script_running_a_long_run_keeps_the_finished_part_and_ends_
     assert got["status"] == -1 and 0 < got["last"] <= got["t"] < 20.0 and got["n"] >= 1
     assert p.returncode == -signal.SIGINT
     assert err.strip().splitlines()[-1].startswith("KeyboardInterrupt: run interrupted at t = ")
+
+
+def test_liefi_run_interrupted_in_its_steps_says_how_far_it_got_and_no_output_folder(capsys, monkeypatch):
+    """``liefi run`` (no --out) stopped by Ctrl-C in its steps: 130 and one line saying where the run was, not
+    "what finished is kept; see the command's output folder" (it has none)."""
+    from liefi import cli
+    from liefi.integrator import run as run_module
+
+    real = run_module.Progress
+
+    class Cut(real):
+        def update(self, n=1, **kw):
+            super().update(n, **kw)
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(run_module, "Progress", Cut)
+    monkeypatch.setattr(run_module, "PROGRESS_SECONDS", 0.0)
+    code = cli.main(["run", "suslov", "--t-final", "50", "--dt", "1e-3", "--scheme", "rk4", "--backend", "numpy"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 130 and len(err) == 1, err
+    assert err[0].startswith("liefi: interrupted (the run had reached t = 0.5 of 50; nothing was written)"), err
