@@ -128,6 +128,7 @@ needs_proc = pytest.mark.skipif(not os.path.isdir("/proc/self"), reason="checks 
     ("processes:2", signal.SIGTERM),
     ("processes:2", signal.SIGINT),
     ("dask:2", signal.SIGTERM),  # about 10 s: kept in the default suite, the issue's must-show
+    ("processes:2", getattr(signal, "SIGHUP", signal.SIGTERM)),  # a closed terminal: handled as SIGTERM
 ])
 def test_signal_on_a_parallel_bench_stops_cleanly(tmp_path, scheduler, signum):
     """Exit 128 + signal, one line, no worker left, and the message, the CSV and summary.json count
@@ -144,7 +145,7 @@ def test_signal_on_a_parallel_bench_stops_cleanly(tmp_path, scheduler, signum):
     assert code == 128 + signum, stderr
     assert "Traceback" not in stderr and "Error" not in stderr, stderr
     lines = [ln for ln in stderr.splitlines() if ln.strip() and not ln.startswith("suslov: ")]
-    word = "interrupted" if signum == signal.SIGINT else "terminated by SIGTERM"
+    word = "interrupted" if signum == signal.SIGINT else f"terminated by {signal.Signals(signum).name}"
     assert len(lines) == 1 and lines[0].startswith(f"liefi bench: {word}; "), stderr
     assert survivors == [], f"worker processes left running: {survivors}"
     stored = _stored(db)
