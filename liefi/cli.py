@@ -26,7 +26,7 @@ Errors (unknown scene, variant or scheme, malformed gains, a diverging run, an
 output that cannot be written -- checked before any work) print one line
 ``liefi: error: ...`` on stderr and exit with code 2; an interrupt (Ctrl-C,
 SIGINT) prints one line and exits with code 130, SIGTERM (``timeout``, ``kill``,
-Slurm, ``docker stop``) the same with code 143, after ``reproduce`` and
+Slurm, ``docker stop``) the same with code 143 (SIGHUP, a closed terminal: 129), after ``reproduce`` and
 ``bench`` have stopped their workers and written the summary of what finished;
 at any moment, also while liefi still imports numpy or once the output is
 written, and within :data:`liefi._signals.GRACE` seconds when it lands in a
