@@ -49,7 +49,7 @@ def replacing(path):
     import secrets
 
     folder, base = os.path.split(os.path.abspath(path))
-    tmp = os.path.join(folder, f".{base}.{os.getpid()}-{secrets.token_hex(4)}.tmp{os.path.splitext(base)[1]}")
+    tmp = os.path.join(folder, f".{base}.{secrets.token_hex(4)}.tmp{os.getpid()}{os.path.splitext(base)[1]}")
     try:
         with writing(path):
             os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
@@ -61,6 +61,24 @@ def replacing(path):
         except OSError:
             pass
         raise
+
+
+def remove_temporaries(folder, pids):
+    """Remove from ``folder`` the temporary files of :func:`replacing` that the processes ``pids`` (killed
+    workers, which could not remove their own) left behind: ``.NAME.<token>.tmp<pid>[.suffix]``."""
+    import os
+    import re
+
+    pids = {int(p) for p in pids}
+    if not pids:
+        return
+    for name in os.listdir(folder):
+        m = re.fullmatch(r"\..+\.tmp(\d+)(\.[^.]*)?", name)
+        if m and int(m.group(1)) in pids:
+            try:
+                os.remove(os.path.join(folder, name))
+            except OSError:
+                pass
 
 
 @contextlib.contextmanager

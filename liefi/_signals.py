@@ -321,6 +321,42 @@ def terminate_as_interrupt():
         raise Terminated(signum) if signum != signal.SIGINT else KeyboardInterrupt()
 
 
+@contextlib.contextmanager
+def shielded():
+    """The clean-up after an interrupt (stopping the workers, writing the summary of what finished): within
+    the block, a further Ctrl-C, ``SIGTERM`` or ``SIGHUP`` does not raise -- it would cut the clean-up short
+    and lose the summary -- but is noted (the list yielded), and in the ``liefi`` process the process ends
+    :data:`GRACE` seconds after it if the block still runs (:func:`end_within_grace`): a second Ctrl-C still
+    ends a clean-up that hangs.  Main thread only; elsewhere the block runs unchanged."""
+    got = []
+    if threading.current_thread() is not threading.main_thread():
+        yield got
+        return
+    mine = []
+
+    def note(signum, frame):
+        got.append(signum)
+        if _Deadline.timer is None and _Deadline.allowed:
+            mine.append(signum)
+            end_within_grace(signum)
+
+    saved = {}
+    try:
+        for s in (signal.SIGINT,) + TERMINATING:
+            h = signal.getsignal(s)
+            if h not in (signal.SIG_IGN, None):
+                saved[s] = signal.signal(s, note)
+    except (ValueError, OSError):  # pragma: no cover - not settable here
+        pass
+    try:
+        yield got
+    finally:
+        for s, h in saved.items():
+            signal.signal(s, h)
+        if mine:
+            cancel_deadline()
+
+
 def ignore_in_worker(parent=None):
     """Initializer of worker processes: ignore ``SIGINT``, ``SIGTERM`` and ``SIGHUP`` (the main process stops
     them), and end this worker within :data:`WATCH` seconds once its main process ``parent`` (a pid; default

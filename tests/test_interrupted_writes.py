@@ -225,3 +225,61 @@ def test_liefi_run_interrupted_in_its_steps_says_how_far_it_got_and_no_output_fo
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 130 and len(err) == 1, err
     assert err[0].startswith("liefi: interrupted (the run had reached t = 0.5 of 50; nothing was written)"), err
+
+
+def test_the_temporaries_of_a_killed_writer_are_found_and_removed(tmp_path):
+    """A worker killed inside :func:`liefi._files.replacing` cannot remove its temporary file; its main process
+    removes those of the killed pids (``reproduce``), and only those."""
+    import subprocess
+    import sys
+
+    from liefi._files import remove_temporaries
+
+    code = ("import os, sys; from liefi._files import replacing\n"
+            "with replacing(os.path.join(sys.argv[1], 'fig.png')) as tmp:\n"
+            "    open(tmp, 'wb').write(b'half'); print(os.getpid(), flush=True); os._exit(0)\n")
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    p = subprocess.run([sys.executable, "-c", code, str(tmp_path)], cwd=root, timeout=120, capture_output=True,
+                       text=True, env=dict(os.environ, PYTHONPATH=root))
+    assert p.returncode == 0, p.stderr
+    killed = int(p.stdout)
+    (tmp_path / ".keep.json").write_text("{}")
+    left = [f for f in os.listdir(tmp_path) if f != ".keep.json"]
+    assert len(left) == 1 and left[0].startswith(".fig.png.") and left[0].endswith(".png")
+    remove_temporaries(str(tmp_path), [os.getpid()])  # not the killed one's: kept
+    assert len(os.listdir(tmp_path)) == 2
+    remove_temporaries(str(tmp_path), [killed])
+    assert os.listdir(tmp_path) == [".keep.json"]
+
+
+def test_a_second_ctrl_c_during_the_clean_up_does_not_lose_the_summary(capsys, tmp_path, monkeypatch):
+    """Ctrl-C pressed twice: the second lands while ``reproduce`` writes the summary of what finished (a real
+    SIGINT to this process, sent from inside the clean-up: no timing).  The summary is still written and the
+    one line says where (before: the second KeyboardInterrupt cut the clean-up short, the summary was lost and
+    the line said only "see the command's output folder")."""
+    import signal
+
+    pytest.importorskip("matplotlib")
+    from liefi import cli, reproduce
+
+    def job(task):
+        raise KeyboardInterrupt
+
+    real = reproduce._write_summary
+    sent = []
+
+    def write_summary(*a, **k):
+        if not sent:
+            sent.append(True)
+            os.kill(os.getpid(), signal.SIGINT)  # Python runs the handler at once, here
+        return real(*a, **k)
+
+    monkeypatch.setattr(reproduce, "_scene_job", job)
+    monkeypatch.setattr(reproduce, "_write_summary", write_summary)
+    d = tmp_path / "out"
+    code = cli.main(["reproduce", "--only", "knife-edge", "--out", str(d), "--jobs", "1"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert sent and code == 130
+    assert err[-1] == f"liefi: interrupted (the summary of the 0 finished runs is in {d})", err
+    assert json.loads((d / "summary.json").read_text())["interrupted"] is True
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the handler is Python's again

@@ -28,7 +28,7 @@ from .. import _json
 from .. import engine as _engine
 from .. import scenes as _scenes
 from .._files import replacing, writing
-from .._signals import describe, exit_code, terminate_as_interrupt
+from .._signals import describe, exit_code, shielded, terminate_as_interrupt
 from ..results.sweep import ResultStore, StoreError, SweepInterrupted, TaskError, task_key
 from .core import (FI_GAINS, FIXED_SCHEMES, IVP_METHODS, METHODS, REPEATS, STORE, applicable_methods, build_tasks,
                    error_row, work_precision)
@@ -354,10 +354,11 @@ def _run(args, log, plan):
 
                     long_horizon(rows, args.out, ex, t_final=args.long_horizon, log=log)
     except KeyboardInterrupt as exc:
-        where = _summarized(args.out, expected, arguments) + _unwritten(exc)
-        done = f"{exc.done} runs of this scene finished, " if isinstance(exc, SweepInterrupted) else ""
-        print(f"liefi bench: {describe(exc)}; {done}everything finished is kept in "
-              f"{os.path.join(args.out, STORE)} and {where}", file=sys.stderr, flush=True)
+        with shielded():  # a second Ctrl-C does not cut the summary short (liefi._signals.shielded)
+            where = _summarized(args.out, expected, arguments) + _unwritten(exc)
+            done = f"{exc.done} runs of this scene finished, " if isinstance(exc, SweepInterrupted) else ""
+            print(f"liefi bench: {describe(exc)}; {done}everything finished is kept in "
+                  f"{os.path.join(args.out, STORE)} and {where}", file=sys.stderr, flush=True)
         return exit_code(exc)
     except StoreError as exc:  # disk full, or a damaged store: the summary of what finished, then the error
         if exc.results is None:  # found before any run (a damaged row): nothing new to summarize
