@@ -19,6 +19,11 @@ whose main process has gone anyway (``kill -9``, the OOM killer) ends itself
 within a second (:func:`ignore_in_worker`'s watch), rather than running on, or
 waiting for ever, without it.
 
+The clean-up after an interrupt (stopping the workers, writing the summary of
+what finished) runs under :func:`shielded`: Ctrl-C pressed twice does not cut it
+short and lose the summary; the second signal is noted, and the process ends
+:data:`GRACE` seconds later if the clean-up still runs.
+
 An interrupt must end the process wherever it lands:
 
 * **before and after the command** (``liefi`` still importing numpy and scipy, or the
