@@ -20,6 +20,13 @@ import pytest
 
 from test_signals_and_store import _finish, _group, _start, _wait_for, needs_proc
 
+def _as_from_a_terminal():
+    """In the child before exec: the default actions of the signals a terminal sends, even if the tests run
+    under ``nohup`` or as a background job (which start with them ignored, and liefi keeps them so)."""
+    for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        signal.signal(s, signal.SIG_DFL)
+
+
 ONLY = ["--t-final-scale", "0.02", "--jobs", "2", "--only", "suslov,chaplygin,knife-edge,heisenberg,vertical-disk"]
 
 
@@ -28,7 +35,7 @@ ONLY = ["--t-final-scale", "0.02", "--jobs", "2", "--only", "suslov,chaplygin,kn
 def test_sighup_to_the_group_on_reproduce_is_handled_as_sigterm(tmp_path):
     pytest.importorskip("matplotlib")
     d = tmp_path / "out"
-    p = _start(["reproduce", "--out", str(d), *ONLY], tmp_path)
+    p = _start(["reproduce", "--out", str(d), *ONLY], tmp_path, preexec_fn=_as_from_a_terminal)
     assert _wait_for(lambda: (d / "summary.json").exists(), p), (tmp_path / "stderr.txt").read_text()
     assert [q for q in _group(p.pid) if q != p.pid], "reproduce --jobs 2 should run in worker processes"
     os.killpg(p.pid, signal.SIGHUP)  # the terminal closed: every process of the group gets it

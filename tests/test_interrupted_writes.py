@@ -149,7 +149,8 @@ def test_a_run_interrupted_keeps_its_finished_steps_on_the_interrupt_and_continu
 
 
 SCRIPT = r"""
-import json, sys, time
+import json, signal, sys, time
+signal.signal(signal.SIGINT, signal.default_int_handler)  # as from a terminal, even if the tests run with it ignored
 import liefi._progress as progress
 import liefi.integrator.run as run_module
 from liefi.scenes import get
@@ -277,9 +278,14 @@ def test_a_second_ctrl_c_during_the_clean_up_does_not_lose_the_summary(capsys, t
     monkeypatch.setattr(reproduce, "_scene_job", job)
     monkeypatch.setattr(reproduce, "_write_summary", write_summary)
     d = tmp_path / "out"
-    code = cli.main(["reproduce", "--only", "knife-edge", "--out", str(d), "--jobs", "1"])
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)  # also when the tests run with it ignored
+    try:
+        code = cli.main(["reproduce", "--only", "knife-edge", "--out", str(d), "--jobs", "1"])
+        after = signal.getsignal(signal.SIGINT)
+    finally:
+        signal.signal(signal.SIGINT, previous)
     err = capsys.readouterr().err.strip().splitlines()
     assert sent and code == 130
     assert err[-1] == f"liefi: interrupted (the summary of the 0 finished runs is in {d})", err
     assert json.loads((d / "summary.json").read_text())["interrupted"] is True
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the handler is Python's again
+    assert after is signal.default_int_handler  # the handler is Python's again

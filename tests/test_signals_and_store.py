@@ -57,6 +57,13 @@ def _start(argv, folder, **kw):
     return p
 
 
+def _as_from_a_terminal():
+    """In the child before exec: the default actions of SIGINT, SIGTERM and SIGHUP, as from a terminal, even
+    if the tests run under ``nohup`` or as a background job (then they start ignored, and liefi keeps them so)."""
+    for s in (signal.SIGINT, signal.SIGTERM, getattr(signal, "SIGHUP", signal.SIGTERM)):
+        signal.signal(s, signal.SIG_DFL)
+
+
 def _group(pgid):
     """The live (not zombie) processes of the process group ``pgid``, from ``/proc``."""
     found = []
@@ -136,7 +143,8 @@ def test_signal_on_a_parallel_bench_stops_cleanly(tmp_path, scheduler, signum):
     if scheduler.startswith("dask"):
         pytest.importorskip("distributed")
     out = tmp_path / "o"
-    p = _start(["bench", *LONG, "--out", str(out), "--scheduler", scheduler], tmp_path)
+    p = _start(["bench", *LONG, "--out", str(out), "--scheduler", scheduler], tmp_path,
+               preexec_fn=_as_from_a_terminal)
     db = out / "results.sqlite"
     assert _wait_for(lambda: _stored(db) >= 2, p), (tmp_path / "stderr.txt").read_text()
     workers = [q for q in _group(p.pid) if q != p.pid]
