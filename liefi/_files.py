@@ -44,15 +44,23 @@ def replacing(path):
     ending with ``path``'s suffix, so that matplotlib and numpy choose the format from it), which then replaces
     ``path`` in one rename.  If the block fails or is interrupted (``KeyboardInterrupt``), the temporary file is
     removed and ``path`` is untouched.  An ``OSError`` names ``path`` (:func:`writing`).  The new file gets the
-    usual mode (``0666`` less the umask), as ``open(path, "w")`` would."""
+    usual mode (``0666`` less the umask), as ``open(path, "w")`` would.  In a folder where no new file may be
+    created (but ``path`` may be written), the block writes ``path`` itself."""
     import os
     import secrets
 
     folder, base = os.path.split(os.path.abspath(path))
     tmp = os.path.join(folder, f".{base}.{secrets.token_hex(4)}.tmp{os.getpid()}{os.path.splitext(base)[1]}")
     try:
+        os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+    except PermissionError:  # a file that can be written in a folder that cannot: written in place, as before
         with writing(path):
-            os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+            yield path
+        return
+    except OSError as exc:
+        raise write_error(exc, path) from None
+    try:
+        with writing(path):
             yield tmp
             os.replace(tmp, path)
     except BaseException:

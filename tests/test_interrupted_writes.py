@@ -289,3 +289,25 @@ def test_a_second_ctrl_c_during_the_clean_up_does_not_lose_the_summary(capsys, t
     assert err[-1] == f"liefi: interrupted (the summary of the 0 finished runs is in {d})", err
     assert json.loads((d / "summary.json").read_text())["interrupted"] is True
     assert after is signal.default_int_handler  # the handler is Python's again
+
+
+def test_a_writable_file_in_a_folder_without_room_for_a_temporary_is_written_in_place(tmp_path, monkeypatch):
+    """Where no new file may be created in the folder (but the output may be written: what ``probe_writable``
+    checks before the work), the output is written in place as before, not refused after the work."""
+    from liefi import _files
+
+    path = tmp_path / "fig.png"
+    path.write_bytes(b"old")
+    real = os.open
+
+    def no_new_files(name, flags, *a):
+        if ".tmp" in os.path.basename(name):
+            raise PermissionError(13, "Permission denied", name)
+        return real(name, flags, *a)
+
+    monkeypatch.setattr(os, "open", no_new_files)
+    with _files.replacing(str(path)) as tmp:
+        assert tmp == str(path)
+        with open(tmp, "wb") as fh:
+            fh.write(b"new")
+    assert path.read_bytes() == b"new" and os.listdir(tmp_path) == ["fig.png"]
