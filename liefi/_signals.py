@@ -7,10 +7,22 @@ pool, writing the summary of what finished) handles it the same way; the
 command then exits with ``128 + signal number`` (130 for SIGINT, 143 for
 SIGTERM), the shell's convention.
 
-Worker processes ignore both signals (:func:`ignore_in_worker`, their pool's
+``SIGHUP`` (the terminal or the ssh session closed) is handled as ``SIGTERM``
+(:data:`TERMINATING`; exit code 129): what finished is kept and summarized, as
+for ``SIGTERM``.  Under ``nohup`` (``SIGHUP`` ignored from the start) it stays ignored.
+
+Worker processes ignore these signals (:func:`ignore_in_worker`, their pool's
 initializer): the main process receives them, stops its workers itself and
-reports; a signal sent to the whole process group (Slurm does) does not kill a
-worker in the middle of handing back a result.
+reports; a signal sent to the whole process group (Slurm does, a closed terminal
+does) does not kill a worker in the middle of handing back a result.  A worker
+whose main process has gone anyway (``kill -9``, the OOM killer) ends itself
+within a second (:func:`ignore_in_worker`'s watch), rather than running on, or
+waiting for ever, without it.
+
+The clean-up after an interrupt (stopping the workers, writing the summary of
+what finished) runs under :func:`shielded`: Ctrl-C pressed twice does not cut it
+short and lose the summary; the second signal is noted, and the process ends
+:data:`GRACE` seconds later if the clean-up still runs.
 
 An interrupt must end the process wherever it lands:
 
@@ -36,6 +48,9 @@ import os
 import signal
 import sys
 import threading
+
+#: the signals handled as ``SIGTERM`` (:class:`Terminated`): ``SIGTERM`` and, where it exists, ``SIGHUP``
+TERMINATING = tuple(getattr(signal, n) for n in ("SIGTERM", "SIGHUP") if hasattr(signal, n))
 
 #: seconds an interrupt that could not be raised (held during a compile, or dropped in a callback from
 #: C) leaves the process to stop cleanly before it is ended anyway (:func:`end_within_grace`)
@@ -133,8 +148,9 @@ def install_for_command():
     try:
         if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
             signal.signal(signal.SIGINT, exit_now)
-        if signal.getsignal(signal.SIGTERM) == signal.SIG_DFL:
-            signal.signal(signal.SIGTERM, exit_now)
+        for s in TERMINATING:
+            if signal.getsignal(s) == signal.SIG_DFL:
+                signal.signal(s, exit_now)
     except (ValueError, OSError):  # pragma: no cover - not settable here
         return
     import atexit
@@ -264,8 +280,9 @@ def _dropped_interrupts(previous):
 
 @contextlib.contextmanager
 def terminate_as_interrupt():
-    """Within the block, ``SIGTERM`` raises :class:`Terminated` in the main thread (once: a second
-    SIGTERM during the clean-up is ignored, ``SIGKILL`` still ends the process), and an interrupt
+    """Within the block, ``SIGTERM`` (and ``SIGHUP``: :data:`TERMINATING`, unless ignored from the start)
+    raises :class:`Terminated` in the main thread (once: a second one during the clean-up is ignored,
+    ``SIGKILL`` still ends the process), and an interrupt
     dropped in a callback from C is raised again, the process ended :data:`GRACE` seconds later if
     it still runs.  In the ``liefi`` process SIGINT raises ``KeyboardInterrupt`` within the block
     (:func:`install_for_command` made it end the process at once before).  Outside the main
@@ -275,6 +292,10 @@ def terminate_as_interrupt():
         return
     try:
         previous = signal.signal(signal.SIGTERM, _handler)
+        others = {s: signal.getsignal(s) for s in TERMINATING if s != signal.SIGTERM}
+        for s, h in others.items():
+            if h != signal.SIG_IGN:  # nohup: stays ignored
+                signal.signal(s, _handler)
     except (ValueError, OSError):  # pragma: no cover - not settable here
         yield
         return
@@ -295,6 +316,8 @@ def terminate_as_interrupt():
         if previous_int is exit_now:
             signal.signal(signal.SIGINT, exit_now)
         signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
+        for s, h in others.items():
+            signal.signal(s, signal.SIG_DFL if h is None else h)
         if outer:
             _received.clear()
     if outer and _Deadline.timer is not None:  # dropped and never raised again (swallowed twice): now
@@ -303,7 +326,62 @@ def terminate_as_interrupt():
         raise Terminated(signum) if signum != signal.SIGINT else KeyboardInterrupt()
 
 
-def ignore_in_worker():
-    """Initializer of worker processes: ignore ``SIGINT`` and ``SIGTERM`` (the main process stops them)."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+@contextlib.contextmanager
+def shielded():
+    """The clean-up after an interrupt (stopping the workers, writing the summary of what finished): within
+    the block, a further Ctrl-C, ``SIGTERM`` or ``SIGHUP`` does not raise -- it would cut the clean-up short
+    and lose the summary -- but is noted (the list yielded), and in the ``liefi`` process the process ends
+    :data:`GRACE` seconds after it if the block still runs (:func:`end_within_grace`): a second Ctrl-C still
+    ends a clean-up that hangs.  Main thread only; elsewhere the block runs unchanged."""
+    got = []
+    if threading.current_thread() is not threading.main_thread():
+        yield got
+        return
+    mine = []
+
+    def note(signum, frame):
+        got.append(signum)
+        if _Deadline.timer is None and _Deadline.allowed:
+            mine.append(signum)
+            end_within_grace(signum)
+
+    saved = {}
+    try:
+        for s in (signal.SIGINT,) + TERMINATING:
+            h = signal.getsignal(s)
+            if h not in (signal.SIG_IGN, None):
+                saved[s] = signal.signal(s, note)
+    except (ValueError, OSError):  # pragma: no cover - not settable here
+        pass
+    try:
+        yield got
+    finally:
+        for s, h in saved.items():
+            signal.signal(s, h)
+        if mine:
+            cancel_deadline()
+
+
+def ignore_in_worker(parent=None):
+    """Initializer of worker processes: ignore ``SIGINT``, ``SIGTERM`` and ``SIGHUP`` (the main process stops
+    them), and end this worker within :data:`WATCH` seconds once its main process ``parent`` (a pid; default
+    the parent at start) is gone: killed with ``SIGKILL``, it cannot stop its workers, which ignore the
+    signals that would end them and would run on (writing into its output folder) or wait for tasks for ever.
+    The watch is a daemon thread reading ``os.getppid()``; compiled code that holds the GIL delays it to the
+    end of its segment of steps."""
+    parent = os.getppid() if parent is None else int(parent)
+    for s in (signal.SIGINT,) + TERMINATING:
+        signal.signal(s, signal.SIG_IGN)
+
+    def watch():
+        import time
+
+        while os.getppid() == parent:
+            time.sleep(WATCH)
+        os._exit(128 + int(getattr(signal, "SIGHUP", 1)))  # the main process has gone: nobody to report to
+
+    threading.Thread(target=watch, name="liefi-parent-watch", daemon=True).start()
+
+
+#: seconds between two looks of a worker at its main process (:func:`ignore_in_worker`)
+WATCH = 0.5

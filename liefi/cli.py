@@ -26,7 +26,7 @@ Errors (unknown scene, variant or scheme, malformed gains, a diverging run, an
 output that cannot be written -- checked before any work) print one line
 ``liefi: error: ...`` on stderr and exit with code 2; an interrupt (Ctrl-C,
 SIGINT) prints one line and exits with code 130, SIGTERM (``timeout``, ``kill``,
-Slurm, ``docker stop``) the same with code 143, after ``reproduce`` and
+Slurm, ``docker stop``) the same with code 143 (SIGHUP, a closed terminal: 129), after ``reproduce`` and
 ``bench`` have stopped their workers and written the summary of what finished;
 at any moment, also while liefi still imports numpy or once the output is
 written, and within :data:`liefi._signals.GRACE` seconds when it lands in a
@@ -622,16 +622,30 @@ def main(argv=None):
             warnings.showwarning = show
             return command_returned(_main(parser, argv, seen))
     except KeyboardInterrupt as exc:  # landed just outside _main's own handler: the same one line
-        return command_returned(_interrupted(exc))
+        return command_returned(_interrupted(exc, _command_of(argv)))
 
 
-def _interrupted(exc):
-    """Report the interrupt ``exc`` in one line on stderr; its exit code (130 SIGINT, 143 SIGTERM)."""
+def _command_of(argv):
+    """The command word of ``argv`` (``sys.argv[1:]`` for ``None``), or ``None``."""
+    words = [a for a in (sys.argv[1:] if argv is None else argv) if not a.startswith("-")]
+    return words[0] if words else None
+
+
+def _interrupted(exc, command=None):
+    """Report the interrupt ``exc`` of ``command`` in one line on stderr; its exit code (130 SIGINT, 143 SIGTERM).
+
+    What the line adds: the command's own words (``exc.detail``); for a run stopped in its steps, how far
+    it got (``liefi run`` writes nothing then); for ``reproduce`` and ``bench``, that what finished is in
+    the output folder; else nothing (``liefi run`` or ``stability`` interrupted before or after its run)."""
     from ._signals import cancel_deadline, describe, exit_code
 
     cancel_deadline()  # raised and reported: no deadline to end the process
-    detail = getattr(exc, "detail", None) or "what finished is kept; see the command's output folder"
-    print(f"liefi: {describe(exc)} ({detail})", file=sys.stderr)
+    detail = getattr(exc, "detail", None)
+    if not detail and getattr(exc, "t_final", None) is not None and command not in ("reproduce", "bench"):
+        detail = f"the run had reached t = {exc.t:.6g} of {exc.t_final:g}; nothing was written"
+    if not detail and command in ("reproduce", "bench"):
+        detail = "what finished is kept; see the command's output folder"
+    print(f"liefi: {describe(exc)}" + (f" ({detail})" if detail else ""), file=sys.stderr)
     return exit_code(exc)
 
 
@@ -657,7 +671,7 @@ def _main(parser, argv, seen=()):
         print(f"liefi: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as exc:  # Ctrl-C / SIGINT or SIGTERM: one line, the shell's code (130, 143)
-        return _interrupted(exc)
+        return _interrupted(exc, _command_of(argv))
     except BrokenPipeError:  # e.g. `liefi list | head`: stop quietly
         import os
 

@@ -51,9 +51,9 @@ import warnings
 
 from . import __version__
 from . import _json
-from ._files import writing
+from ._files import replacing
 from ._progress import Progress
-from ._signals import ignore_in_worker
+from ._signals import ignore_in_worker, shielded
 from . import scenes as _scenes
 
 #: the file that marks a folder as liefi's and lists what liefi wrote there
@@ -107,15 +107,8 @@ class Output:
 
     def _atomic(self, name, write):
         final = os.path.join(self.path, name)
-        tmp = os.path.join(self.path, f".{name}.tmp{os.getpid()}")
-        try:
-            with writing(final), open(tmp, "w") as f:
-                write(f)
-        except OSError:
-            if os.path.exists(tmp):  # half a file (a full disk): the old one stays as it was
-                os.remove(tmp)
-            raise
-        os.replace(tmp, final)
+        with replacing(final) as tmp, open(tmp, "w") as f:  # half a file (a full disk, Ctrl-C): the old one stays
+            write(f)
         return final
 
     def files(self):
@@ -415,14 +408,15 @@ def reproduce(out="./liefi-out", *, only=None, t_final_scale=1.0, jobs=None, all
         else:
             _parallel(tasks, jobs, finished)
     except KeyboardInterrupt as exc:
-        bar.close()
-        state["interrupted"] = True
-        try:
-            summary = _write_summary(output, names, state, scale)
-        except OSError as err:  # e.g. the disk is full: say so in the one line
-            exc.detail = f"the summary could not be written: {' '.join(str(err).split())}"
-        else:
-            exc.detail = f"the summary of the {len(summary['runs'])} finished runs is in {output.path}"
+        with shielded():  # a second Ctrl-C does not cut the summary short (liefi._signals.shielded)
+            bar.close()
+            state["interrupted"] = True
+            try:
+                summary = _write_summary(output, names, state, scale)
+            except OSError as err:  # e.g. the disk is full: say so in the one line
+                exc.detail = f"the summary could not be written: {' '.join(str(err).split())}"
+            else:
+                exc.detail = f"the summary of the {len(summary['runs'])} finished runs is in {output.path}"
         raise
     bar.close()
     summary = _write_summary(output, names, state, scale)
@@ -478,25 +472,20 @@ def _parallel(tasks, jobs, finished):
             for f in done:
                 finished(f.result())
     except BaseException:
-        pids = [p.pid for p in (getattr(pool, "_processes", None) or {}).values()]
-        _stop(pool)
-        _remove_partial_files(tasks[0][1], pids)
+        with shielded():  # the workers stopped and their files removed, whatever a second Ctrl-C says
+            pids = [p.pid for p in (getattr(pool, "_processes", None) or {}).values()]
+            _stop(pool)
+            _remove_partial_files(tasks[0][1], pids)
         raise
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
 
 
 def _remove_partial_files(path, pids):
-    """Remove the temporary files (``.NAME.tmpPID``) that the killed workers ``pids`` left in ``path``."""
-    ends = tuple(f".tmp{p}" for p in pids)
-    if not ends:
-        return
-    for name in os.listdir(path):
-        if name.startswith(".") and name.endswith(ends):
-            try:
-                os.remove(os.path.join(path, name))
-            except OSError:
-                pass
+    """Remove the temporary files that the killed workers ``pids`` left in ``path`` (:func:`liefi._files.replacing`)."""
+    from ._files import remove_temporaries
+
+    remove_temporaries(path, pids)
 
 
 def _partial_name(scene):

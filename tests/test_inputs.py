@@ -336,3 +336,37 @@ def test_sleigh_with_configuration_and_velocity_constraints_driven_by_a_torque_a
     assert np.max(np.abs(fval(Ql))) < 1e-12 and np.max(np.abs(vel(Ql, Qdl))) < 1e-12
     dE, J, inv = held(fi, sol)
     assert dE < 1e-12 and J < 1e-12 and np.ptp(inv["W"]) > 0.05, (dE, J, np.ptp(inv["W"]))
+
+
+def test_a_signal_that_fails_during_the_run_is_named_with_its_time():
+    """The run calls a callable signal with arrays of times (the stages of a step), not only with the t = 0 that
+    the integrator probes: ``math.sin``, a wrong shape for an array of times, an exception or a NaN later in the
+    run each get a ValueError naming the signal and the time (before: a TypeError blamed on the force, a raw
+    RuntimeError, a broadcast error, or the force's "non-finite values")."""
+    import math
+
+    scene = KnifeEdge()
+    system, z0 = scene.build_system(), scene.initial_state(None)
+
+    def run(signal):
+        return liefi.FeedbackIntegrator(system, z0, force=knife_force(), inputs={"tau": signal}).run(0.2, **RUN)
+
+    def boom(t):
+        if np.any(np.asarray(t) > 0.05):
+            raise RuntimeError("boom")
+        return np.ones(np.shape(t))
+
+    with pytest.raises(ValueError, match=r"the signal 'tau' failed at t = .*only 0-dimensional.*np\.vectorize"):
+        run(lambda t: math.sin(t))
+    with pytest.raises(ValueError, match=r"the signal 'tau' called with times of shape \(\d+,\).* returned float64 "
+                                         r"numbers of shape \(3,\); expected real numbers of shape"):
+        run(lambda t: np.ones(3) if np.ndim(t) else 1.0)
+    with pytest.raises(ValueError, match=r"the signal 'tau' failed at t = 0\.0[5-9]\d*: RuntimeError\('boom'\)"):
+        run(boom)
+    with pytest.raises(ValueError, match=r"the signal 'tau' returned a non-finite number \(NaN or inf\) at t = 0\.0[5-9]"):
+        run(lambda t: np.where(np.asarray(t) > 0.05, np.nan, 1.0))
+    with pytest.raises(ValueError, match=r"signal: bc_type='periodic' cannot be used here"):
+        spline([0.0, 1.0, 2.0], [1.0, 2.0, 3.0], bc_type="periodic")
+    # what still works: a numpy signal, and one returning a number whatever the times (broadcast)
+    a, b = run(lambda t: 0.5 * np.cos(t)), run(lambda t: 0.5)
+    assert np.all(np.isfinite(a.y)) and np.all(np.isfinite(b.y)) and not np.allclose(a.y[..., -1], b.y[..., -1])

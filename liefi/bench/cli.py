@@ -27,8 +27,8 @@ import sys
 from .. import _json
 from .. import engine as _engine
 from .. import scenes as _scenes
-from .._files import writing
-from .._signals import describe, exit_code, terminate_as_interrupt
+from .._files import replacing, writing
+from .._signals import describe, exit_code, shielded, terminate_as_interrupt
 from ..results.sweep import ResultStore, StoreError, SweepInterrupted, TaskError, task_key
 from .core import (FI_GAINS, FIXED_SCHEMES, IVP_METHODS, METHODS, REPEATS, STORE, applicable_methods, build_tasks,
                    error_row, work_precision)
@@ -185,15 +185,8 @@ def write_summary(out_dir, tasks=None, arguments=None):
     if tasks is not None:
         doc["other_runs_in_store"] = other
     out = os.path.join(out_dir, "summary.json")
-    tmp = os.path.join(out_dir, f".summary.json.tmp{os.getpid()}")
-    try:
-        with writing(out), open(tmp, "w") as fh:
-            fh.write(_json.dumps(doc, indent=1))
-    except OSError:
-        if os.path.exists(tmp):  # half a file (a full disk): the old summary.json stays as it was
-            os.remove(tmp)
-        raise
-    os.replace(tmp, out)
+    with replacing(out) as tmp, open(tmp, "w") as fh:  # half a file (a full disk, Ctrl-C): the old one stays
+        fh.write(_json.dumps(doc, indent=1))
     return doc
 
 
@@ -361,10 +354,11 @@ def _run(args, log, plan):
 
                     long_horizon(rows, args.out, ex, t_final=args.long_horizon, log=log)
     except KeyboardInterrupt as exc:
-        where = _summarized(args.out, expected, arguments) + _unwritten(exc)
-        done = f"{exc.done} runs of this scene finished, " if isinstance(exc, SweepInterrupted) else ""
-        print(f"liefi bench: {describe(exc)}; {done}everything finished is kept in "
-              f"{os.path.join(args.out, STORE)} and {where}", file=sys.stderr, flush=True)
+        with shielded():  # a second Ctrl-C does not cut the summary short (liefi._signals.shielded)
+            where = _summarized(args.out, expected, arguments) + _unwritten(exc)
+            done = f"{exc.done} runs of this scene finished, " if isinstance(exc, SweepInterrupted) else ""
+            print(f"liefi bench: {describe(exc)}; {done}everything finished is kept in "
+                  f"{os.path.join(args.out, STORE)} and {where}", file=sys.stderr, flush=True)
         return exit_code(exc)
     except StoreError as exc:  # disk full, or a damaged store: the summary of what finished, then the error
         if exc.results is None:  # found before any run (a damaged row): nothing new to summarize

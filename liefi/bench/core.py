@@ -92,7 +92,7 @@ import numpy as np
 
 from .. import engine as _engine
 from .. import scenes as _scenes
-from .._files import writing
+from .._files import replacing
 from ..results.sweep import ResultStore, StoreError, SweepInterrupted, TaskError, run_sweep
 from .verdict import FI_METHODS, RTOL_METHOD, cheapest, summarize, summary  # noqa: F401  (re-exported)
 
@@ -668,7 +668,7 @@ def write_csv(rows, path):
     extra = sorted({k for r in rows for k in r if k.startswith("error_")})
     extra += sorted({k for r in rows for k in r if k.startswith("drift_")})
     cols = list(_FIRST) + extra + ["message"]
-    with writing(path), open(path, "w", newline="") as fh:
+    with replacing(path) as tmp, open(tmp, "w", newline="") as fh:  # whole or not at all
         w = csv.DictWriter(fh, fieldnames=cols, extrasaction="ignore")
         w.writeheader()
         for r in rows:

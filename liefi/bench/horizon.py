@@ -8,7 +8,7 @@ import os
 import numpy as np
 
 from .. import scenes as _scenes
-from .._files import writing
+from .._files import replacing
 from ..results.sweep import TaskError, run_sweep
 from .core import FI_GAINS, _integrator, error_row, invariant_drifts, measure, run_task, write_csv
 from .verdict import label as _label
@@ -224,7 +224,7 @@ def plot_cost_vs_horizon(curves, path, name, drift=1e-10):
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=7)
     fig.tight_layout()
-    with writing(path):
-        fig.savefig(path, dpi=110)
+    with replacing(path) as tmp:  # whole or not at all
+        fig.savefig(tmp, dpi=110)
     plt.close(fig)
     return path

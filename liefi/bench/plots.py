@@ -6,7 +6,7 @@ import os
 
 import numpy as np
 
-from .._files import writing
+from .._files import replacing
 from ..results.scene_figures import finish_panel_grid, legend_columns, panel_grid
 
 # ======================================================================================
@@ -95,8 +95,8 @@ def plot(rows, out_dir, name):
     legend_columns(fig, _legends(rows))
     fig.tight_layout(rect=(0, 0, 1 - _LEGEND_WIDTH / fig.get_figwidth(), 1))
     p = os.path.join(out_dir, f"{name}-error.png")
-    with writing(p):
-        fig.savefig(p, dpi=110)
+    with replacing(p) as tmp:  # whole or not at all
+        fig.savefig(tmp, dpi=110)
     plt.close(fig)
     paths.append(p)
 
@@ -128,8 +128,9 @@ def save_curves(curves, path):
         meta.append([label, float(cpu), m, s, list(d)])
     import json
 
-    with writing(path):
-        np.savez_compressed(path, meta=json.dumps(meta), **arrays)
+    path = path if str(path).endswith(".npz") else f"{path}.npz"  # numpy's own rule, for the final name
+    with replacing(path) as tmp:  # whole or not at all: load_curves never reads half a file
+        np.savez_compressed(tmp, meta=json.dumps(meta), **arrays)
     return path
 
 

@@ -54,7 +54,7 @@ def interrupts_held():
             or signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
         yield []
         return
-    term = getattr(signal.getsignal(signal.SIGTERM), "liefi", False)
+    term = [s for s in _signals.TERMINATING if getattr(signal.getsignal(s), "liefi", False)]
     got = []
 
     def interrupt():
@@ -71,11 +71,11 @@ def interrupts_held():
 
     def restore():
         signal.signal(signal.SIGINT, signal.default_int_handler)
-        if term:
-            signal.signal(signal.SIGTERM, previous_term)
+        for s, h in previous_term.items():
+            signal.signal(s, h)
 
     signal.signal(signal.SIGINT, hold)
-    previous_term = signal.signal(signal.SIGTERM, hold) if term else None
+    previous_term = {s: signal.signal(s, hold) for s in term}
     try:
         yield got
     except BaseException as exc:

@@ -372,7 +372,10 @@ def plot_work_precision(rows, path=None, title=""):
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     if path is not None:
-        fig.savefig(path, dpi=110)
+        from .._files import replacing
+
+        with replacing(path) as tmp:  # whole or not at all
+            fig.savefig(tmp, dpi=110)
         plt.close(fig)
     return fig
 

@@ -311,7 +311,10 @@ def plot_stability_map(smap, path=None, ax=None):
     ax.legend(fontsize=7, loc="lower left")
     if own and path is not None:
         fig.tight_layout()
-        fig.savefig(path, dpi=110)
+        from .._files import replacing
+
+        with replacing(path) as tmp:  # whole or not at all
+            fig.savefig(tmp, dpi=110)
         plt.close(fig)
     return ax
 

@@ -737,7 +737,8 @@ class FeedbackIntegrator:
         monitor_every : int, optional
             Steps between two stability checks (default: adaptive).
         progress : bool, optional
-            Progress on stderr (default: for runs of more than a few seconds, on a terminal).
+            Progress on stderr (default: for runs of more than a few seconds, on a terminal).  Ctrl-C
+            in the steps: the ``KeyboardInterrupt`` keeps the run so far (``.solution``, ``.t``, ``.y``).
         drop_exact : bool, default True
             Leave out of ``V`` an invariant that every Runge--Kutta step keeps to rounding
             (:func:`liefi.integrator.gains.exactly_kept`: a constant gradient no other term moves) and

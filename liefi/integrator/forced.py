@@ -179,8 +179,9 @@ class ForcedFeedbackIntegrator(FeedbackIntegrator):
 
     def _force(self, t, q, v):
         D = self.system.space.D
+        u = self.input_values(t)  # a failing signal names itself (liefi.systems.forcing.as_signal)
         try:
-            F = np.asarray(self.force_law(t, q, v, self.input_values(t)))
+            F = np.asarray(self.force_law(t, q, v, u))
         except (ValueError, TypeError, IndexError) as exc:
             raise ValueError(f"force: calling it with t {np.shape(t)}, q {np.shape(q)}, v {np.shape(v)} "
                              f"(and inputs u) failed: {exc!r}") from exc

@@ -285,6 +285,8 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
     keeps exactly (:func:`liefi.integrator.gains.exact_drops`); ``solution.dropped`` lists them
     (``{"name", "reason"}``).  ``t_eval``, ``events`` and ``dense_output`` as
     ``solve_ivp``'s, by partial steps of the scheme (:mod:`liefi.integrator.dense`).
+    An interrupt (``KeyboardInterrupt``: Ctrl-C) in the stepping loop propagates with what finished on it
+    (:func:`_interrupted`: ``.solution``, ``.t``, ``.y``, ``.t_final``).
     ``errors``: ``"raise"`` (default) or ``"return"``: a failed run returns the
     states up to the failure with ``success=False``, ``status=-1``.
     ``scheme=None``: :data:`liefi.integrator.tolerance.DEFAULT_SCHEME`; ``backend=None``:
@@ -452,6 +454,10 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
                 if hit is not None:
                     k, status, message = _stop_at_event(hit, k - 1, ts, out, grid), 1, MESSAGE_EVENT
         policy.after(ts[:k], np.moveaxis(out[..., :k], -1, 0))
+    except KeyboardInterrupt as exc:  # Ctrl-C (SIGTERM in the liefi commands): the finished steps are kept
+        sol = Solution(ts[:k], out[..., :k], sch.name, dt, s0, rhs, cpu, tuple(names))
+        _interrupted(exc, sol, user_fi, y, t_start + s0 * dt, t_start, t_final, s0, n_steps)
+        raise  # the same exception: a script stopped by Ctrl-C still ends as by SIGINT (exit 130 in a shell)
     except (IntegrationError, StabilityError) as exc:
         if errors == "raise":
             raise
@@ -499,6 +505,27 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
         sol.method["why"] += "; " + last_note
     sol.overhead_seconds = max(0.0, time.process_time() - start_all - cpu)
     return sol
+
+
+def _interrupted(exc, sol, user_fi, y, t, t_start, t_final, done, n_steps):
+    """Give the interrupt ``exc`` (a ``KeyboardInterrupt``) of a run stopped after ``done`` of ``n_steps`` steps
+    what the run finished: ``exc.solution`` (``sol``, the saved states so far, ``status`` -1), ``exc.t`` and
+    ``exc.y`` (the last finished step's time and state), ``exc.t_final``, and a message that says where the run
+    stopped and how to continue it.
+
+    The exception stays the one raised (not a subclass): Python ends a script that does not catch it as
+    killed by ``SIGINT`` only for ``KeyboardInterrupt`` itself, and a shell loop stops on that."""
+    from .._signals import describe
+
+    what = describe(exc)
+    sol.success, sol.status, sol.integrator = False, -1, user_fi
+    sol.message = f"{what} at t = {t:.6g} after {done} of {n_steps} steps"
+    exc.solution, exc.t, exc.y, exc.t_final = sol, t, y, t_final
+    pct = f"{100.0 * (t - t_start) / (t_final - t_start):.0f} %" if t_final > t_start else "0 %"
+    exc.args = (f"run {what} at t = {t:.6g} of [{t_start:g}, {t_final:g}] ({pct}, {done} of {n_steps} steps): "
+                f"the {sol.t.size} saved states up to there are in this exception's .solution (in an interactive "
+                f"session sys.last_value.solution), the last state in .y; continue with "
+                f"fi.run(({t:.17g}, {t_final:.17g}), y0=exc.y, ...) with the same settings",)
 
 
 def _finite_positive(x):

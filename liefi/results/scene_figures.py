@@ -129,12 +129,13 @@ def check_format(path, name="out"):
 
 
 def save(fig, path):
-    """Write ``fig`` to ``path`` (the format from its suffix, e.g. ``.png``); returns ``path``."""
+    """Write ``fig`` to ``path`` (the format from its suffix, e.g. ``.png``), whole or not at all
+    (:func:`liefi._files.replacing`); returns ``path``."""
     require_matplotlib()
-    from .._files import writing
+    from .._files import replacing
 
-    with writing(path):
-        fig.savefig(path)
+    with replacing(path) as tmp:  # whole or not at all: an interrupt leaves no half figure
+        fig.savefig(tmp)
     return path
 
 

@@ -86,7 +86,7 @@ from concurrent.futures import FIRST_COMPLETED, Executor, wait
 
 from .._json import plain as _plain
 from .._progress import Progress
-from .._signals import ignore_in_worker, signum_of
+from .._signals import ignore_in_worker, shielded, signum_of
 
 __all__ = ["run_sweep", "open_executor", "TaskError", "SweepInterrupted", "ResultStore", "StoreError", "task_key"]
 
@@ -442,11 +442,12 @@ def run_sweep(fn, tasks, executor: Executor | None = None, *, store=None, conver
         _parallel(fn, tasks, todo, executor, record, owned, max_in_flight)
         return results
     except KeyboardInterrupt as exc:
-        for ex in [executor, *owned]:
-            if ex is not None:
-                _stop(ex)
-        if store is not None:  # the store is the record: a task committed just before the signal counts
-            _from_store(store, tasks, results)
+        with shielded():  # the workers stopped and the results read, whatever a second Ctrl-C says
+            for ex in [executor, *owned]:
+                if ex is not None:
+                    _stop(ex)
+            if store is not None:  # the store is the record: a task committed just before the signal counts
+                _from_store(store, tasks, results)
         raise SweepInterrupted(results, signum_of(exc)) from None
     except StoreError as exc:  # the disk is full, or the store is damaged: stop as for Ctrl-C
         for ex in [executor, *owned]:

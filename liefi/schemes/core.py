@@ -70,7 +70,8 @@ class Solution:
         (:meth:`liefi.FeedbackIntegrator.run`); by default a failure raises.
     status : int
         ``0``: the end of the interval was reached; ``1``: a terminal event
-        stopped the run; ``-1``: the run failed (``errors="return"``).
+        stopped the run; ``-1``: the run failed (``errors="return"``), or was
+        interrupted (``KeyboardInterrupt().solution``, :meth:`liefi.FeedbackIntegrator.run`).
     message : str
         What ``status`` means, or the failure's message.
     t_events, y_events : list of ndarray, or None

@@ -98,10 +98,62 @@ def spline(t_grid, values, *, name="signal", bc_type="not-a-knot"):
     if values.ndim == 0 or values.shape[0] != t_grid.size:
         raise ValueError(f"{name}: values must have one row per node of t_grid ({t_grid.size}), got shape "
                          f"{values.shape}")
-    cs = CubicSpline(t_grid, values, axis=0, bc_type=bc_type)
+    try:
+        cs = CubicSpline(t_grid, values, axis=0, bc_type=bc_type)
+    except ValueError as exc:  # a bad bc_type, or values that do not meet it (periodic)
+        raise ValueError(f"{name}: bc_type={bc_type!r} cannot be used here: {exc} (scipy.interpolate.CubicSpline; "
+                         "the default 'not-a-knot' fits any values)") from exc
     sig = Signal(cs, cs.derivative(), values.shape[1:], f"cubic spline through {t_grid.size} nodes")
     sig.grid_kind, sig.t_grid, sig.values, sig.bc_type = "spline", t_grid, values, bc_type
     return sig
+
+
+def _checked(f, name, shape):
+    """The user's function of time ``f`` as the run calls it, checked at every call.
+
+    A run calls a signal with arrays of times (all the stages of a step at once), not only with the
+    ``t = 0`` that :func:`as_signal` probes: an exception, a result that is not ``shape`` per time
+    (broadcastable to ``t.shape + shape``) or a non-finite number at a finite time is a ``ValueError``
+    naming the signal and the time, not a raw exception from inside the force or a NaN left to
+    the run.  At non-finite times (a run that already diverged) the result is not checked: the run
+    reports its own failure."""
+
+    def value(t):
+        t = np.asarray(t, float)
+        want = t.shape + tuple(shape)
+        try:
+            v = np.asarray(f(t))
+        except Exception as exc:  # noqa: BLE001 -- user code: say which input failed, and when
+            if not np.all(np.isfinite(t)):
+                return np.full(want, np.nan)
+            hint = (f"; a signal is called with an array of times (here shape {t.shape}): write it with numpy "
+                    "(np.sin, np.where, ...) rather than math, or wrap it in np.vectorize"
+                    if t.ndim and isinstance(exc, (TypeError, ValueError)) else "")
+            raise ValueError(f"inputs: the signal {name!r} failed at t = {_times(t)}: {exc!r}{hint}") from exc
+        try:
+            fits = v.dtype.kind in "biuf" and np.broadcast_shapes(v.shape, want) == want
+        except ValueError:
+            fits = False
+        if not fits:
+            raise ValueError(f"inputs: the signal {name!r} called with times of shape {t.shape} (t = {_times(t)}) "
+                             f"returned {v.dtype.name} numbers of shape {v.shape}; expected real numbers of shape "
+                             f"{want} (one value of shape {tuple(shape)} per time): write it with numpy "
+                             "(np.sin, np.where, ...), or wrap it in np.vectorize")
+        v = v.astype(float)
+        bad = ~np.isfinite(np.broadcast_to(v, want)) & np.isfinite(t).reshape(t.shape + (1,) * len(shape))
+        if np.any(bad):
+            raise ValueError(f"inputs: the signal {name!r} returned a non-finite number (NaN or inf) at t = "
+                             f"{_times(t[np.any(bad.reshape(t.shape + (-1,)), -1)])}; it must be finite at "
+                             "every time of the run")
+        return v
+
+    return value
+
+
+def _times(t):
+    """A few of the times ``t`` for a message."""
+    t = np.ravel(t)
+    return f"{t[0]:.6g}" if t.size == 1 else "[" + ", ".join(f"{x:.6g}" for x in t[:3]) + (", ...]" if t.size > 3 else "]")
 
 
 def as_signal(s, name):
@@ -115,12 +167,13 @@ def as_signal(s, name):
             raise ValueError(f"inputs: the signal {name!r} failed at t = 0: {exc!r}") from exc
         if probe.dtype.kind not in "biuf" or not np.all(np.isfinite(probe)):
             raise ValueError(f"inputs: the signal {name!r} must return finite real numbers, got {probe!r} at t = 0")
+        value = _checked(s, name, probe.shape)
 
-        def derivative(t, f=s):  # a callable: its derivative by central difference (for a complex step only)
+        def derivative(t, f=value):  # a callable: its derivative by central difference (for a complex step only)
             h = 1e-6 * np.maximum(1.0, np.abs(t))
-            return (np.asarray(f(t + h), float) - np.asarray(f(t - h), float)) / (2 * h)
+            return (f(t + h) - f(t - h)) / (2 * h)
 
-        return Signal(s, derivative, probe.shape, "a function of t")
+        return Signal(value, derivative, probe.shape, "a function of t")
     value = as_float_array(s, f"inputs: {name!r}")
     if not np.all(np.isfinite(value)):
         raise ValueError(f"inputs: the signal {name!r} contains non-finite numbers (NaN or inf)")
