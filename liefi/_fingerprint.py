@@ -28,10 +28,10 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import os
-import re
 import sys
 import threading
 import types
+import weakref
 
 import numpy as np
 
@@ -40,11 +40,46 @@ ATTR = "_liefi_fingerprint"
 #: the attribute holding the ids of a stamped system's attributes at the time it was stamped
 _IDS = "_liefi_fingerprint_ids"
 
-_DUMMY = re.compile(r"dummy_index=(\d+)")
-
 
 class _Unknown(Exception):
     """A value :func:`digest` cannot fingerprint (a user's callable, an unknown object)."""
+
+
+_ROOT = os.path.dirname(os.path.abspath(__file__))
+
+
+def _liefi_file(path):
+    """True for a path inside liefi's package (a file :func:`sources` hashes)."""
+    return isinstance(path, str) and os.path.abspath(path).startswith(_ROOT + os.sep)
+
+
+def _liefi_function(f):
+    """True for a function whose code is in liefi's own files: its module's name is not enough (a user's function can
+    carry any ``__module__``), its code object's file decides."""
+    code = getattr(f, "__code__", None)
+    return code is not None and (getattr(f, "__module__", None) or "").startswith("liefi.") and _liefi_file(code.co_filename)
+
+
+def _liefi_class(cls):
+    """True for a class defined in liefi's own files, and every class it derives from (``object`` aside)."""
+    for k in cls.__mro__[:-1]:
+        mod = getattr(k, "__module__", None) or ""
+        if not mod.startswith("liefi.") or not _liefi_file(getattr(sys.modules.get(mod), "__file__", None)):
+            return False
+    return True
+
+
+class _Mark:
+    """The fingerprint :func:`mark` gave one function: it holds for that function only (``functools.wraps``
+    copies a function's attributes to a wrapper of the user's, which computes something else)."""
+
+    __slots__ = ("value", "owner")
+
+    def __init__(self, value, owner):
+        self.value, self.owner = value, weakref.ref(owner)
+
+    def get(self, obj):
+        return self.value if self.owner() is obj else None
 
 
 def _is_sympy(x):
@@ -88,21 +123,41 @@ def _encode(h, x, dummies):
             put(b"A", f"{x.dtype.str}{x.shape}".encode() + np.ascontiguousarray(x).tobytes())
     elif _resolved(x) is not None:
         put(b"X", _resolved(x).encode())
-    elif isinstance(x, types.FunctionType) and (x.__module__ or "").startswith("liefi."):
+    elif isinstance(x, types.FunctionType) and _liefi_function(x):
         # liefi's own function (its code is in sources()): named, with the data it closes over
         cells = tuple(c.cell_contents for c in (x.__closure__ or ()))
         _encode(h, ("function", x.__module__, x.__qualname__, x.__defaults__, x.__kwdefaults__, cells), dummies)
-    elif dataclasses.is_dataclass(x) and not isinstance(x, type):  # a record of data (a scene's Variant)
+    elif dataclasses.is_dataclass(x) and not isinstance(x, type) and _liefi_class(type(x)):
+        # a record of data of liefi's (a scene's Variant); a user's dataclass has code of its own (a __call__)
         _encode(h, (type(x).__module__, type(x).__qualname__,
                     {f.name: getattr(x, f.name) for f in dataclasses.fields(x)}), dummies)
     elif _is_sympy(x):
-        import sympy
-
-        text = _DUMMY.sub(lambda m: "dummy_index=#%d" % dummies.setdefault(m.group(1), len(dummies)),
-                          sympy.srepr(x))
-        put(b"Y", text.encode())
+        put(b"Y", _sympy_text(x, dummies).encode())
     else:
         raise _Unknown(type(x).__name__)
+
+
+_PRINTER = []
+
+
+def _sympy_text(x, dummies):
+    """``sympy.srepr(x)`` with each ``Dummy``'s process-local index written as its number of first appearance
+    (``dummy_index=#0`` ...), by the printer itself: a symbol's *name* holding the text ``dummy_index=5`` stays
+    as it is (a substitution in the text renumbered it too, and two different names had one encoding)."""
+    if not _PRINTER:
+        from sympy.printing.repr import ReprPrinter
+
+        class Printer(ReprPrinter):
+            def _print_Dummy(self, expr):
+                d = dict(expr._assumptions_orig)
+                d["dummy_index"] = "#%d" % self.dummies.setdefault(str(expr.dummy_index), len(self.dummies))
+                return "%s(%s, %s)" % (type(expr).__name__, self._print(expr.name),
+                                       ", ".join("%s=%s" % kv for kv in d.items()))
+
+        _PRINTER.append(Printer)
+    printer = _PRINTER[0]()
+    printer.dummies = dummies
+    return printer.doprint(x)
 
 
 def digest(*parts, known=None):
@@ -126,7 +181,7 @@ def mark(fun, *parts):
     """Give the function ``fun`` (made by liefi from the data ``parts``) the fingerprint of those data; return it."""
     fp = digest(*parts)
     if fp is not None:
-        setattr(fun, ATTR, fp)
+        setattr(fun, ATTR, _Mark(fp, fun))
     return fun
 
 
@@ -168,7 +223,9 @@ def _frozen(x):
 def _resolved(obj):
     """The fingerprint ``obj`` carries (a deferred stamp's computed now), or ``None``."""
     fp = getattr(obj, ATTR, None)
-    return fp.get() if isinstance(fp, _Deferred) else fp
+    if isinstance(fp, _Mark):
+        return fp.get(obj)
+    return fp.get() if isinstance(fp, _Deferred) else None
 
 
 def stamp(system, *parts):
@@ -228,7 +285,7 @@ def sources():
 def _liefi_code(v):
     """True for a function, method or descriptor defined in liefi's own modules (covered by :func:`sources`)."""
     f = getattr(v, "__func__", None) or getattr(v, "fget", None) or getattr(v, "func", None) or v
-    return (getattr(f, "__module__", None) or "").startswith("liefi.")
+    return _liefi_function(f) or isinstance(f, type) and _liefi_class(f)
 
 
 def object_data(obj, skip=()):
@@ -241,11 +298,11 @@ def object_data(obj, skip=()):
     replaced method, a user's callable in an attribute) gives ``None``: no stamp, the safe path.
     """
     parts = []
+    if not _liefi_class(type(obj)):
+        return None
     for cls in type(obj).__mro__:
         if cls is object:
             continue
-        if not (cls.__module__ or "").startswith("liefi."):
-            return None
         for k, v in sorted(vars(cls).items()):
             if k.startswith("__"):
                 continue

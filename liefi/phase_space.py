@@ -110,6 +110,8 @@ class PhaseSpace:
         #: the leading ``n + k`` numbers of ``z``, ``(x, Gamma)``: where the data are evaluated
         self.data_dim = self.n + self.k
         self.nz = self.data_dim + self.D
+        if isinstance(names, (str, bytes)):  # tuple("abc") would be three names, silently
+            raise ValueError(f"names: expected a sequence of {self.n} shape-coordinate names, got the string {names!r}")
         names = tuple(names) if names is not None else tuple(f"x_{i + 1}" for i in range(self.n))
         if len(names) != self.n:
             raise ValueError(f"names: expected {self.n} shape-coordinate names, got {len(names)}")

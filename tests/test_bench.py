@@ -339,11 +339,18 @@ def test_interrupt_keeps_what_finished(tmp_path):
     (["--t-final", "nan"], "--t-final"), (["--t-final", "inf"], "--t-final"), (["--t-final", "-1"], "--t-final"),
     (["--t-final", "0"], "--t-final"), (["--long-horizon", "-5"], "--long-horizon"), (["--gains", "0"], "gains"),
     (["--gains", "x"], "gains")])
-def test_bench_refuses_bad_numbers(tmp_path, capsys, args, name):
-    """No hang on nan/inf, no verdict from failed runs: a named error and exit code 2, before any run."""
-    t = time.perf_counter()
+def test_bench_refuses_bad_numbers(tmp_path, capsys, monkeypatch, args, name):
+    """No hang on nan/inf, no verdict from failed runs: a named error and exit code 2, before any run (no
+    task and no reference started: checked, not timed)."""
+    from liefi.bench import horizon
+
+    def no_work(*a, **k):
+        raise AssertionError("work started before the arguments were checked")
+
+    for where, attr in ((bench.core, "run_task"), (horizon, "run_task"), (scenes.Scene, "solve_reference")):
+        monkeypatch.setattr(where, attr, no_work)
     code = bench.main(["suslov", "--quick", "--out", str(tmp_path / "o"), *args])
-    assert code == 2 and time.perf_counter() - t < 30
+    assert code == 2
     err = capsys.readouterr().err
     assert name in err and "Traceback" not in err
 
@@ -447,24 +454,22 @@ def test_horizon_row_reads_prefixes():
 
 
 def test_interrupt_stops_a_process_pool_at_once():
-    """Ctrl-C while process-pool workers run long tasks: the workers are stopped and the sweep returns
-    within seconds, not after the running tasks finish."""
+    """Ctrl-C while process-pool workers run long tasks: the workers are stopped and the sweep returns,
+    not after the running tasks finish.  The tasks last an hour: a process that ends at all (within the
+    120 s timeout; about 3 s) stopped them -- no bound on how fast (before: under 50 s for tasks of 60 s)."""
     code = (
         "import os, signal, threading, time, sys\n"
         "from liefi.sweep import run_sweep, open_executor, SweepInterrupted\n"
         "threading.Timer(1.0, lambda: os.kill(os.getpid(), signal.SIGINT)).start()\n"
-        "t = time.time()\n"
         "try:\n"
         "    with open_executor('processes:2') as ex:\n"
-        "        run_sweep(time.sleep, [60.0] * 4, ex)\n"
+        "        run_sweep(time.sleep, [3600.0] * 4, ex)\n"
         "except SweepInterrupted as e:\n"
-        "    print('interrupted', e.done, round(time.time() - t, 1))\n"
+        "    print('interrupted', e.done, e.results)\n"
     )
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    t = time.time()
     out = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, timeout=120)
-    assert out.stdout.startswith("interrupted 0"), out.stderr
-    assert time.time() - t < 50  # the 60 s tasks did not run to the end
+    assert out.stdout.split() == ["interrupted", "0", "[None,", "None,", "None,", "None]"], out.stdout + out.stderr
 
 
 def test_split_schemes_are_feedback_integrator_rows_of_the_harness():

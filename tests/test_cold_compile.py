@@ -14,7 +14,7 @@ def test_a_generated_kernel_types_each_scalar_operation_once(monkeypatch, tmp_pa
     a generated field's thousands of operations on float64 are a handful of distinct ones, resolved once."""
     from numba.core.typing import templates
 
-    from liefi.engine import codegen
+    from liefi.engine import codegen, split_loops
     from liefi.engine.cache import load
 
     n = 150
@@ -63,7 +63,7 @@ def test_a_rolled_split_scheme_compiles_no_wrapper_around_its_loop(monkeypatch, 
     (before: ``run_imex_rk4``, a second optimisation of the whole loop, about 1 s on the rattleback)."""
     from numba.core import event
 
-    from liefi.engine import codegen
+    from liefi.engine import codegen, split_loops
     from liefi.engine.cache import load
     from liefi.engine.fpu import read_mxcsr
 
@@ -74,7 +74,7 @@ def test_a_rolled_split_scheme_compiles_no_wrapper_around_its_loop(monkeypatch, 
     f = [f"{ys[i]} / (1.0 + hh_0 * {ys[i]} * {ys[i]})" for i in range(N)]
     src = (f"@njit(cache=CACHE, error_model='numpy')\ndef xrhs_s({head}):\n    return ({', '.join(x)})\n\n"
            f"@njit(cache=CACHE, error_model='numpy')\ndef fstep_s({head}, hh_0):\n    return ({', '.join(f)})\n\n"
-           + codegen.split_loops_source(N, P))
+           + split_loops.split_loops_source(N, P))
     monkeypatch.setenv("LIEFI_CACHE_DIR", str(tmp_path))
     compiled = []
 

@@ -229,3 +229,35 @@ def test_scene_run_with_a_dt_that_does_not_divide(knife):
     r = sc.run(dt=0.03, t_final=1.0, scheme="rk4", gains="auto", backend="numpy")
     assert r.t[-1] == 1.0 and r.steps == 34 and r.method["last_step"] == pytest.approx(0.01)
     assert "shortened" in r.method["why"] and max(r.max_error.values()) < 1e-6
+
+
+# --- item: an adaptive run's partial steps take the gains of the step they continue --------------------------------
+
+
+def test_adaptive_gains_partial_and_remade_steps_use_the_gains_of_their_step():
+    """Kepler, rk4, the paper's gains 4/2 adapted along the run (lowered to ~0.95 towards the apocentre, back to 4
+    at the pericentre at the end).  Before, every partial step took the gains of the run's end: at the apocentre
+    ``dt lambda_max`` was past RK4's stability bound, a step to ``t_{k+1}`` missed the run's own ``y_{k+1}`` by
+    1e-6 (|R(-6.8)| = 53 on the drift) and the steps re-made between states saved every 10 were nan."""
+    sc = scenes.get("kepler")
+    fi = sc.integrator()
+    kw = dict(dt=0.02, scheme="rk4", adaptive=True, dense_output=True)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        every = fi.run(70.0, **kw)
+        sparse = fi.run(70.0, save_every=10, **kw)
+    g = [h["L_x"] for h in every.stability.gain_history]
+    assert min(g) < 0.3 * g[-1]  # the gains the run ends with are far above those of its middle
+    # a step of the run's map from y_k to t_{k+1} (up to 1e-12) gives the run's y_{k+1} back
+    np.testing.assert_allclose(every.sol(every.t[1:] - 1e-12), every.y[:, 1:], rtol=0, atol=1e-10)
+    # and the states re-made between the saved ones are the run's: sparse.sol at the saved states of `sparse`
+    # approached from the previous one (9 full steps re-made, then one of dt - 1e-12)
+    near = np.nonzero((sparse.t > 25.0) & (sparse.t < 45.0))[0]  # around the apocentre, t = 35
+    np.testing.assert_allclose(sparse.sol(sparse.t[near] - 1e-12), sparse.y[:, near], rtol=0, atol=1e-10)
+    tm = np.linspace(0.0, 70.0, 41)[1:] - 0.0071  # between the steps
+    ex = sc.exact(tm, sc.variant(None))
+    ref = np.stack([np.asarray(ex[n], float) for n in fi.names])
+    ex_steps = sc.exact(every.t, sc.variant(None))
+    err_steps = np.max(np.abs(every.y - np.stack([np.asarray(ex_steps[n], float) for n in fi.names])))
+    for sol in (every, sparse):
+        assert np.max(np.abs(sol.sol(tm) - ref)) <= 2 * err_steps

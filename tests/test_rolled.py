@@ -1,4 +1,4 @@
-"""The split schemes' rolled loop of a large system (:mod:`liefi.engine._rolled`), in plain Python (fast).
+"""The split schemes' rolled loop of a large system (:mod:`liefi.engine.split_loops`), in plain Python (fast).
 
 For more than ``MAX_INLINE_ARGS`` scalar arguments the split loops are one loop over the stages, the
 tableau read at run time: far less source for numba to compile (the cold compile of a rolling body),
@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from liefi.engine import codegen
+from liefi.engine import codegen, split_loops
 from liefi.schemes.split import SPLIT_SCHEMES
 
 N, P = 20, 12  # N + P > MAX_INLINE_ARGS
@@ -30,14 +30,14 @@ def _field_source():
 
 def _module(extra=""):
     ns = {}
-    src = _field_source() + "\n" + codegen.split_loops_source(N, P) + extra
+    src = _field_source() + "\n" + split_loops.split_loops_source(N, P) + extra
     exec(codegen.module_text(src, "python", False), ns)
     return ns
 
 
 def test_large_systems_get_one_rolled_loop_shared_by_the_schemes():
     assert N + P > codegen.MAX_INLINE_ARGS
-    src = codegen.split_loops_source(N, P)
+    src = split_loops.split_loops_source(N, P)
     assert src.count("def split_loop(") == 1
     unrolled = "\n".join(codegen.scalar_loop_source(codegen.split_loop_name(s), s.explicit, N, P, split=True)
                          for s in SPLIT_SCHEMES.values())
@@ -46,7 +46,7 @@ def test_large_systems_get_one_rolled_loop_shared_by_the_schemes():
         return sum(text.count(op) for op in (" + ", " * ", " - ", " / "))
 
     assert operations(src) < operations(unrolled) / 10
-    small = codegen.split_loops_source(3, 2)  # small systems keep the unrolled loops (registers)
+    small = split_loops.split_loops_source(3, 2)  # small systems keep the unrolled loops (registers)
     assert "def split_loop(" not in small
 
 

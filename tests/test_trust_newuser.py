@@ -4,6 +4,7 @@ the documented default, and the time-left estimate of a sweep of unequal tasks."
 import json
 import os
 import re
+import threading
 
 import numpy as np
 import pytest
@@ -199,41 +200,108 @@ def test_bench_tasks_have_a_prior_and_tight_tolerances_cost_more():
 # --- the first compile ------------------------------------------------------------------------------------------
 
 
-def test_a_long_compile_is_announced_and_a_short_one_or_none_is_not(capsys):
+class _WatchedCompile(dict):
+    """``liefi._progress._COMPILE`` that records what the notice's watcher thread reads of the compile's start
+    (``since``: ``None`` when no compile runs), so that a test waits for the watcher's looks, not for a time."""
+
+    def __init__(self, state):
+        super().__init__(state)
+        self.looks = []
+
+    def __getitem__(self, key):
+        value = super().__getitem__(key)
+        if key == "since" and threading.current_thread().name == "liefi-compile-notice":
+            self.looks.append(value)
+        return value
+
+
+def _wait_for(cond, what):
+    """Until ``cond()`` (the watcher looks every 0.1 s; 60 s only guards against a hang)."""
     import time
 
+    deadline = time.monotonic() + 60.0
+    while not cond():
+        assert time.monotonic() < deadline, f"waited 60 s for {what}"
+        time.sleep(0.01)
+
+
+def _watchers():
+    return [t for t in threading.enumerate() if t.name == "liefi-compile-notice" and t.is_alive()]
+
+
+def _looked(state, watchers, k=2):
+    """A condition: the watchers looked ``k`` more times from now, or have ended (a notice ends a watcher)."""
+    n = len(state.looks)
+    return lambda: len(state.looks) >= n + k or not any(t.is_alive() for t in watchers)
+
+
+@pytest.fixture
+def notice_clock(monkeypatch):
+    """``liefi._progress`` on a clock that only the test moves, its compile state watched: ``(clock, state)``."""
+    from liefi import _progress
+
+    clock, state = _Clock(), _WatchedCompile(_progress._COMPILE)
+    monkeypatch.setattr(_progress, "time", clock)
+    monkeypatch.setattr(_progress, "_COMPILE", state)
+    return clock, state
+
+
+def test_a_long_compile_is_announced_and_a_short_one_or_none_is_not(capsys, notice_clock):
+    """Compiles that last 0.5 s, 0.01 s and 0.3 s on the notice's clock: one line for the first, nothing for the
+    short one, for other work after it, or where the notice is off.  The test waits for the watcher's looks,
+    never for a time (before: real sleeps, whose lengths and the watcher's wake-ups a loaded machine stretches)."""
     from liefi._progress import COMPILE_MESSAGE, compile_notice, compiling
 
+    clock, state = notice_clock
+    err = []
+
+    def said():
+        err.append(capsys.readouterr().err)
+        return "".join(err).count(COMPILE_MESSAGE)
+
     with compile_notice(after=0.05, enabled=True):
+        watchers = _watchers()
         with compiling():
-            time.sleep(0.5)
-    assert capsys.readouterr().err.count(COMPILE_MESSAGE) == 1
+            clock.now += 0.5
+            _wait_for(_looked(state, watchers), "the notice of a compile of 0.5 s")  # a notice ends the watcher
+    assert said() == 1
     with compile_notice(after=0.3, enabled=True):
+        watchers = _watchers()
         with compiling():
-            time.sleep(0.01)  # kernels loaded from the cache
-        time.sleep(0.5)  # other work: not a compile
+            clock.now += 0.01  # kernels loaded from the cache
+            _wait_for(_looked(state, watchers), "two looks at the compile")
+        _wait_for(_looked(state, watchers), "two looks after it")  # no look at its start still under way
+        clock.now += 0.5  # other work: not a compile
+        _wait_for(_looked(state, watchers), "two looks at the other work")
+        assert all(t.is_alive() for t in watchers)  # still watching: nothing said
+    n = len(state.looks)
     with compile_notice(after=0.05, enabled=False):  # stderr neither a terminal nor a notebook
         with compiling():
-            time.sleep(0.3)
-    assert capsys.readouterr().err == ""
+            clock.now += 0.3
+            assert not state["watching"]
+    assert len(state.looks) == n  # no watcher
+    assert said() == 1 and "".join(err) == COMPILE_MESSAGE + "\n"
 
 
-def test_a_run_announces_its_compile_and_its_progress_starts_after_it(knife, monkeypatch, capsys):
-    """A (slow, faked) compile in fi.run: one line on stderr while it lasts, and the bar starts after it."""
-    import time
+def test_a_run_announces_its_compile_and_its_progress_starts_after_it(knife, monkeypatch, capsys, notice_clock):
+    """A (slow, faked) compile in fi.run: one line on stderr while it lasts, and the bar starts after it.  The
+    compile lasts 1.5 s on the notice's clock and ends once the watcher has looked at it (before: a real sleep
+    of 1.5 s, within which a loaded machine had to wake the watcher)."""
     import warnings
 
     from liefi import _progress
     from liefi.engine import kernels
     from liefi.engine.trace import NotCompilable
 
+    clock, state = notice_clock
     _, fi = knife
     ended, starts = [], []
 
     def slow_compile(fi, **kw):
         with _progress.compiling():
-            time.sleep(1.5)
-        ended.append(time.monotonic())
+            clock.now += 1.5
+            _wait_for(_looked(state, _watchers()), "the watcher's look at the compile")
+        ended.append(clock.now)
         raise NotCompilable("a test's stand-in for a long compile")
 
     init = _progress.Progress.__init__
@@ -252,7 +320,7 @@ def test_a_run_announces_its_compile_and_its_progress_starts_after_it(knife, mon
         sol = fi.run(0.5, dt=1e-2, scheme="imex-rk4", backend="numba", progress=True)
     assert sol.backend == "numpy" and ended
     assert capsys.readouterr().err.count(_progress.COMPILE_MESSAGE) == 1
-    assert starts and min(starts) >= ended[0]  # the progress counts steps, not the compile
+    assert starts and min(starts) >= ended[0] > 0.0  # the progress counts steps, not the compile
 
 
 def test_the_notice_is_on_in_a_notebook(monkeypatch):

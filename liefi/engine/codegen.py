@@ -447,22 +447,6 @@ def loops_source(N, *, projection=False, n_params=None):
     return "\n".join(src)
 
 
-def split_loops_source(N, n_params):
-    """The loops of the split schemes of :mod:`liefi.schemes.split` (``run_imex_euler``, ...), on
-    ``xrhs_s`` and ``fstep_s`` (:func:`scalar_loop_source`); for a system with more than
-    :data:`MAX_INLINE_ARGS` scalar arguments, one loop shared by the schemes, their tableaux read at
-    run time (:func:`liefi.engine._rolled.rolled_split_loops_source`: the same arithmetic, a fraction
-    of the compile)."""
-    from ..schemes.split import SPLIT_SCHEMES
-
-    if N + n_params > MAX_INLINE_ARGS:
-        from ._rolled import rolled_split_loops_source
-
-        return rolled_split_loops_source(N, n_params, SPLIT_SCHEMES.values())
-    return "\n".join(scalar_loop_source(split_loop_name(s), s.explicit, N, n_params, split=True)
-                     for s in SPLIT_SCHEMES.values())
-
-
 def split_loop_name(scheme):
     """The generated loop's name of a split scheme: ``imex-rk4`` -> ``run_imex_rk4``."""
     return "run_" + scheme.name.replace("-", "_")

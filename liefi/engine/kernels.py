@@ -29,8 +29,8 @@ import numpy as np
 
 from .._progress import compiling
 from . import cache as _cache
-from .codegen import (NJIT, dla_loop_source, function_source, loops_source, project_source, scalar_function_source,
-                      split_loops_source)
+from .codegen import NJIT, dla_loop_source, function_source, loops_source, project_source, scalar_function_source
+from .split_loops import split_loops_source
 from .runners import CompiledDLA, CompiledField
 from .trace import TRACED_DATA, CompilationWarning, NotCompilable, as_sym, jacobian, trace, traced_call
 

@@ -73,6 +73,8 @@ import time
 
 import numpy as np
 
+from .. import _members
+
 #: the imaginary step (any number far below the rounding unit of the states works)
 STEP = 1e-30
 #: the complex replay's real part must match the run's saved states to this (relative)
@@ -192,7 +194,10 @@ def _start_parameters(fi, Y, y0):
     nz = fi.system.space.nz
     for Ys, ps, dest in ((np.asarray(y0, float)[None], zero[:1].real, None), (Y, zero, out)):
         _, z = fi.split(Ys)
-        terms = fi.invariant_terms(z, _core.evaluate(fi.system, z[..., :nz]), ps)
+        # the start alone: with the first member's constants of the complex ensemble (those of the run, to the
+        # complex step's O(h^2)), its per-member constants (liefi._members) being the tangents'
+        with _members.selected(Y.shape[:-1], 0) if dest is None else contextlib.nullcontext():
+            terms = fi.invariant_terms(z, _core.evaluate(fi.system, z[..., :nz]), ps)
         vals = [r for name, r, _, _ in terms if name == "energy" or name in {u.name for u in fi.user}]
         if dest is None:  # which targets are the start's values (a given target, or another start: held)
             follow = [abs(complex(v[0]).real - p[sl]) <= 1e-12 * max(1.0, abs(p[sl])) for v, sl in zip(vals, slots)]

@@ -34,7 +34,7 @@ from .._keywords import RUN_FOREIGN, keywords, unknown_keyword
 from .._parameters import gain_number, parse_gains, per_member, target_number, target_value  # noqa: F401
 from ..systems.invariant import Invariant  # noqa: F401  (liefi.Invariant: a first integral the user adds)
 from ..systems.system import NonholonomicSystem
-from . import _run_gains
+from . import _ensemble, _run_gains
 
 
 @dataclass(frozen=True)
@@ -170,6 +170,11 @@ class FeedbackIntegrator:
             return super().__new__(ForcedFeedbackIntegrator)
         return super().__new__(cls)
 
+    #: ``(ensemble's shape, flat indices)`` of an integrator of :meth:`members`, else ``None`` (:meth:`selection`)
+    _selected = None
+    _data_key = None
+    _y0_targets = frozenset()
+
     @keywords
     def __init__(
         self,
@@ -218,9 +223,12 @@ class FeedbackIntegrator:
             raise ValueError("y0: contains non-finite numbers")
         if getattr(system, "start_check", None) is not None:
             system.start_check(y0, self.configuration)  # a start that is no state of the system (a rolling body's)
+        _ensemble.member_states(system, y0.shape[:-1], "y0")
         self.y0 = y0
         #: the shape of the ensemble (``()`` for one trajectory): per-member gains and targets have it
         self.batch = y0.shape[:-1]
+        #: the system's data (``data_key``: its constants) the targets were taken with (:meth:`parameters`)
+        self._data_key = _ensemble.data_state(system)
 
         # --- which invariants -------------------------------------------------
         if invariants is None:
@@ -303,6 +311,8 @@ class FeedbackIntegrator:
                 if k not in self.targets:
                     raise ValueError(f"targets: unknown name {k!r}; targets exist for {list(self.targets)}")
                 self.targets[k] = target_value(k, v, self.batch)
+        #: the targets taken at y0 (not given): they hold the system's data at the construction
+        self._y0_targets = {k for k in self.targets if k not in constraint_names and k not in (targets or {})}
         #: target of the penalized energy (``h~`` or ``h`` at ``y0`` unless given)
         self.energy_target = self.targets.get("energy", 0.0)
         #: targets of the user invariants, in the order of ``self.user``
@@ -383,38 +393,26 @@ class FeedbackIntegrator:
             self._parameters = p
         return p
 
+    def _check_data(self):
+        """Retake what this integrator took at ``y0`` once the system's constants changed since it was built
+        (:func:`liefi.integrator._ensemble.check_data`)."""
+        _ensemble.check_data(self)
+
     def members(self, index=None):
-        """The integrator restricted to some members of the ensemble (their own targets and gains).
+        """The integrator restricted to some members of the ensemble (their own targets, gains and constants).
 
-        ``index``: ``None``, the whole ensemble flattened to ``(B,)``; an int,
-        that member alone (one trajectory); an integer array, those members
-        (flat indices into :attr:`batch`).  Without per-member values (one
-        trajectory) the integrator itself.  Used where a few members stand for
-        the ensemble (the stability pilot) or its states are flattened.
+        ``index``: ``None``, the whole ensemble flattened to ``(B,)``; an int, that member alone; an integer
+        array, those members (flat indices into :attr:`batch`).  It evaluates its system inside
+        :meth:`selection` (:func:`liefi.integrator._ensemble.members`).
         """
-        if not self.batch:
-            return self
-        import copy
+        return _ensemble.members(self, index)
 
-        B = int(np.prod(self.batch, dtype=int))
+    def selection(self):
+        """The context in which the system's per-member data (constants) are those of this integrator's members.
 
-        def pick(v):
-            if np.ndim(v) == 0:
-                return v
-            a = np.asarray(v, dtype=float).reshape(B)
-            if index is None:
-                return a
-            return float(a[index]) if np.ndim(index) == 0 else a[np.asarray(index)]
-
-        new = copy.copy(self)
-        Y = np.broadcast_to(self.y0, self.batch + (self.n,)).reshape(B, self.n)  # (one y0 after for_batch)
-        new.y0 = Y if index is None else Y[index]
-        new.batch = new.y0.shape[:-1]
-        new.targets = {k: pick(v) for k, v in self.targets.items()}
-        new.energy_target = new.targets.get("energy", 0.0)
-        new.user_targets = [new.targets[u.name] for u in new.user]
-        new._set_gains({k: pick(v) for k, v in self.gains.items()})
-        return new
+        A no-op for the whole integrator (:func:`liefi.integrator._ensemble.selection`).
+        """
+        return _ensemble.selection(self)
 
     def for_batch(self, batch):
         """The integrator for an ensemble of shape ``batch`` (from ``run(y0=...)``).
@@ -425,6 +423,7 @@ class FeedbackIntegrator:
         batch = tuple(batch)
         if batch == self.batch:
             return self
+        _ensemble.member_states(self.system, batch, "y0")
         if self.batch:
             raise ValueError(
                 f"y0: this integrator holds the targets and gains of an ensemble of shape {self.batch} (from the "
@@ -775,6 +774,7 @@ class FeedbackIntegrator:
 
         if unknown:
             raise unknown_keyword("run", unknown, FeedbackIntegrator.run, RUN_FOREIGN)
+        self._check_data()  # targets taken at y0 with constants changed since: taken again
         t_span = positional_span(t_span, more, scheme=scheme)
         scheme = method_scheme(method, scheme)
         if t_span is None:

@@ -494,12 +494,13 @@ def exactly_kept(fi, scheme="rk4", y=None, *, n_samples=6, rel=1e-2, tol=1e-10):
     _tableau(scheme)
     y0 = fi.y0 if y is None else np.asarray(y, float)
     y0 = np.asarray(y0, float).reshape(-1, fi.n)[0]
-    fi = fi.members(0)  # a property of the field: the first member's targets stand for all
+    fi = fi.members(0)  # a property of the field: the first member (its targets, its constants) stands for all
     rng = np.random.default_rng(12345)
     scale = np.maximum(np.abs(y0), 1e-3 * max(1.0, float(np.max(np.abs(y0)))))
     Y = np.concatenate([y0[None], y0 + rel * scale * rng.standard_normal((n_samples, fi.n))])
-    jet = fi.invariant_gradients(Y)
-    X = fi.unforced_vector_field(Y)
+    with fi.selection():
+        jet = fi.invariant_gradients(Y)
+        X = fi.unforced_vector_field(Y)
     norms = np.linalg.norm(jet.grad, axis=-1)  # (s, m)
     linear = []
     for j in range(len(jet.names)):
@@ -592,7 +593,8 @@ def exact_drops(fi, sch, y0, *, rtol=1e-12, kept=None):
         kept = exactly_kept(flat.members(0), sch, Y[0]) if kept is None else kept
         if not kept:
             return {}
-        jet = flat.invariant_gradients(Y)
+        with flat.selection():  # the members flattened: their own constants
+            jet = flat.invariant_gradients(Y)
         scales = drift_scales(fi)
     out = {}
     for name in kept:

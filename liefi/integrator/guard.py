@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._data import check_real
+from .._members import MembersError
 from ..schemes import IntegrationError
 from ..schemes import split as _split
 from .stability import (
@@ -200,13 +201,16 @@ def data_defect(fi, y):
         n = fi.system.space.data_dim
         if not n:
             return ""
-        x = np.asarray(y, float)[..., fi.nc : fi.nc + n].reshape(-1, n)
+        x = np.asarray(y, float)[..., fi.nc : fi.nc + n]  # the states' own shape: per-member data
+        flat = x.reshape(-1, n)
         sys_ = fi.system
         for datum in (sys_.metric, sys_.constraints, sys_.potential, sys_.vector_potential):
             if datum is None or datum.constant:
                 continue
             with np.errstate(all="ignore"):
-                check_real(datum(x), datum.name, x[0] if x.shape[0] == 1 else x)
+                check_real(datum(x), datum.name, flat[0] if flat.shape[0] == 1 else flat)
+    except MembersError:
+        raise
     except ValueError as exc:
         return (f"{' '.join(str(exc).split())}: the system's data leave the real numbers at this state, which "
                 "no choice of gains or step repairs; check their formulas there (e.g. a square root or a "
@@ -353,7 +357,9 @@ class Guard:
                 rep.estimate = est
             flat = np.asarray(y0, float).reshape(-1, run_fi.n)
             pick = np.unique(np.linspace(0, flat.shape[0] - 1, min(flat.shape[0], RESOLUTION_MEMBERS)).astype(int))
-            msg = first_integral_defect(run_fi.members(pick), flat[pick])
+            few = run_fi.members(pick)
+            with few.selection():  # those members' own per-member data
+                msg = first_integral_defect(few, flat[pick])
             if msg:
                 self.warn(msg, 1)
         if watch:

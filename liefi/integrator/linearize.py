@@ -495,6 +495,10 @@ def linearize(system, state, qdot=None, *, u=None, symmetries=None, integrals=No
     """
     if not isinstance(system, NonholonomicSystem):
         raise TypeError(f"system: expected a liefi NonholonomicSystem, got {system!r}")
+    if getattr(system, "member_shape", ()):
+        raise ValueError(f"constants: the system holds per-member constants (shape {system.constants.shape}); a "
+                         "linearization is of one system at one state: set one value of each constant first "
+                         "(system.constants = system.constants[k] for member k)")
     chart = None
     if isinstance(system, MechanicsSystem) and (qdot is not None or u is not None):
         z0 = np.asarray(system.state(state, qdot, u=u), float)

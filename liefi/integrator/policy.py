@@ -267,8 +267,9 @@ class Policy:
             sub = np.nonzero(due)[0]
             run_fi_all, run_fi = run_fi, run_fi.members(sub)
             y = np.asarray(y, float).reshape(-1, run_fi.n)[sub]
-        # the verdict on the segment: one question to the guard
-        st, _, ratio = self.guard.segment(run_fi, y, t_now, s0, y_all, adaptive=self.adaptive)
+        # the verdict on the segment: one question to the guard (some members: with their own per-member data)
+        with run_fi.selection():
+            st, _, ratio = self.guard.segment(run_fi, y, t_now, s0, y_all, adaptive=self.adaptive)
         if not self.adaptive:
             return run_fi, N
         # the next gains, asked of liefi.integrator.gains once: for the whole run, or for the members due now
@@ -282,7 +283,8 @@ class Policy:
             y = y[keep]
             base = self.fi.members(idx)
             rate = rate if np.ndim(rate) == 0 else np.asarray(rate).reshape(-1)[idx]
-        new = adapted_gains(base, y, rate, dt, auto=self.auto, split=self.split)
+        with base.selection():
+            new = adapted_gains(base, y, rate, dt, auto=self.auto, split=self.split)
         if sub is not None:
             return self._adapt_members(run_fi_all, y, s0, t_now, idx, np.asarray(st.lam, float).reshape(-1)[keep], new)
         if self.monitor_every is None and self.ratio_set is not None:
@@ -327,8 +329,9 @@ class Policy:
             g[idx] = np.broadcast_to(np.asarray(v, float), idx.shape)
             gains[k] = g.reshape(self.batch)
         run_fi = run_fi.with_gains(gains)
-        with np.errstate(all="ignore"):
-            lam2 = np.asarray(stiffness(run_fi.members(idx), y).lam, float).reshape(-1)
+        due = run_fi.members(idx)
+        with np.errstate(all="ignore"), due.selection():
+            lam2 = np.asarray(stiffness(due, y).lam, float).reshape(-1)
         self.ratio_set_i[idx] = dt * lam2 / beta if math.isfinite(beta) else 0.0
         for i in idx:
             self.next_i[i] = s0 + _chunk(s0, self.total, int(self.N_i[i]), self.save_every)[0]

@@ -440,7 +440,7 @@ def run_feedback(fi, t_span, *, dt=None, scheme=None, t_eval=None, events=None, 
                 run_fi, N = policy.between(run_fi, y, s0, N)
                 next_guard = s0 + N
                 checked = (y, t_start + s0 * dt)
-                stepper.fi = run_fi  # the partial steps follow the gains in effect
+                stepper.switch(s0, run_fi)  # the steps from s0 on: their gains for the partial steps
         if h_last and not status:  # the last step, shortened to end at t_final
             y_last = stepper.step(y[None], [h_last])[0]
             if not np.all(np.isfinite(y_last)):

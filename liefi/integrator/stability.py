@@ -54,6 +54,7 @@ study are experiments: :mod:`liefi.experiments`.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import warnings
 from dataclasses import dataclass, field
@@ -290,7 +291,9 @@ def pilot(fi, y0, t_final, *, max_evals=2000, max_rate=None):
     budget = max(1, int(max_evals) // RK4.stages - 1)
     with np.errstate(all="ignore"):
         try:
-            rho = dynamics_rate(fi, _members(y0, PILOT_MEMBERS))
+            few, Y0 = _spread(fi, y0, PILOT_MEMBERS)
+            with few.selection():
+                rho = dynamics_rate(few, Y0)
         except Exception:  # noqa: BLE001 -- a pilot that cannot start leaves the estimate at y0
             return np.array([0.0]), y0[None]
         h = float(t_final) / budget
@@ -430,9 +433,10 @@ def metric_defect(fi, y, rtol=METRIC_DEGENERACY):
             return ""
 
         def metrics(yy):
-            x = np.asarray(yy, float)[..., fi.nc : fi.nc + n].reshape(-1, n)
+            x = np.asarray(yy, float)[..., fi.nc : fi.nc + n]  # the states' own shape: per-member data
             m = np.asarray(fi.system.metric(x), float)
-            m = np.broadcast_to(m, (x.shape[0],) + m.shape[-2:])
+            m = np.broadcast_to(m, x.shape[:-1] + m.shape[-2:]).reshape((-1,) + m.shape[-2:])
+            x = x.reshape(-1, n)
             return x, 0.5 * (m + np.swapaxes(m, -1, -2))
 
         with np.errstate(all="ignore"):
@@ -662,64 +666,70 @@ def estimate(fi, dt, scheme="euler", *, t_final=None, y0=None, max_evals=None, r
     """
     sch, beta = resolve_scheme(scheme)
     y0 = fi.y0 if y0 is None else np.asarray(y0, float)
-    if fi.batch:  # per-member gains and targets: the pilot's members take theirs along
-        fi = fi.members()
-        y0 = y0.reshape(-1, y0.shape[-1])
-    if t_final is not None and max_evals is None:
-        max_evals = _max_evals(t_final / dt, getattr(sch, "stages", 1))
-    if t_final is not None and math.isfinite(beta):
-        start = y0
-        flat = y0.reshape(-1, y0.shape[-1])
-        if flat.shape[0] > PILOT_MEMBERS:  # a batch: the pilot follows its stiffest member and a few others
-            with np.errstate(all="ignore"):
-                lam_b = np.nan_to_num(np.asarray(stiffness(fi, flat).lam, float), nan=-np.inf)
-            pick = np.unique(np.concatenate([[int(np.argmax(lam_b))],
-                                             np.linspace(0, flat.shape[0] - 1, PILOT_MEMBERS - 1).astype(int)]))
-            start = flat[pick]
-            fi = fi.members(pick)
-        ts, Ys = pilot(fi, start, t_final, max_evals=max_evals)
-        if len(ts) > 2:  # refine around the stiffest pilot step (a fixed 16 RK4 steps)
-            with np.errstate(all="ignore"):
-                lam_p = np.nan_to_num(np.asarray(stiffness(fi, Ys).lam, float), nan=-np.inf)
-            i = int(np.argmax(lam_p.reshape(len(ts), -1).max(axis=1)))
-            j0, j1 = max(i - 1, 0), min(i + 1, len(ts) - 1)
-            t2, Y2 = pilot(fi, Ys[j0], ts[j1] - ts[j0], max_evals=4 * 17)
-            ts = np.concatenate([ts, ts[j0] + t2[1:]])
-            Ys = np.concatenate([Ys, Y2[1:]])
-            order = np.argsort(ts, kind="stable")
-            ts, Ys = ts[order], Ys[order]
-    else:
-        ts, Ys = np.array([0.0]), y0[None]
-    with np.errstate(all="ignore"):
-        st = stiffness(fi, Ys)
-    lam_t = np.asarray(st.lam).reshape(len(ts), -1)
-    lam_t = np.where(np.isfinite(lam_t), lam_t, -np.inf)
-    per_t = lam_t.max(axis=1)
-    i = int(np.argmax(per_t))
-    lam = float(max(per_t[i], 0.0))
-    lam0 = float(max(per_t[0], 0.0))
-    dom = np.asarray(st.dominant, dtype=object).reshape(len(ts), -1)[i]
-    dom = str(dom[int(np.argmax(lam_t[i]))])
-    ev = np.asarray(st.eigenvalues).reshape((len(ts), lam_t.shape[1]) + st.eigenvalues.shape[-1:])[i]
-    ev = ev[int(np.argmax(lam_t[i]))]
-    rate = growth = dt_growth = float("nan")
-    if resolution:
-        try:  # at the start and at a few points of the pilot, on a few members of a batch
-            pick = np.unique(np.linspace(0, len(ts) - 1, min(len(ts), 6)).astype(int))
-            evX = dynamics_eigenvalues(fi, _members(Ys[pick], RESOLUTION_MEMBERS))
-            rate = dt * float(np.max(np.abs(evX), initial=0.0))
-            growth = dynamics_growth(sch, dt, evX)
-            dt_growth = growth_step(sch, dt, evX) if growth > GROWTH_LIMIT else float(dt)
-        except Exception:  # noqa: BLE001 -- a diagnostic only
-            rate = growth = dt_growth = float("nan")
-    over = np.nonzero(dt * per_t > beta * (1 + LIMIT_BAND))[0] if math.isfinite(beta) else []
-    t_cross = float(ts[over[0]]) if len(over) else float("nan")
-    return StabilityEstimate(
-        getattr(sch, "name", str(scheme)), beta, float(dt), lam, lam0, float(ts[i]), float(ts[-1]),
-        float(t_final if t_final is not None else 0.0), dict(fi.gains), dom, ev, rate, t_cross, growth,
-        _members(Ys[np.unique(np.linspace(0, len(ts) - 1, min(len(ts), 8)).astype(int))], RESOLUTION_MEMBERS),
-        metric_defect(fi, Ys[: i + 2]) if len(ts) > 1 else "", dt_growth, float(resolution_limit),
-    )
+    with contextlib.ExitStack() as members:
+        members.enter_context(fi.selection())  # some members of an ensemble: their own per-member data
+        if fi.batch:  # per-member gains and targets: the pilot's members take theirs along
+            fi = fi.members()
+            y0 = y0.reshape(-1, y0.shape[-1])
+            members.enter_context(fi.selection())
+        if t_final is not None and max_evals is None:
+            max_evals = _max_evals(t_final / dt, getattr(sch, "stages", 1))
+        if t_final is not None and math.isfinite(beta):
+            start = y0
+            flat = y0.reshape(-1, y0.shape[-1])
+            if flat.shape[0] > PILOT_MEMBERS:  # a batch: the pilot follows its stiffest member and a few others
+                with np.errstate(all="ignore"):
+                    lam_b = np.nan_to_num(np.asarray(stiffness(fi, flat).lam, float), nan=-np.inf)
+                pick = np.unique(np.concatenate([[int(np.argmax(lam_b))],
+                                                 np.linspace(0, flat.shape[0] - 1, PILOT_MEMBERS - 1).astype(int)]))
+                start = flat[pick]
+                fi = fi.members(pick)
+                members.enter_context(fi.selection())
+            ts, Ys = pilot(fi, start, t_final, max_evals=max_evals)
+            if len(ts) > 2:  # refine around the stiffest pilot step (a fixed 16 RK4 steps)
+                with np.errstate(all="ignore"):
+                    lam_p = np.nan_to_num(np.asarray(stiffness(fi, Ys).lam, float), nan=-np.inf)
+                i = int(np.argmax(lam_p.reshape(len(ts), -1).max(axis=1)))
+                j0, j1 = max(i - 1, 0), min(i + 1, len(ts) - 1)
+                t2, Y2 = pilot(fi, Ys[j0], ts[j1] - ts[j0], max_evals=4 * 17)
+                ts = np.concatenate([ts, ts[j0] + t2[1:]])
+                Ys = np.concatenate([Ys, Y2[1:]])
+                order = np.argsort(ts, kind="stable")
+                ts, Ys = ts[order], Ys[order]
+        else:
+            ts, Ys = np.array([0.0]), y0[None]
+        with np.errstate(all="ignore"):
+            st = stiffness(fi, Ys)
+        lam_t = np.asarray(st.lam).reshape(len(ts), -1)
+        lam_t = np.where(np.isfinite(lam_t), lam_t, -np.inf)
+        per_t = lam_t.max(axis=1)
+        i = int(np.argmax(per_t))
+        lam = float(max(per_t[i], 0.0))
+        lam0 = float(max(per_t[0], 0.0))
+        dom = np.asarray(st.dominant, dtype=object).reshape(len(ts), -1)[i]
+        dom = str(dom[int(np.argmax(lam_t[i]))])
+        ev = np.asarray(st.eigenvalues).reshape((len(ts), lam_t.shape[1]) + st.eigenvalues.shape[-1:])[i]
+        ev = ev[int(np.argmax(lam_t[i]))]
+        rate = growth = dt_growth = float("nan")
+        if resolution:
+            try:  # at the start and at a few points of the pilot, on a few members of a batch
+                pick = np.unique(np.linspace(0, len(ts) - 1, min(len(ts), 6)).astype(int))
+                few, Yp = _spread(fi, Ys[pick], RESOLUTION_MEMBERS)
+                with few.selection():
+                    evX = dynamics_eigenvalues(few, Yp)
+                rate = dt * float(np.max(np.abs(evX), initial=0.0))
+                growth = dynamics_growth(sch, dt, evX)
+                dt_growth = growth_step(sch, dt, evX) if growth > GROWTH_LIMIT else float(dt)
+            except Exception:  # noqa: BLE001 -- a diagnostic only
+                rate = growth = dt_growth = float("nan")
+        over = np.nonzero(dt * per_t > beta * (1 + LIMIT_BAND))[0] if math.isfinite(beta) else []
+        t_cross = float(ts[over[0]]) if len(over) else float("nan")
+        return StabilityEstimate(
+            getattr(sch, "name", str(scheme)), beta, float(dt), lam, lam0, float(ts[i]), float(ts[-1]),
+            float(t_final if t_final is not None else 0.0), dict(fi.gains), dom, ev, rate, t_cross, growth,
+            _members(Ys[np.unique(np.linspace(0, len(ts) - 1, min(len(ts), 8)).astype(int))], RESOLUTION_MEMBERS),
+            metric_defect(fi, Ys[: i + 2]) if len(ts) > 1 else "", dt_growth, float(resolution_limit),
+        )
 
 
 def _members(Y, k):
@@ -728,6 +738,22 @@ def _members(Y, k):
     if flat.shape[0] <= k:
         return flat
     return flat[np.unique(np.linspace(0, flat.shape[0] - 1, k).astype(int))]
+
+
+def _spread(fi, Y, k):
+    """``(fi_k, states)``: :func:`_members` of ``Y`` and ``fi`` restricted to the members they are states of.
+
+    ``Y`` holds states of ``fi``'s ensemble (``(*B, n)``, or a time-major stack ``(T, *B, n)``: flat state
+    ``i`` is member ``i mod prod(B)``); ``fi_k`` (:meth:`~liefi.FeedbackIntegrator.members`) evaluates them
+    with their own per-member data inside ``fi_k.selection()``.
+    """
+    flat = np.asarray(Y, float).reshape(-1, np.shape(Y)[-1])
+    idx = np.arange(flat.shape[0])
+    if flat.shape[0] > k:
+        idx = np.unique(np.linspace(0, flat.shape[0] - 1, k).astype(int))
+    if not fi.batch:
+        return fi, flat[idx]
+    return fi.members(idx % int(np.prod(fi.batch, dtype=int))), flat[idx]
 
 
 def check(fi, dt, scheme="euler", *, t_final=None, y0=None, max_evals=None, stacklevel=2) -> StabilityEstimate:

@@ -213,7 +213,21 @@ def choose_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=
 
 
 def chosen_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=None, choose_order=False):
-    """``(dt, info, scheme)``: :func:`choose_step` and the scheme it chose (an object: no look-up by name)."""
+    """``(dt, info, scheme)``: :func:`choose_step` and the scheme it chose (an object: no look-up by name).
+
+    An ensemble is flattened to ``(B, n)`` first, with each member's own gains, targets and per-member
+    constants (:meth:`~liefi.FeedbackIntegrator.members`, evaluated inside its ``selection()``): the pilot
+    and the check step the flattened states.
+    """
+    if getattr(fi, "batch", ()):
+        flat = fi.members()
+        with flat.selection():
+            return _chosen_step(flat, sch, np.asarray(y0, float).reshape(-1, fi.n), t0, t_end, rtol, atol,
+                                check=check, backend=backend, choose_order=choose_order)
+    return _chosen_step(fi, sch, y0, t0, t_end, rtol, atol, check=check, backend=backend, choose_order=choose_order)
+
+
+def _chosen_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=None, choose_order=False):
     rtol, atol = check_tolerance(rtol, atol)
     tab = _tableau(sch)
     p = int(tab.order)
@@ -453,7 +467,7 @@ def _unforced_eigenvalues(fi, Y, f=None):
     ``f``: :func:`unforced_field`'s ``X``; a compiled one (one state) evaluates the ``2n`` central differences
     state by state, to rounding the values of numpy's field at a hundredth of its cost (7--10 ms on the rolling
     bodies)."""
-    from .stability import RESOLUTION_MEMBERS, _members, dynamics_eigenvalues
+    from .stability import RESOLUTION_MEMBERS, _spread, dynamics_eigenvalues
 
     field = None
     if f is not None and f is not fi.unforced_vector_field and Y.shape[0] == 1:
@@ -462,8 +476,9 @@ def _unforced_eigenvalues(fi, Y, f=None):
             return np.stack([f(p[None])[0] for p in flat]).reshape(P.shape)
     try:
         with np.errstate(all="ignore"):
-            fm = fi.members() if fi.batch else fi
-            return dynamics_eigenvalues(fm, _members(Y.reshape(-1, fi.n), RESOLUTION_MEMBERS), field)
+            fm, Ym = _spread(fi, Y, RESOLUTION_MEMBERS)  # a few members, with their own per-member data
+            with fm.selection():
+                return dynamics_eigenvalues(fm, Ym, field)
     except Exception:  # noqa: BLE001 -- as the estimate's: no rate, no limit from it
         return None
 

@@ -13,6 +13,8 @@ import math
 
 import numpy as np
 
+from .._members import MembersError
+
 from ._check_runs import CheckRuns
 from .tolerance_local import TARGET, _size
 from .tolerance_drift import _drift_cap, _drift_pair
@@ -143,6 +145,8 @@ def _global_check(fi, sch, y0, t0, T, H, tau, rtol, atol, p, backend, runs=None,
             # error that peaks between two coarse steps, Kepler's pericentre, is seen), the run at H at its own
             fine = 2 if m == 1 and 2 * n <= _samples(y0) else 1
             ys = [runs(t0, tau, H / k, k * m // fine if k > 1 else m) for k in (1, 2, 4)]
+    except MembersError:  # states not the ensemble's: liefi's own fault, never a diverged run
+        raise
     except (IntegrationError, ArithmeticError, np.linalg.LinAlgError, ValueError, RuntimeError):
         return None
     if any(y.shape[1:] != ys[0].shape[1:] or not np.all(np.isfinite(y)) for y in ys) or ys[1].shape != ys[2].shape:
@@ -245,6 +249,8 @@ def _measure(fi, sch, y0, t0, T, dt, h, E, rtol, atol, p, backend, runs=None):
         with warnings.catch_warnings(), np.errstate(all="ignore"):
             warnings.simplefilter("ignore")
             ys = [runs(t0, T, dt / k, k * m) for k in (1, q)]
+    except MembersError:  # states not the ensemble's: liefi's own fault, never a diverged run
+        raise
     except (IntegrationError, ArithmeticError, np.linalg.LinAlgError, ValueError, RuntimeError):
         return None
     if ys[0].shape != ys[1].shape or not all(np.all(np.isfinite(y)) for y in ys):

@@ -13,6 +13,8 @@ import math
 
 import numpy as np
 
+from .._members import MembersError
+
 #: The invariants' relative drift (:func:`liefi.integrator.drift.drift`, against their scales at the start) that counts as
 #: rounding: ``1e4 u`` (``2.2e-12``), ten times the highest floor of evaluating the invariants in floating point
 #: that no step lowers (the non-reversible knife edge: ``1.5e-13 = 700 u`` whatever the step).  Below it the
@@ -45,6 +47,8 @@ def _run_drift(fi, ys, scales=None):
     try:
         with np.errstate(all="ignore"):
             d = drift(fi, np.asarray(ys, float), drift_scales(fi, ys[0]) if scales is None else scales)[0]
+    except MembersError:
+        raise
     except (ArithmeticError, np.linalg.LinAlgError, ValueError, TypeError, KeyError, IndexError):
         return 0.0
     return float(d) if math.isfinite(d) else math.inf

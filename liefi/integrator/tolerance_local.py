@@ -12,6 +12,8 @@ import math
 
 import numpy as np
 
+from .._members import MembersError
+
 #: Steps of the pilot (each with a step-doubling error estimate).
 PILOT_STEPS = 24
 #: ... where the measured check follows (a compiled backend, one trajectory): the pilot then only plans the
@@ -84,6 +86,8 @@ def _local_estimate(fi, tab, Y, T, rtol, atol, f=None, steps=None):
             try:
                 y1 = tab.step(f, Y, hh)
                 yh = tab.step(f, tab.step(f, Y, hh / 2), hh / 2)
+            except MembersError:  # states not the ensemble's: never a step out of the data's domain
+                raise
             except (ArithmeticError, np.linalg.LinAlgError, ValueError):
                 # a trial step so long that its stages leave the data's domain (a singular metric or
                 # constraint there, e.g. a rolling body's stage far from the plane): too long, not an error
@@ -107,6 +111,8 @@ def _local_estimate(fi, tab, Y, T, rtol, atol, f=None, steps=None):
                 try:
                     y1 = tab.step(f, y, h)
                     yh = tab.step(f, tab.step(f, y, h / 2), h / 2)
+                except MembersError:
+                    raise
                 except (ArithmeticError, np.linalg.LinAlgError, ValueError):  # out of the data's domain
                     e = math.inf
                     break

@@ -21,6 +21,7 @@ stability battery (:attr:`Scene.stability_cases`).
 
 from __future__ import annotations
 
+import hashlib
 import time
 from dataclasses import dataclass
 from dataclasses import field as _field
@@ -31,6 +32,7 @@ import numpy as np
 from ..results import scene_figures as plotting
 from .. import _fingerprint
 from .._keywords import SCENE_FOREIGN, keywords, unknown_keyword
+from ..integrator._ensemble import data_state
 from ..integrator.feedback import FeedbackIntegrator
 from ..reduction import core as _core
 
@@ -272,6 +274,7 @@ class Scene:
     @cached_property
     def system(self):
         system = self.build_system()
+        self.__dict__["_built_data"] = data_state(system)  # its constants as built (_changed_data)
         if _fingerprint.of_system(system) is None:  # liefi's own scene: its data and liefi's code decide the system
             data = _fingerprint.object_data(self, skip=("system",))
             if data is not None:
@@ -347,8 +350,20 @@ class Scene:
 
         return store.reference(self, v, t, lambda: self.exact(t, v))
 
+    def _changed_data(self):
+        """A digest of the system's constants when they were changed since it was built (``scene.system.constants
+        = ...``, a :func:`~liefi.from_mechanics` scene), else ``None``: a part of the key of everything the scene
+        keeps (references, steps for a tolerance; in this process and in the store), which the old constants
+        decided."""
+        system = self.__dict__.get("system")
+        now = None if system is None else data_state(system)
+        if now is None or now == self.__dict__.get("_built_data"):
+            return None
+        return hashlib.sha256(repr(now).encode()).hexdigest()
+
     def _kept(self, key, make):
         """``make()``, computed once per scene and ``key`` in this process (a reference at given times)."""
+        key = (key, self._changed_data())
         cache = self.__dict__.setdefault("_refcache", {})
         if key not in cache:
             cache[key] = make()
@@ -386,7 +401,7 @@ class Scene:
         y0 = np.asarray(self.initial_state(v), float)
         T = float(t_final)
         cache = self.__dict__.setdefault("_refcache", {})
-        key = y0.tobytes()
+        key = (y0.tobytes(), self._changed_data())
         hit = cache.get(key)
         if hit is None or hit[0] < T:
             sys = self.system
@@ -643,6 +658,8 @@ class Scene:
         rtol = DEFAULT_RTOL if rtol is None else rtol
         backend = default_backend() if backend is None else backend
         other = () if backend == default_backend() else (backend,)  # the default's stored steps keep their key
+        changed = self._changed_data()
+        other += () if changed is None else (changed,)  # the system's constants changed since its build
         key = (v.name, str(scheme), repr(gains), configuration, float(t_final), repr(rtol), repr(atol),
                bool(choose_order)) + other
         cache = self.__dict__.setdefault("_stepcache", {})

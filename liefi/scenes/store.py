@@ -11,7 +11,8 @@ process -- that asks for the same reference reads it back.
   SHA-256 of: the scene's class and name, the variant (its name, ``V``, field and
   options), every public data attribute of the scene (its parameters: inertia,
   mass, start, ``reference_rtol``/``atol``...; a scene holding anything else is
-  not stored), the full start ``initial_state(variant)``, the times ``t``, the
+  not stored), the system's constants when they were set since its build, the full start
+  ``initial_state(variant)``, the times ``t``, the
   text of every module of liefi (and of the scene's own module when it lives
   outside liefi), and the versions of Python, numpy and scipy, and whether numba
   is installed (the reference's field is the compiled one then).  Change any of
@@ -186,6 +187,9 @@ def key(scene, variant, what):
             f"python {platform.python_version()} numpy {np.__version__} scipy {scipy.__version__} "
             f"numba {importlib.util.find_spec('numba') is not None}",
         ]
+        changed = getattr(scene, "_changed_data", lambda: None)()
+        if changed is not None:  # the system's constants set since its build (scene.system.constants = ...)
+            parts.append(f"constants {changed}")
     except (_NotData, OSError):
         return None
     return hashlib.sha256("\n".join(parts).encode()).hexdigest()

@@ -28,7 +28,7 @@ def linear_coefficients(sympy, exprs, wrt):
     Otherwise ``J`` is the Jacobian and ``e0`` the substitution ``w = 0`` (the caller tests ``J`` for
     ``w`` to refuse a nonlinear expression).
     """
-    exprs = sympy.Matrix([sympy.sympify(e) for e in exprs])
+    exprs = sympy.Matrix([sympy.sympify(e, strict=True) for e in exprs])
     wrt = list(wrt)
     D, to, back = plain_symbols(sympy, wrt)
     E = exprs.xreplace(to)

@@ -64,3 +64,36 @@ def dot(sympy, a, b):
         xg = x if D is None else [sympy.Add(*[D[i, j] * x[j] for j in range(3) if x[j] != 0]) for i in range(3)]
         out += [comps[i] * xg[i] for i in range(3) if comps[i] != 0 and xg[i] != 0]
     return sympy.Add(*out)
+
+
+def oriented(a, b):
+    """Whether the frame ``a`` has an orientation path to ``b`` (sympy's ``dcm`` raises ``ValueError`` if not): a
+    search of the frames' orientation graph (``_dcm_dict``, the graph ``dcm`` walks), without forming the matrix."""
+    seen, todo = {a}, [a]
+    while todo:
+        f = todo.pop()
+        if f is b:
+            return True
+        for g in getattr(f, "_dcm_dict", {}):
+            if g not in seen:
+                seen.add(g)
+                todo.append(g)
+    return False
+
+
+def model_expressions(sympy, me, parts):
+    """Every sympy expression a model holds as given (``liefi.systems.mechanics._parts``): its coordinates,
+    speeds, kinematic equations, Lagrangian, constraints, the bodies' masses and inertias, the loads' vectors
+    and the actuators' parameters -- what :func:`~liefi.systems.sympy_input.sympy_only` checks before liefi
+    uses any of them."""
+    out = [*parts["q"], *parts["u"], *parts["aux"], *(parts["kd"] or []), *parts["constraints"], *parts["holonomic"]]
+    out += [] if parts["L"] is None else [parts["L"]]
+    for body in parts["bodies"]:
+        out += [getattr(body, "mass", 0)] + [a[0] for a in getattr(getattr(body, "central_inertia", None), "args", ())]
+        out += [getattr(body, "potential_energy", 0)]
+    for load in parts["loads"]:
+        vec = load[-1] if isinstance(load, tuple) else getattr(load, "vector", None)
+        out += [c for c, _ in getattr(vec, "args", ())]
+    for act in parts["actuators"]:
+        out += [v for v in vars(act).values() if isinstance(v, sympy.Basic)]
+    return out

@@ -84,7 +84,7 @@ def evaluator(sympy, args, exprs, what):
     (whose errors, naming ``what``, it then raises).
     """
     args = list(args)
-    exprs = [sympy.sympify(e) for e in exprs]
+    exprs = [sympy.sympify(e, strict=True) for e in exprs]
     known = set(args)
     compiled = []
 
@@ -185,7 +185,7 @@ def directional(sympy, args, exprs, wrt, what):
     :func:`evaluator`.
     """
     args, wrt = list(args), list(wrt)
-    exprs = [sympy.sympify(e) for e in exprs]
+    exprs = [sympy.sympify(e, strict=True) for e in exprs]
     known = set(args)
     fallback = []
 

@@ -64,7 +64,7 @@ def _speed_coordinates(sympy, me, kd, q, qd, u):
     coordinate rates, so that coordinate is added (an ignorable one: no position depends on it).
     """
     t = me.dynamicsymbols._t
-    free = [s for s in u if not any(sympy.sympify(e).has(s) for e in kd)]
+    free = [s for s in u if not any(sympy.sympify(e, strict=True).has(s) for e in kd)]
     if len(u) <= len(q) or not free:
         return q, qd, kd
     taken = {str(getattr(s, "func", s)) for s in q}
@@ -74,7 +74,7 @@ def _speed_coordinates(sympy, me, kd, q, qd, u):
         if name in taken:
             raise ValueError(f"model: a coordinate is named {name!r}, the name liefi gives the coordinate whose "
                              f"rate is {s.func}; rename the coordinate")
-        new.append(me.dynamicsymbols(name))
+        new.append(sympy.Function(name)(t))  # the name as it is (dynamicsymbols would parse "u 1", "u:3")
     return (list(q) + new, list(qd) + [c.diff(t) for c in new],
             list(kd) + [c.diff(t) - s for c, s in zip(new, free)])
 
@@ -143,7 +143,7 @@ def _regular_rows(sympy, rows, q):
         return False
     out = []
     for e in rows:
-        e = sympy.sympify(e)
+        e = sympy.sympify(e, strict=True)
         quotient = e.has(*quotients) and e
         for f, g in quotients.items():  # tan, cot, sec, csc as quotients of sin and cos, to find and clear
             quotient = quotient and quotient.replace(f, g)
@@ -325,11 +325,11 @@ def _restore(sympy, me, frame, bodies, fixed, q, qd, u, Kq, Ku, constraints, aux
             derived[k] = (vec, vec.to_matrix(frame).xreplace(aux0))
         return derived[k]
     X, V, Us = ([sympy.Dummy() for _ in s] for s in (q, qd, u))
-    plain = lambda e: sympy.sympify(e).xreplace(aux0).xreplace({**dict(zip(qd, V)), **dict(zip(u, Us))}).xreplace(  # noqa: E731
+    plain = lambda e: sympy.sympify(e, strict=True).xreplace(aux0).xreplace({**dict(zip(qd, V)), **dict(zip(u, Us))}).xreplace(  # noqa: E731
         dict(zip(q, X)))
     exprs = [e for (_, _, a, _) in found for e in a]  # the model's velocities
     places = [e for (_, _, _, r) in found for e in r]  # the positions from R
-    C = sympy.Matrix([sympy.sympify(c).xreplace(aux0) for c in constraints]) if constraints else sympy.zeros(0, 1)
+    C = sympy.Matrix([sympy.sympify(c, strict=True).xreplace(aux0) for c in constraints]) if constraints else sympy.zeros(0, 1)
     Cw = linear_coefficients(sympy, C, list(qd) + list(u))[0] if constraints else sympy.zeros(0, n + m)
     K = [Kq, Ku] if u else []
     allx = [plain(e) for e in exprs + places + [e for M in K for e in M] + list(Cw)]
@@ -426,8 +426,7 @@ def _restore(sympy, me, frame, bodies, fixed, q, qd, u, Kq, Ku, constraints, aux
                     raise ValueError(f"model: two points named {R.name!r} (the roots of different bodies' position "
                                      f"trees) both need their places restored, as {names[i]!r}; give them "
                                      "different names")
-            new = me.dynamicsymbols(" ".join(names[i] for i in comps))
-            new = list(new) if isinstance(new, (list, tuple)) else [new]
+            new = [sympy.Function(names[i])(t) for i in comps]  # by name, never parsed (a point named "C D" or "a:c")
             coords += new
             unit = (frame.x, frame.y, frame.z)
             for s, i in zip(new, comps):
@@ -512,7 +511,7 @@ class _Checks:
         V = [sp.Dummy() for _ in self.qd]
         Us = [sp.Dummy() for _ in self.u]
         to = {**dict(zip(self.qd, V)), **dict(zip(self.u, Us))}
-        plain = lambda e: sp.sympify(e).xreplace(self.aux0).xreplace(to).xreplace(dict(zip(self.q, X)))  # noqa: E731
+        plain = lambda e: sp.sympify(e, strict=True).xreplace(self.aux0).xreplace(to).xreplace(dict(zip(self.q, X)))  # noqa: E731
         return X, V, Us, plain
 
     def _points(self):

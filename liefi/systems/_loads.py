@@ -76,7 +76,7 @@ def generalized_forces(sympy, me, pairs, power_of, qd, u, q):
             exprs[j] += P.diff(wj)
     exprs = [e.xreplace(dict(zip(held, w))) for e in exprs]
     # plain symbols for t, q, w and the inputs: derivatives first (q' is a Derivative of q)
-    T = sympy.Symbol("t_")
+    T = sympy.Dummy("t")  # liefi's own: a model's symbol named like it (a constant "t_") stays the model's
     Xq = [sympy.Dummy(f"q{j}") for j in range(len(q))]
     Vw = [sympy.Dummy(f"v{j}") for j in range(len(w))]
     exprs = [e.xreplace(dict(zip(w, Vw))).xreplace(dict(zip(q, Xq))) for e in exprs]

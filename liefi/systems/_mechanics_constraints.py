@@ -52,7 +52,7 @@ def holonomic_functions(sympy, f, q, X, params, bind):
     symbols that stand for them, ``bind(exprs, shape, what)`` liefi's lambdify with the
     constants bound.
     """
-    plain = sympy.Matrix([sympy.sympify(e).xreplace(dict(zip(q, X))) for e in f])
+    plain = sympy.Matrix([sympy.sympify(e, strict=True).xreplace(dict(zip(q, X))) for e in f])
     bad = [e for e in plain if e.has(*[s.diff() for s in q])]
     if bad:
         raise ValueError(f"model: the configuration constraints {bad} hold velocities; configuration "
@@ -80,7 +80,7 @@ def _configuration_jacobian(sympy, f, q, X):
     if len(times) != 1 or not all(isinstance(s, AppliedUndef) for s in q) or len(next(iter(times))) != 1:
         return None
     t = next(iter(times))[0]
-    J = linear_coefficients(sympy, [sympy.sympify(e).diff(t) for e in f], [s.diff(t) for s in q])[0]
+    J = linear_coefficients(sympy, [sympy.sympify(e, strict=True).diff(t) for e in f], [s.diff(t) for s in q])[0]
     return J.xreplace(dict(zip(q, X)))
 
 

@@ -29,102 +29,31 @@ function of ``x`` and of the constants vector :attr:`MechanicsSystem.constants`,
 PyDy's ``constants``.  Changing a mass is an assignment, not a rebuild; constants of
 shape ``(N, P)`` give each member of an ensemble of ``N`` states its own parameters
 (the constants' batch axes are the last batch axes of the states: an ensemble
-``(N, n)`` or a time-major stack ``(T, N, n)``, as the per-member gains and targets).
+``(N, n)`` or a time-major stack ``(T, N, n)``, as the per-member gains and targets; where liefi
+evaluates a few members standing for the ensemble it names them, :mod:`liefi._members`, and any
+other states -- one state, a batch of another shape -- are refused with a ``ValueError`` naming
+``constants``, never read with another member's values: :mod:`liefi.systems._constants`).
 
 sympy is an optional dependency (``pip install "liefi[sympy]"``), imported only here.
 """
 
 from __future__ import annotations
 
+import contextlib
+
 import numpy as np
 
 from ._kinematics import (MinimalSpeedsError, NonConservativeLoadError, _annihilator, _Checks, _fixed_point,
                           _kinematics, _regular_rows, _restore, _speed_coordinates, _Speeds)
+from ._components import model_expressions
 from ._sympy_code import gc_paused, sympy_function
-from .sympy_input import _sympy, coordinate_names, is_zero, lagrangian_data
+from .sympy_input import _sympy, coordinate_names, is_zero, lagrangian_data, sympy_only
 from . import _mechanics_constraints as _mc
-from .. import _fingerprint
+from .. import _fingerprint, _members
+from ._constants import _Constants
 from .system import NonholonomicSystem
 
 __all__ = ["from_mechanics", "MechanicsSystem", "NonConservativeLoadError", "MinimalSpeedsError"]
-
-
-class _Constants:
-    """The runtime constants shared by the data functions of one system: ``values`` of shape ``(..., P)``."""
-
-    def __init__(self, symbols, values):
-        self.symbols = tuple(symbols)
-        self.names = tuple(str(s) for s in symbols)
-        self.values = values
-        #: the inputs of every data function bound so far (:func:`_bound`): the system's fingerprint
-        self.bound = []
-
-    def parse(self, constants):
-        """An array ``(..., P)`` from a mapping ``{symbol or name: value(s)}`` or an array."""
-        from .. import _data
-
-        P = len(self.symbols)
-        if isinstance(constants, dict):
-            given = {}
-            for key, val in constants.items():
-                name = key if isinstance(key, str) else str(key)
-                if name not in self.names:
-                    raise ValueError(f"constants: {name!r} is not a parameter of the model; its parameters are {list(self.names)}")
-                given[name] = _data.as_float_array(val, f"constants[{name!r}]", "a real number (or one per member)")
-            missing = [s for s in self.names if s not in given and self.values is None]
-            if missing:
-                raise ValueError(f"constants: no value for {missing}; pass constants={{{', '.join(f'{s}: ...' for s in missing)}}}")
-            old = self.values
-            cols = [given[s] if s in given else old[..., k] for k, s in enumerate(self.names)]
-            try:
-                cols = np.broadcast_arrays(*cols) if cols else []
-            except ValueError:
-                raise ValueError("constants: the values have shapes that do not broadcast "
-                                 f"({[np.shape(c) for c in cols]})") from None
-            arr = np.stack(cols, -1) if cols else np.zeros((0,))
-        else:
-            from .._data import as_float_array
-
-            arr = as_float_array(constants, "constants")
-            if arr.shape[-1:] != (P,):
-                raise ValueError(f"constants: expected {P} values {list(self.names)} on the last axis, got shape {arr.shape}")
-        if not np.all(np.isfinite(arr)):
-            raise ValueError("constants: contains non-finite numbers")
-        return arr
-
-    def aligned(self, batch):
-        """The constants shaped to broadcast against a data function's argument of batch shape ``batch``.
-
-        The member axes are explicit, never matched by length: per-member constants
-        ``(*B, P)`` belong to the *last* axes of the states' batch, as the per-member gains
-        and targets of a :class:`~liefi.FeedbackIntegrator` do (numpy broadcasting): an
-        ensemble's states ``(*B, n)``, and liefi's time-major stacks of saved states
-        ``(T, *B, n)``.  The axis a complex-step derivative appends to the states
-        (:data:`liefi._diff.STATE_AXES`) is not a state axis.  A single state (no batch)
-        gets the first member's constants (the checks at a sample point); states whose
-        batch does not end in ``B`` get a ``ValueError`` when ``B`` sits elsewhere in it (a
-        member-major stack ``(*B, T, n)``: put the members last) and otherwise the first
-        member's constants (states that are not the ensemble's, e.g. a few members standing
-        for it in a stiffness estimate).
-        """
-        from .._diff import state_batch
-
-        c = self.values
-        cb = c.shape[:-1]
-        if not cb:
-            return c
-        batch = tuple(batch)
-        states, k = state_batch(batch + (0,)), len(cb)
-        if len(states) >= k and states[len(states) - k :] == cb:
-            lead = len(states) - k
-            return c.reshape((1,) * lead + cb + (1,) * (len(batch) - len(states)) + c.shape[-1:])
-        if any(states[i : i + k] == cb for i in range(len(states) - k + 1)):
-            raise ValueError(
-                f"constants: per-member constants for an ensemble of shape {cb}, but states of batch shape {states} "
-                f"hold its members on other than their last axes; stack the states time-major, shape (T, *{cb}, n) "
-                "(the members last, as liefi's own stacks)"
-            )
-        return c.reshape(-1, c.shape[-1])[0]
 
 
 def _numbers(exprs):
@@ -142,7 +71,7 @@ def _bound(sympy, args, params, exprs, shape, holder, what):
     # (a spring's pathway length |q| along one coordinate)
     exprs = list(exprs)
     holder.bound.append((list(args), list(params), exprs, tuple(shape), what))
-    exprs = [sympy.sympify(e).replace(sympy.Abs, lambda a: sympy.sqrt(a**2)) for e in exprs]
+    exprs = [sympy.sympify(e, strict=True).replace(sympy.Abs, lambda a: sympy.sqrt(a**2)) for e in exprs]
     # constant entries (K_u = -1 of kinematic equations qdot - u, the zeros of a metric ...: 97 of a sleigh's 100)
     # are filled from one template, no code generated, no assignment each
     constant = [_numbers([e]) for e in exprs]
@@ -217,6 +146,14 @@ class MechanicsSystem(NonholonomicSystem):
     def constants(self, value):
         holder = self._mech["constants"]
         holder.values = holder.parse(value)
+
+    @property
+    def member_shape(self):
+        """The ensemble's shape the constants are given per member of (``constants.shape[:-1]``), else ``()``.
+
+        A :class:`~liefi.FeedbackIntegrator` of this system runs states whose batch ends in it.
+        """
+        return self._mech["constants"].values.shape[:-1]
 
     @property
     def data_key(self):
@@ -451,6 +388,7 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
 
     user_kw = dict(kw)  # as given (holonomic_data adds liefi's own functions to kw)
     parts = _parts(sympy, me, model)
+    sympy_only(sympy, model_expressions(sympy, me, parts), "model")  # sympy's classes only, before any is used
     q, qd, u = parts["q"], parts["qd"], parts["u"]
     n = len(q)
     if set(u) & set(qd):  # speeds that are the velocities themselves (a joint given u = q')
@@ -466,7 +404,7 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
     if u:
         Kq, Ku = _kinematics(sympy, parts["kd"], q, qd, u)
     frame, bodies = parts["frame"], parts["bodies"]
-    model_rows = _regular_rows(sympy, [sympy.sympify(c).xreplace(aux0) for c in parts["constraints"]], q)
+    model_rows = _regular_rows(sympy, [sympy.sympify(c, strict=True).xreplace(aux0) for c in parts["constraints"]], q)
     # minimal speeds: the eliminated places and rows restored (_restore), the velocities in the range of B
     restored = None if parts["L"] is not None else _restore(sympy, me, frame, bodies, parts["fixed"], q, qd, u, Kq, Ku,
                                                             model_rows, aux0)
@@ -489,9 +427,9 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
             from ._accelerations import warn_stored_accelerations
 
             warn_stored_accelerations(sympy, me, frame, bodies, q, qd, u, Kq, Ku, aux0)
-    L = sympy.sympify(L).xreplace(aux0)
+    L = sympy.sympify(L, strict=True).xreplace(aux0)
     constraints = model_rows + kin_rows + ([] if restored is None else restored["rows"])
-    hol = [sympy.sympify(c).xreplace(aux0) for c in parts["holonomic"]]  # f(q) = 0 (liefi.systems.holonomic)
+    hol = [sympy.sympify(c, strict=True).xreplace(aux0) for c in parts["holonomic"]]  # f(q) = 0 (liefi.systems.holonomic)
 
     # the parameters: the model's free symbols, in the order of `constants` first
     t = me.dynamicsymbols._t
@@ -511,7 +449,8 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
 
         forced = _loads.generalized_forces(sympy, me, forced, power_of, qd_all, list(u), q_all)
         free |= forced.free_symbols
-    params, values = _parameters(free, constants)
+    sympy_only(sympy, [L, *constraints, *hol, U_loads, power], "model")  # the derived ones (positions, velocities)
+    params, values = _parameters(sympy, free, constants)
     holder = _Constants(params, None)
     holder.values = holder.parse(values) if params else np.zeros((0,))
     speeds = None
@@ -565,12 +504,15 @@ def from_mechanics(model, constants=None, *, potential=None, names=None, scaling
         x0 = _mc.generic_points(n + r, 1)[0] if kw.get("sample") is None else kw["sample"]
         metric = _mc.regularized_metric(metric, A, {"sample": x0})
     space = CotangentBundle(n + r, names=coordinate_names(sympy, q_all) if names is None else names)
-    if A is None:
-        system = MechanicsSystem(space, metric, None, pot, vector_potential=vp, mechanics=mech, **kw)
-    else:
-        system = MechanicsSystem.from_velocity_constraints(
-            space, metric, A, pot, scaling=scaling, vector_potential=vp, mechanics=mech, **kw
-        )
+    # the build's checks at a sample point (symmetry, definiteness of the data): the first member's constants
+    # stand for all when they are given per member (liefi._members)
+    with _members.selected(holder.values.shape[:-1], 0) if holder.values.ndim > 1 else contextlib.nullcontext():
+        if A is None:
+            system = MechanicsSystem(space, metric, None, pot, vector_potential=vp, mechanics=mech, **kw)
+        else:
+            system = MechanicsSystem.from_velocity_constraints(
+                space, metric, A, pot, scaling=scaling, vector_potential=vp, mechanics=mech, **kw
+            )
     if forced:  # the non-conservative loads: a ForceLaw (liefi.systems.forcing), inputs by name; numpy runs only,
         system.force = forced  # so no kernel fingerprint
         return system
@@ -636,7 +578,7 @@ def _kinetic_form(sympy, me, frame, bodies, w, aux0, velocities=None):
     mass centres' velocities to use instead of the model's (:func:`_restore`).
     """
     from ._coefficients import linear_coefficients
-    from ._components import dyadic_components, frame_of, vector_components
+    from ._components import dyadic_components, frame_of, oriented as _oriented, vector_components
 
     n = len(w)
     H, c, T0 = sympy.zeros(n, n), sympy.zeros(n, 1), sympy.S.Zero
@@ -666,26 +608,15 @@ def _kinetic_form(sympy, me, frame, bodies, w, aux0, velocities=None):
     return H, c, T0
 
 
-def _oriented(a, b):
-    """Whether the frame ``a`` has an orientation path to ``b`` (sympy's ``dcm`` raises ``ValueError`` if not): a
-    search of the frames' orientation graph (``_dcm_dict``, the graph ``dcm`` walks), without forming the matrix."""
-    seen, todo = {a}, [a]
-    while todo:
-        f = todo.pop()
-        if f is b:
-            return True
-        for g in getattr(f, "_dcm_dict", {}):
-            if g not in seen:
-                seen.add(g)
-                todo.append(g)
-    return False
-
-
-def _parameters(free, constants):
+def _parameters(sympy, free, constants):
     """``(symbols, {name: value})``: the order of ``constants``, then the other free symbols by name."""
     constants = {} if constants is None else constants
     if not isinstance(constants, dict):
         raise TypeError(f"constants: expected a dict {{symbol or name: value}}, got {type(constants).__name__}")
+    sympy_only(sympy, [k for k in constants if isinstance(k, sympy.Basic)], "constants")  # before they are printed
+    if any(k in ("t", sympy.physics.vector.dynamicsymbols._t) for k in constants):  # not a constant: the time
+        raise ValueError("constants: 't' is the time of sympy.physics.mechanics (dynamicsymbols._t), not a constant; "
+                         "rename the parameter")
     by_name = {str(s): s for s in free}
     params, values = [], {}
     for key, val in constants.items():
@@ -693,8 +624,8 @@ def _parameters(free, constants):
             if key not in by_name:
                 raise ValueError(f"constants: {key!r} is not a symbol of the model; its symbols are {sorted(by_name)}")
             key = by_name[key]
-        elif not hasattr(key, "free_symbols") or not getattr(key, "is_Symbol", False):
-            raise ValueError(f"constants: keys are sympy Symbols or their names, got {key!r}")
+        elif not isinstance(key, sympy.Symbol):
+            raise ValueError(f"constants: keys are sympy Symbols or their names, got {type(key).__name__}")
         params.append(key)
         values[str(key)] = val
     params += sorted(free - set(params), key=str)
@@ -762,7 +693,7 @@ def _load_potential(sympy, me, parts, checks, potential):
                 Ua = act.stiffness * d**2 / 2
             else:
                 Ua = act.linear_stiffness * d**2 / 2 + act.nonlinear_stiffness * d**4 / 4
-        if Ua is None or (me.find_dynamicsymbols(Ua) - q) or sympy.sympify(Ua).xreplace(
+        if Ua is None or (me.find_dynamicsymbols(Ua) - q) or sympy.sympify(Ua, strict=True).xreplace(
                 {s: sympy.Dummy() for s in q}).has(t):
             bad.append(act)
             continue
@@ -773,6 +704,7 @@ def _load_potential(sympy, me, parts, checks, potential):
         if not isinstance(potential, sympy.Basic):
             raise TypeError(f"potential: expected a sympy expression U(q) (of the model's symbols), got "
                             f"{type(potential).__name__}; liefi does not parse strings")
+        sympy_only(sympy, [potential], "potential")
         for b in bad:  # the user's potential stands for every load: their power is checked against it
             for where, vec in (b.to_loads() if hasattr(b, "to_loads") else [b]):
                 W += power(where, vec)
@@ -787,7 +719,7 @@ def _warn_ignored_potential_energy(sympy, parts, bodies):
     """A warning naming the bodies whose ``potential_energy`` the model's equations ignore (KanesMethod)."""
     import warnings
 
-    named = [str(b) for b in bodies if sympy.sympify(getattr(b, "potential_energy", 0)) != 0]
+    named = [str(b) for b in bodies if sympy.sympify(getattr(b, "potential_energy", 0), strict=True) != 0]
     if named:
         how = ("KanesMethod (the default of System.form_eoms; form_eoms(LagrangesMethod) includes it)"
                if parts["kind"] == "System" else "KanesMethod")

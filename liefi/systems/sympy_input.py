@@ -20,7 +20,9 @@ sympy is an optional dependency (``pip install "liefi[sympy]"``), imported only 
 
 from __future__ import annotations
 
+import abc
 import keyword
+import sys
 
 import numpy as np
 
@@ -51,6 +53,7 @@ def _symbols(sympy, seq, name):
     seq = list(seq) if isinstance(seq, (list, tuple)) else None
     if not seq:
         raise ValueError(f"{name}: expected a non-empty list of sympy Symbols")
+    sympy_only(sympy, [s for s in seq if isinstance(s, sympy.Basic)], name)  # before any method of theirs runs
     for s in seq:
         if not isinstance(s, (sympy.Symbol, sympy.Function, sympy.Derivative)) or (
             isinstance(s, sympy.Function) and not isinstance(s, sympy.core.function.AppliedUndef)
@@ -68,23 +71,110 @@ def plain_identifier(name):
         and not name.startswith("__")
 
 
+#: what ``sympy.Function("f", real=True)`` writes into the class it makes, besides ``is_<assumption>`` flags
+_UNDEFINED_KEYS = frozenset({"__doc__", "__module__", "_explicit_class_assumptions", "_kwargs", "_nargs",
+                             "_prop_handler", "_sage_", "default_assumptions", "name"})
+#: id(class) -> (class, why it is refused or None): the verdicts of :func:`_foreign` on classes other than
+#: undefined functions (sympy makes a new class per ``Function(name)`` call; those are judged each time)
+_VERDICTS = {}
+
+
+def _foreign(sympy, cls):
+    """``None`` if ``cls`` and every class it derives from are sympy's own, else why not (a phrase).
+
+    sympy's own: defined in a ``sympy`` module and found there by its name, or an undefined function
+    that ``sympy.Function(name, **assumptions)`` made (``dynamicsymbols`` too) with nothing but
+    assumptions in it -- no ``_imp_`` (``implemented_function``), no method, no printer hook.
+    """
+    from sympy.core.assumptions import _assume_defined
+    from sympy.core.function import UndefinedFunction
+
+    for k in cls.__mro__[:-1]:  # object last
+        if isinstance(k, UndefinedFunction):
+            d = vars(k)
+            if "_imp_" in d:
+                return (f"the implemented function {_shown(k.__name__)} (sympy's implemented_function: its Python "
+                        "implementation would run)")
+            extra = sorted(key for key in d if key not in _UNDEFINED_KEYS and not (
+                key.startswith("is_") and key[3:] in _assume_defined and d[key] in (True, False, None)))
+            extra += [key for key in d.get("_kwargs", {}) if key not in _assume_defined]
+            if extra or not isinstance(d.get("name"), str):
+                return (f"the function {_shown(k.__name__)} made by sympy.Function with attributes "
+                        f"{[_shown(e, 30) for e in extra]} besides assumptions")
+            continue
+        if k is abc.ABC:  # no code of its own (sympy's tensors derive from it)
+            continue
+        mod = getattr(k, "__module__", None) or ""
+        found = sys.modules.get(mod) if mod.split(".")[0] == "sympy" else None
+        for part in k.__qualname__.split("."):
+            found = getattr(found, part, None)
+        if found is not k:
+            return f"an object of the class {_shown(k.__name__)} (of {_shown(mod or 'no module')}), not one of sympy's own"
+    return None
+
+
+def sympy_only(sympy, exprs, what):
+    """Refuse (``ValueError`` naming ``what``) any part of ``exprs`` whose class is not sympy's own (:func:`_foreign`).
+
+    liefi reads, differentiates, evaluates and prints the model's expressions; a class of the user's
+    (a ``Function`` subclass with its own ``eval``, ``_numpycode``, ``_lambdacode``, ``_sympystr`` ...,
+    a ``Symbol`` subclass, an ``implemented_function``) would run its code inside liefi's (sympy's
+    printers call the hooks) or be printed under a name that means something else (a class named
+    ``sin`` as numpy's sine).  Strings are refused too (``TypeError``: turning text into an expression
+    runs it).  Every distinct node is visited once, before liefi calls any of its methods.
+    """
+    stack, seen = list(exprs), set()
+    while stack:
+        e = stack.pop()
+        if id(e) in seen:
+            continue
+        seen.add(id(e))
+        if isinstance(e, (str, bytes)):
+            raise TypeError(f"{what}: got a string ({_shown(e)}); liefi takes sympy expressions only, since turning "
+                            "text into an expression runs it as Python code (sympify) and liefi runs no code it did "
+                            "not write; parse text you trust yourself (sympy.parsing.sympy_parser.parse_expr)")
+        if type(e) in (int, float, complex, bool):
+            continue
+        cls = type(e)
+        got = _VERDICTS.get(id(cls))
+        if got is None or got[0] is not cls:
+            got = (cls, _foreign(sympy, cls))
+            if not isinstance(cls, sympy.core.function.UndefinedFunction):
+                _VERDICTS[id(cls)] = got
+        if got[1] is not None:
+            raise ValueError(
+                f"{what}: contains {got[1]}; liefi evaluates sympy's own classes only and runs no code it did not "
+                "write (a method or printer hook of the class would run, or its name would stand for another "
+                "function): write it with sympy's functions (expr.replace(f, lambda x: ...)), or build the "
+                "NonholonomicSystem from numpy functions of your own"
+            )
+        if isinstance(e, sympy.MatrixBase):
+            stack.extend(e)
+        elif isinstance(e, sympy.Basic):
+            stack.extend(e.args)
+        else:
+            raise ValueError(f"{what}: contains {_shown(type(e).__name__)}, not a sympy expression")
+
+
 def checked_names(sympy, expr, what, known=()):
     """``expr`` with names liefi may print into generated code, or a ``ValueError`` naming the first that it may not.
 
     ``sympy.lambdify`` writes the name of every symbol and function into the Python source it
     executes, so a name from outside data (``sympy.Function("__import__('os').system('...')")``,
-    a symbol named ``"x; ..."``) would run as code.  The ``known`` symbols (the arguments, which
-    liefi replaces by names of its own) pass; an undefined function (``sympy.Function("f")(x)``)
-    is refused, since it has no value and its name would be code; a bound variable (of a ``Sum``)
-    whose name is not a :func:`plain_identifier` is renamed to a liefi ``Dummy``; every other
-    name (of a function class, a ``MatrixSymbol`` ...) must be a :func:`plain_identifier`.
+    a symbol named ``"x; ..."``) would run as code, and a name of the code's own (``sin``, ``x0``
+    of its common subexpressions, ``_Dummy_12`` of an argument) would stand for something else.
+    The ``known`` symbols (the arguments, which liefi replaces by names of its own) pass; an
+    undefined function (``sympy.Function("f")(x)``) is refused, since it has no value and its name
+    would be code; every other symbol (a bound variable: a ``Sum``'s index) is renamed to a liefi
+    ``Dummy``, whatever its name; every other name (a ``Str`` ...) must be a :func:`plain_identifier`.
+    The classes are :func:`sympy_only`'s to check (before this walk).
     """
     from sympy.core.function import AppliedUndef
 
     known, rename = set(known), {}
     for node in sympy.preorder_traversal(expr):
         if isinstance(node, sympy.Symbol):
-            if node not in known and not plain_identifier(node.name):
+            if node not in known:
                 rename.setdefault(node, sympy.Dummy(f"s{len(rename)}"))
             continue
         if isinstance(node, AppliedUndef):
@@ -112,16 +202,22 @@ def _shown(name, limit=80):
 
 
 def lambdify_checked(sympy, args, exprs, what, **kw):
-    """``sympy.lambdify(args, exprs, modules=[numpy], **kw)`` after :func:`checked_names` on every expression.
+    """``sympy.lambdify(args, exprs, modules=[numpy], dummify=True, **kw)`` after :func:`sympy_only` and
+    :func:`checked_names` on every expression.
 
     The expressions may depend on ``args`` only (a ``ValueError`` names any other free symbol);
-    an argument whose name is not a :func:`plain_identifier` needs ``dummify=True`` (lambdify
-    then prints a name of its own).  The one path from sympy expressions to generated code.
+    the arguments are always dummified (lambdify prints names of its own for them, so no name of
+    the model reaches the code), and the printer is numpy's, strict, without unknown functions:
+    a sympy function numpy has no counterpart for is a ``ValueError`` naming ``what``, never a name
+    looked up in the generated code's namespace.  The one path from sympy expressions to sympy's
+    generated code.
     """
+    from sympy.printing.codeprinter import PrintMethodNotImplementedError
+    from sympy.printing.numpy import NumPyPrinter
+
     args = list(args)
     exprs = [sympy.sympify(e, strict=True) for e in exprs]
-    if not kw.get("dummify") and not all(plain_identifier(a.name) for a in args):
-        raise ValueError(f"{what}: arguments {[_shown(a.name) for a in args]} need dummify=True")  # pragma: no cover - liefi's own call
+    sympy_only(sympy, args + exprs, what)
     out = []
     for e in exprs:
         extra = e.free_symbols - set(args)
@@ -129,10 +225,16 @@ def lambdify_checked(sympy, args, exprs, what, **kw):
             raise ValueError(f"{what}: depends on {sorted(_shown(s.name) for s in extra)}, which liefi has no value "
                              "for (give them as constants or substitute numbers)")
         out.append(checked_names(sympy, e, what, args))
+    printer = NumPyPrinter({"fully_qualified_modules": False, "inline": True, "allow_unknown_functions": False,
+                            "strict": True, "user_functions": {}})
     # numpy as the module object, not the name "numpy": sympy then reads the names of numpy's namespace
     # instead of running ``from numpy import *`` once per process, which imports numpy's lazily loaded
     # submodules (f2py, testing, ... 0.1-0.2 s); the printer (NumPyPrinter) and the code are the same
-    return sympy.lambdify(args, out, modules=[np], **kw)
+    try:
+        return sympy.lambdify(args, out, modules=[np], printer=printer, **{**kw, "dummify": True})
+    except PrintMethodNotImplementedError as exc:
+        raise ValueError(f"{what}: liefi cannot evaluate it with numpy ({exc}); write it with functions numpy "
+                         "has (sin, exp, sqrt, Piecewise, Abs ...)") from None
 
 
 def is_zero(sympy, expr):
@@ -146,7 +248,7 @@ def is_zero(sympy, expr):
     expression) cannot return ``0`` either.  Only a value that is zero to rounding, or no value,
     leaves the answer to ``simplify`` itself: the answer is always ``simplify``'s.
     """
-    e = sympy.sympify(expr)
+    e = sympy.sympify(expr, strict=True)
     if e == 0:
         return True
     if _nonzero_somewhere(sympy, e):
@@ -201,7 +303,7 @@ def _degree_at_most(sympy, e, V, k):
 def _batch_function(sympy, x_syms, exprs, shape, what):
     """``(..., n) -> (..., *shape)`` numpy function of the sympy expressions (complex safe); a
     constant array if none depends on ``x``."""
-    flat = [sympy.sympify(e) for e in exprs]
+    flat = [sympy.sympify(e, strict=True) for e in exprs]
     if not any(e.free_symbols & set(x_syms) for e in flat):
         return np.array([complex(e).real for e in flat], float).reshape(shape)
     f = lambdify_checked(sympy, x_syms, flat, what, cse=True)
@@ -338,6 +440,7 @@ def lagrangian_data(sympy, L, q, qd, constraints, parameters=(), speeds=()):
             e = sympy.sympify(expr, strict=True)
         except (sympy.SympifyError, TypeError) as exc:
             raise ValueError(f"{what}: not a sympy expression ({exc})") from None
+        sympy_only(sympy, [e], what)  # before any method of the expression's classes runs
         e = e.xreplace(to_plain).xreplace(to_plain_q)
         extra = e.free_symbols - set(X) - set(V) - set(parameters)
         if extra:

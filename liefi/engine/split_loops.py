@@ -137,3 +137,18 @@ def rolled_split_loops_source(N, n_params, schemes):
               f"    return {call}", ""]
         L.append(_batch_source(fname, call=call))
     return "\n".join(L) + "\n"
+
+
+def split_loops_source(N, n_params):
+    """The loops of the split schemes of :mod:`liefi.schemes.split` (``run_imex_euler``, ...), on
+    ``xrhs_s`` and ``fstep_s`` (:func:`scalar_loop_source`); for a system with more than
+    :data:`MAX_INLINE_ARGS` scalar arguments, one loop shared by the schemes, their tableaux read at
+    run time (:func:`rolled_split_loops_source`: the same arithmetic, a fraction
+    of the compile)."""
+    from ..schemes.split import SPLIT_SCHEMES
+    from .codegen import MAX_INLINE_ARGS, scalar_loop_source, split_loop_name
+
+    if N + n_params > MAX_INLINE_ARGS:
+        return rolled_split_loops_source(N, n_params, SPLIT_SCHEMES.values())
+    return "\n".join(scalar_loop_source(split_loop_name(s), s.explicit, N, n_params, split=True)
+                     for s in SPLIT_SCHEMES.values())
