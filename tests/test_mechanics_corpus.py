@@ -259,10 +259,11 @@ def test_the_nonminimal_pendulum_of_sympys_tests_runs_as_its_own_equations_throu
     assert out["error"] <= 1e-10 and max(out["f"], out["velocity"], out["energy"]) <= 1e-12, out
 
 
-def _test_aux_disc(a2pt):
+def _test_aux_disc(a2pt, sliding=False):
     """sympy's ``test_kane.py::test_aux`` disc (``KM2``): minimal speeds, the contact point's velocity in the
     auxiliary speeds ``u4, u5``, the centre's acceleration by ``a2pt_theory`` from it (or, ``a2pt=False``, the
-    derivative of the centre's velocity)."""
+    derivative of the centre's velocity); ``sliding``: its ``KM`` instead, ``u4, u5`` independent speeds (the
+    contact point slides)."""
     q1, q2, q3, u1, u2, u3, u4, u5 = me.dynamicsymbols("q1 q2 q3 u1 u2 u3 u4 u5")
     r, m, g = sympy.symbols("r m g")
     N = me.ReferenceFrame("N")
@@ -278,8 +279,8 @@ def _test_aux_disc(a2pt):
     if a2pt:
         Dmc.a2pt_theory(C, N, R)
     body = me.RigidBody("BodyD", Dmc, R, m, (me.inertia(L, m / 4 * r ** 2, m / 2 * r ** 2, m / 4 * r ** 2), Dmc))
-    KM = me.KanesMethod(N, q_ind=[q1, q2, q3], u_ind=[u1, u2, u3], kd_eqs=[(R.ang_vel_in(N) - w_qd) & v for v in L],
-                        u_auxiliary=[u4, u5])
+    speeds = dict(u_ind=[u1, u2, u3, u4, u5]) if sliding else dict(u_ind=[u1, u2, u3], u_auxiliary=[u4, u5])
+    KM = me.KanesMethod(N, q_ind=[q1, q2, q3], kd_eqs=[(R.ang_vel_in(N) - w_qd) & v for v in L], **speeds)
     KM.kanes_equations([body], [(Dmc, -m * g * Y.z)])
     return KM, {g: 9.81, m: 0.7, r: 1.4}
 
