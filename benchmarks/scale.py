@@ -15,7 +15,8 @@ step stored by an earlier run.  Each is split, in CPU seconds of the process, in
 trace (tracing and generating the kernels, or finding them by their data's fingerprint), choose (the step
 choice, less the traces and compiles it triggers), compile/load (executing the generated module, numba's
 compile or the load of its cached code), integrate (the run's loop) and build (the rest: the system, the
-integrator, its gains and checks, the result).  The PyDy peer (``benchmarks/rattleback_pydy.py``:
+integrator, its gains and checks, the result); a cold case also lists numba's compile of each function (its own
+CPU, less the compiles nested in it: the field ``xrhs_s``, the feedback step ``fstep_s``, the loop).  The PyDy peer (``benchmarks/rattleback_pydy.py``:
 ``KanesMethod``, pydy's Cython code generation, ``solve_ivp`` DOP853 at ``1e-12``; its derivation, code
 generation with the C compiler, and integration, CPU of the process and its children) runs in the same
 rounds, interleaved.  PyDy is optional: ``--pydy-path`` puts a private installation on ``sys.path`` (for
@@ -199,6 +200,23 @@ def wrap(part, f):
 import liefi
 import numba  # liefi imports it on first use; counted with the import
 t_import = time.process_time()
+from numba.core import event
+kernel_compiles, compiling = {}, []
+
+
+class _Compiles(event.Listener):  # numba's compile of each function, less the compiles nested in it
+    def on_start(self, ev):
+        compiling.append([ev.data["dispatcher"].py_func.__name__, time.process_time(), 0.0])
+
+    def on_end(self, ev):
+        name, t, inner = compiling.pop()
+        dt = time.process_time() - t
+        kernel_compiles[name] = kernel_compiles.get(name, 0.0) + dt - inner
+        if compiling:
+            compiling[-1][2] += dt
+
+
+event.register("numba:compile", _Compiles())
 from liefi.engine import cache, kernels, runners, trace
 from liefi.integrator import policy, tolerance
 cache.load, cache.find = wrap("compile_load", cache.load), wrap("compile_load", cache.find)
@@ -224,7 +242,8 @@ else:
     sol = sc.integrator().run((0.0, 20.0), rtol=1e-6)
     integrate, scheme, dt = sol.cpu_seconds, sol.method["scheme"], sol.dt
 total = time.process_time()
-out = {"total": total, "import": t_import, "integrate": integrate, **acc, "scheme": scheme, "dt": dt}
+out = {"total": total, "import": t_import, "integrate": integrate, **acc, "scheme": scheme, "dt": dt,
+       "compiles": {k: round(v, 3) for k, v in sorted(kernel_compiles.items(), key=lambda kv: -kv[1]) if v >= 0.01}}
 out["build"] = total - t_import - integrate - sum(acc.values())
 print("RESULT " + json.dumps(out))
 """
@@ -298,6 +317,11 @@ def print_rattleback(best):
         ratio = f"{peer['total'] / r['total']:.2f}" if peer else "n/a"
         print(f"| {label} | " + " | ".join(f"{r[k]:.2f}" for k in SPLIT)
               + f" | {r['total']:.2f} | {ratio} | {r['scheme']}, {r['dt']:.3g} |")
+    for label, _, kernels, _ in RATTLEBACK_CASES:
+        r = best.get(label)
+        if kernels == "cold" and r is not None and r.get("compiles"):
+            print(f"numba's compile by function, {label} (CPU s, each less the compiles nested in it): "
+                  + ", ".join(f"{k} {v:.2f}" for k, v in r["compiles"].items()))
     if peer:
         print(f"| PyDy peer (KanesMethod, Cython, DOP853 1e-12) | | | | | | {peer['integrate']:.2f} | "
               f"{peer['total']:.2f} | 1 | |")

@@ -335,3 +335,102 @@ def test_sparse_sums_build_numpy_s_expressions():
         same((A @ B0) @ D0, _sparse.matmul(_sparse.matmul_rows(A, B0), D0))
     assert np.array_equal(_sparse.symmetrized(C0), C0 + np.swapaxes(C0, -1, -2))
     assert np.array_equal(_sparse.accumulate(0.5, 2.0, x0), 0.5 + 2.0 * x0)
+
+
+def test_a_traced_datum_s_integer_zeros_make_one_constant_not_a_call_each(monkeypatch):
+    """A datum written with ``np.zeros_like`` on the traced state holds Python ``int`` zeros (the chain's
+    constraint rows: ``N x 3N`` entries, ``3N - 2`` zeros a row): :func:`liefi.engine.trace._sym` makes one
+    constant per distinct number whatever its type (``int``, ``float``, numpy's), in the order of first
+    occurrence, the very nodes an entry-by-entry ``as_sym`` makes (before: a call of ``as_sym`` per integer)."""
+    from liefi.engine import trace as _trace
+
+    calls = [0]
+    as_sym = _trace.as_sym
+
+    def counted(v):
+        calls[0] += 1
+        return as_sym(v)
+
+    with liefi.engine.trace.trace() as tr:
+        x = tr.symbols("x", 4)
+        a = np.empty((20, 30), dtype=object)
+        a[...] = 0
+        for i in range(20):  # each row: two traced entries, the rest int zeros; a few other numbers
+            a[i, (3 * i) % 30], a[i, (3 * i + 1) % 30] = x[i % 4], x[(i + 1) % 4] * 2.0
+        a[3, 7], a[5, 9], a[6, 2], a[7, 4] = np.float64(-0.0), 2, np.int64(5), 2.0
+        monkeypatch.setattr(_trace, "as_sym", counted)
+        got = _trace._sym(a)
+        monkeypatch.undo()
+        want = symbolic._to_sym_array(a)
+        assert all(g is w for g, w in zip(got.reshape(-1), want.reshape(-1)))
+        assert np.signbit(got[3, 7].value) and got[6, 2].value == 5.0 and got[0, 2].value == 0.0
+    assert calls[0] <= 5, calls  # 0, -0.0, 2, 5: one call per distinct number (before: 600, one per entry)
+
+
+def test_inverting_a_diagonal_gram_matrix_of_constants_divides_once_per_row_and_zero(monkeypatch):
+    """``np.linalg.inv`` of a traced ``K x K`` matrix with constant pivots and exact-zero off-diagonals (the
+    chain's Gram matrix ``E m E^T``): each constant quotient ``0 / pivot`` is folded once, not at every entry
+    (``K^2`` divisions before), and the inverse is the same nodes, ``-0.0`` where the pivot is negative."""
+    from liefi.engine import trace as _trace
+
+    K = 24
+    rng = np.random.default_rng(2)
+    d = rng.uniform(0.5, 2.0, K) * np.where(np.arange(K) % 3 == 0, -1.0, 1.0)
+    calls = [0]
+    div = _trace.div
+
+    def counted(a, b):
+        calls[0] += 1
+        return div(a, b)
+
+    with liefi.engine.trace.trace() as tr:
+        x = tr.symbols("x", 1)[0]
+        A = np.empty((K, K), dtype=object)
+        A[...] = symbolic.const(0.0)
+        for i in range(K):
+            A[i, i] = symbolic.const(d[i])
+        A[0, 1] = x  # one traced entry: the matrix is traced
+        monkeypatch.setattr(_trace, "div", counted)
+        inv = np.linalg.inv(A)
+        monkeypatch.undo()
+        for i in range(K):
+            for c in range(K):
+                v = symbolic.as_sym(inv[i, c])
+                if i == c:
+                    assert v.op == "const" and v.value == 1.0 / d[i]
+                elif i == 0 and c == 1:
+                    assert v.op != "const"
+                elif i != 0:
+                    assert v.op == "const" and v.value == 0.0 and np.signbit(v.value) == (d[i] < 0), (i, c)
+    assert calls[0] <= 6 * K, calls  # before: 852 (every 0 / pivot of the elimination and the substitution)
+
+
+def test_summing_a_gradient_with_exact_zeros_reads_the_zeros_at_once(monkeypatch):
+    """:func:`liefi._sparse.accumulate` on a traced vector of ``n`` entries, three nonzero, the zeros distinct
+    float objects (a gradient assembled in numpy): the zeros are checked and kept without a Python call each
+    (:func:`liefi._sparse._positive_zero` before: 594 calls, ``2 n``), and the sums are numpy's expressions."""
+    n = 300
+    calls = [0]
+    positive_zero = _sparse._positive_zero
+
+    def counted(v):
+        calls[0] += 1
+        return positive_zero(v)
+
+    with liefi.engine.trace.trace() as tr:
+        v = tr.symbols("v", 4)
+        a = symbolic.mul(v[0], v[1])
+        x = np.zeros(n).astype(object)  # distinct float zero objects
+        x[5], x[17], x[n - 1] = v[2], symbolic.mul(v[3], 2.0), v[1]
+        y = np.zeros(n).astype(object)
+        y[17], y[40] = v[0], symbolic.mul(v[2], v[3])
+        y[41] = -0.0
+        monkeypatch.setattr(_sparse, "_positive_zero", counted)
+        got = _sparse.accumulate(y, a, x)
+        monkeypatch.undo()
+        want = y + np.asarray(a)[..., None] * x
+        for i in range(n):
+            g, w = symbolic.as_sym(got[i]), symbolic.as_sym(want[i])
+            assert g is w or (g.op == w.op == "const" and g.value == w.value == 0.0
+                              and np.signbit(g.value) == np.signbit(w.value)), i
+    assert calls[0] <= 2, calls

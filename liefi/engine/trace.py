@@ -79,16 +79,26 @@ def _gauss_solve(A, B):
         X = cramer_solve(A, X)
         return X[:, 0] if vec else X
     zero = None  # the tracer's 0 / a (a not a constant): +0.0, once formed
+    quotients = {}  # constant / constant pivot: folded once per pair (a K x K Gram of the chain: K^2 of 0 / c)
 
     def _zero(v):
         return v.op == "const" and v.value == 0.0
+
+    def _div(a, pivot):
+        if a.op != "const" or pivot.op != "const":
+            return div(a, pivot)
+        key = (a.id, pivot.id)  # the constant a / pivot (the node formed the first time, as div forms it)
+        got = quotients.get(key)
+        if got is None:
+            got = quotients[key] = div(a, pivot)
+        return got
 
     for i in range(k):
         pivot = A[i, i]
         for r in range(i + 1, k):
             if zero is not None and _zero(A[r, i]) and pivot.op != "const":
                 continue  # f = 0 / pivot = 0 (as below, without forming it again)
-            f = div(A[r, i], pivot)
+            f = _div(A[r, i], pivot)
             if _zero(f):
                 if _zero(A[r, i]) and pivot.op != "const":
                     zero = f
@@ -107,7 +117,7 @@ def _gauss_solve(A, B):
             if zero is not None and _zero(s) and pivot.op != "const":
                 X[i, c] = zero  # div(0, pivot), as formed before
             else:
-                X[i, c] = div(s, pivot)
+                X[i, c] = _div(s, pivot)
                 if zero is None and _zero(s) and pivot.op != "const":
                     zero = X[i, c]
     return X[:, 0] if vec else X
@@ -158,16 +168,22 @@ def _sym(a):
 #: object arrays up to this size go through ``as_sym`` entry by entry
 _SYM_EACH = 64
 _TYPE = np.frompyfunc(type, 1, 1)
+#: the numbers :func:`_sym_objects` makes one constant per distinct value of (``as_sym``: ``const(float(v))``)
+_NUMBERS = tuple(np.array(t, dtype=object) for t in (float, int, np.float64, np.int64))  # (0-d: compared as objects)
+_SYM_TYPE = np.array(Sym, dtype=object)
 
 
 def _sym_objects(a):
-    """:func:`_sym` of a (non-empty) object array: ``Sym`` entries kept, Python floats one constant per distinct
-    number, anything else by ``as_sym``; the constants formed in the order of their first occurrence, as an
-    entry-by-entry loop forms them (a traced datum's array of mostly zeros, ``N x 3N`` for a chain's
-    constraints: a Python call per distinct number, not per entry)."""
+    """:func:`_sym` of a (non-empty) object array: ``Sym`` entries kept, numbers (:data:`_NUMBERS`) one constant
+    per distinct value, anything else by ``as_sym``; the constants formed in the order of their first occurrence,
+    as an entry-by-entry loop forms them (a traced datum's array of mostly zeros, ``N x 3N`` for a chain's
+    constraints, whose zeros are ints: a Python call per distinct number, not per entry)."""
     flat = a.reshape(-1)
     kind = _TYPE(flat)
-    is_sym, is_float = np.asarray(kind == Sym, dtype=bool), np.asarray(kind == float, dtype=bool)
+    is_sym = np.asarray(kind == _SYM_TYPE, dtype=bool)  # (``kind == Sym`` is not elementwise: Sym's own ==)
+    is_float = np.zeros(flat.shape, dtype=bool)
+    for number in _NUMBERS:  # (the zeros of np.zeros_like on a traced array are Python ints)
+        is_float |= np.asarray(kind == number, dtype=bool)
     out = flat.copy()
     at_f = np.flatnonzero(is_float)
     firsts, members = [], {}
