@@ -26,8 +26,10 @@ def racer(signal, analytic=True, gains=100.0):
 
 
 def make(kind, values):
-    grid = np.linspace(0.0, T, N + 1)
-    return piecewise_constant(grid, values) if kind == "piecewise" else spline(grid[:N], values)
+    # piecewise constant: N intervals of [0, T]; spline: N nodes spanning [0, T] (no extrapolation past them)
+    if kind == "piecewise":
+        return piecewise_constant(np.linspace(0.0, T, N + 1), values)
+    return spline(np.linspace(0.0, T, N), values)
 
 
 @pytest.mark.parametrize("kind, scheme, gains", [("piecewise", "imex-rk4", 100.0), ("spline", "imex-rk4", 100.0),

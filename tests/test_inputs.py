@@ -370,3 +370,22 @@ def test_a_signal_that_fails_during_the_run_is_named_with_its_time():
     # what still works: a numpy signal, and one returning a number whatever the times (broadcast)
     a, b = run(lambda t: 0.5 * np.cos(t)), run(lambda t: 0.5)
     assert np.all(np.isfinite(a.y)) and np.all(np.isfinite(b.y)) and not np.allclose(a.y[..., -1], b.y[..., -1])
+
+
+def test_a_run_past_a_splines_nodes_warns_naming_the_input_and_its_nodes():
+    """Outside its nodes a spline is its end cubic: values [1, 2, 30] over [0, 0.02] read 5151 at t = 0.2.
+    A run over [0, 0.2] said nothing before; it now warns (InputGridWarning) with the input's name and nodes,
+    and a run inside the nodes stays silent."""
+    import warnings
+
+    from liefi.integrator.forced import InputGridWarning
+    from liefi.systems.forcing import spline
+
+    sig = spline([0.0, 0.01, 0.02], [1.0, 2.0, 30.0], name="tau")
+    assert float(sig(np.array(0.2))) > 5000.0  # the extrapolation the warning is about
+    fi = sleigh_with(sig)
+    with pytest.warns(InputGridWarning, match=r"spline input 'tau' has nodes over \[0, 0.02\] only"):
+        fi.run(0.2, dt=0.01)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", InputGridWarning)
+        fi.run(0.02, dt=0.01)

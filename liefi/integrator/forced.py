@@ -41,7 +41,8 @@ stages.  A switch that is not a step end ``t0 + k dt`` then acts at the step end
 to it (the midpoint decides); the run warns (:class:`InputGridWarning`), naming the input and the
 switch: choose a ``dt`` that divides the switch times' offsets from the start, or give
 the input as a spline.  Splines, callables and constants are read per stage, at each
-stage's own time ``t_n + c_i dt``.
+stage's own time ``t_n + c_i dt``.  A run that goes past a spline's nodes warns too
+(:class:`InputGridWarning`): outside them the end cubics extrapolate, and grow as ``t^3``.
 
 Forced runs use the numpy path (``backend="numpy"``; the compiled engine cannot
 trace a user's force): ``backend="numba"`` gets a ``ValueError`` saying so.  Their
@@ -69,7 +70,8 @@ SWITCH_RTOL = 1e-9
 
 
 class InputGridWarning(UserWarning):
-    """A switch of a piecewise-constant input falls between the steps of a forced run (module docstring)."""
+    """A switch of a piecewise-constant input falls between the steps of a forced run, or a run goes past a
+    spline input's nodes, where its end cubics extrapolate (module docstring)."""
 
 
 class ForcedFeedbackIntegrator(FeedbackIntegrator):
@@ -162,6 +164,29 @@ class ForcedFeedbackIntegrator(FeedbackIntegrator):
                     "the step's midpoint, so the switch acts at the step end nearest to it. Choose a dt "
                     f"that divides the switch times' offsets from t0 (e.g. a divisor of the switch spacing "
                     f"{spacing:.6g}), or give the input as a spline", InputGridWarning, stacklevel=stacklevel)
+        return out
+
+    def warn_extrapolated_splines(self, t0, t_final, stacklevel=3):
+        """Warn (:class:`InputGridWarning`) for each spline input whose nodes do not span ``[t0, t_final]``.
+
+        Outside its nodes a cubic spline is its end cubic, extrapolated: values ``[1, 2, 30]`` at
+        ``t = 0, 0.01, 0.02`` read 5151 at ``t = 0.2``, silently.  A span within one part in ``1e9`` of the
+        nodes' is inside.  Returns the names warned about.
+        """
+        out = []
+        for name in sorted(self.signals):
+            sig = self.signals[name]
+            if getattr(sig, "grid_kind", None) != "spline":
+                continue
+            a, b = float(sig.t_grid[0]), float(sig.t_grid[-1])
+            tol = 1e-9 * max(1.0, abs(a), abs(b))
+            if t0 < a - tol or t_final > b + tol:
+                out.append(name)
+                warnings.warn(
+                    f"inputs: the run spans [{t0:g}, {t_final:g}] but the spline input {name!r} has nodes over "
+                    f"[{a:g}, {b:g}] only; outside them its end cubics extrapolate (its value at t = {t_final:g} is "
+                    f"{np.array2string(np.asarray(sig(np.array(t_final))), precision=4)}). Give nodes over the whole "
+                    "run, or shorten the run", InputGridWarning, stacklevel=stacklevel)
         return out
 
     def generalized_force(self, y, v=None):
@@ -282,6 +307,8 @@ class ForcedFeedbackIntegrator(FeedbackIntegrator):
         sol = super().run(span, backend="numpy", y0=y, **kw)
         if self.held_inputs and len(sol.t):
             self.warn_off_grid_switches(t0, float(sol.t[-1]), float(sol.dt))
+        if len(sol.t):
+            self.warn_extrapolated_splines(t0, float(sol.t[-1]))
         if names:
             from . import _forced_sensitivity as _fs
 

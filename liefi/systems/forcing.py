@@ -91,7 +91,8 @@ def piecewise_constant(t_grid, values, *, name="signal"):
 
 def spline(t_grid, values, *, name="signal", bc_type="not-a-knot"):
     """A cubic spline through ``(t_grid[k], values[k])`` (``scipy.interpolate.CubicSpline``); ``values`` ``(N,)`` or
-    ``(N, m)``.  Outside the grid the end polynomials extrapolate."""
+    ``(N, m)``.  Outside the grid the end polynomials extrapolate (a forced run past the nodes warns:
+    :class:`liefi.integrator.forced.InputGridWarning`)."""
     from scipy.interpolate import CubicSpline
 
     t_grid, values = _grid(t_grid, values, name, 2)
