@@ -21,7 +21,12 @@ invariant set the split step's error is the error of its tableau on ``X``
 1. an error scale per component, ``s_i = atol_i + rtol max_t |y_i(t)|``
    (``atol`` defaults to ``0``: the scale is relative to each component's own
    size, floored at :data:`PART_FLOOR` of the largest of its part, so no unit
-   enters);
+   enters).  For an ensemble the scale is each member's own (``s_{b,i}``, the
+   maximum over time of member ``b``'s component, never over the members) and
+   the error is the largest over the members of each member's scaled error:
+   ``rtol`` holds for every member relative to its own size, and the check's
+   trust and measured order (step 5) are each member's, the step the strictest
+   member's (:func:`liefi.integrator.tolerance_check.extrapolated_step`);
 2. a first step: the largest ``h = T / 4^k`` whose step-doubling error is
    below :data:`FIRST_ERROR` relative and in the asymptotic regime (``h/4``
    has an error about ``4^{p+1}`` times smaller: no step aliases with a period
@@ -132,7 +137,7 @@ from .tolerance_check import (  # noqa: F401 -- re-exported: liefi.integrator.to
     CHECK_BUDGET, CHECK_BYTES, CHECK_COARSEST, CHECK_ERROR, CHECK_FLOOR, CHECK_GROWTH, CHECK_MIN_STEPS,
     CHECK_PART_FLOOR, CHECK_SAMPLES, CHECK_TRIES_BUDGET, CHECK_TRUST, CHECK_WIDEN, WIDEN_FACTOR, _check_plan,
     _global_check, _measure, _samples, _verify_longer, CHECK_MIN_COARSE, CHECK_MIN_STEPS_COMPILED, check_min_steps,
-    coarse_steps, measured_order,
+    coarse_steps, extrapolated_step, measured_order, predicted_error,
 )
 from ..schemes.registry import REGISTRY as _SCHEMES
 from ._check_runs import CheckRuns
@@ -199,7 +204,8 @@ def choose_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend=
     """``(dt, info)``: the fixed step for ``rtol``/``atol`` over ``[t0, t_end]`` (module docstring).
 
     ``fi`` the integrator, ``sch`` a scheme of the registry (explicit or split),
-    ``y0`` the start (a batch: one step for every member, the most demanding).
+    ``y0`` the start (a batch: one step for every member, the most demanding: each member's error relative to
+    its own size, step 1 of the module docstring, so every member meets ``rtol``).
     ``check``: measure the global error of the local model's step by the two short runs of step 5
     (``backend`` as :meth:`liefi.FeedbackIntegrator.run`'s).  ``choose_order``: ``sch`` is only the
     kind; the order is the one of :data:`ORDER_CANDIDATES` with the least predicted cost (step 6),
@@ -263,14 +269,16 @@ def _chosen_step(fi, sch, y0, t0, t_end, rtol, atol=None, *, check=True, backend
             # measured it; without the asymptotic regime the conservative bound, never longer than the local
             # model's step
             e = E if trusted else E_safe
-            q = measured_order(chk, p) if trusted else p  # up to CHECK_GROWTH x H the error's measured order
-            dt_est = H * CHECK_GROWTH if e <= 0 else min(H * (TARGET / e) ** (1.0 / q), CHECK_GROWTH * H)
+            if trusted:  # up to CHECK_GROWTH x H by the error's measured order (an ensemble's: member by member)
+                dt_est = extrapolated_step(chk, p, TARGET)
+            else:
+                dt_est = H * CHECK_GROWTH if e <= 0 else min(H * (TARGET / e) ** (1.0 / p), CHECK_GROWTH * H)
             # the invariants at rounding: the coarse run's drift, against the finest run's (rounding's floor)
             drift_cap = _drift_cap(CHECK_GROWTH * H, chk[6], chk[7], p)
             dt_est = min(dt_est, drift_cap)
             if not trusted:
                 dt_est, safe = min(dt_est, dt_local), True
-            elif e * CHECK_GROWTH ** q < TARGET and drift_cap == math.inf:
+            elif predicted_error(chk, p, CHECK_GROWTH) < TARGET and drift_cap == math.inf:
                 # the tolerance allows a step past the measured one: run it and measure its error directly
                 verified = _verify_longer(fi, sch, np.asarray(y0, float), float(t0), T, chk, rtol, atol, p,
                                           backend, runs, coarse_steps(T, dt0))

@@ -128,6 +128,12 @@ def _global_check(fi, sch, y0, t0, T, H, tau, rtol, atol, p, backend, runs=None,
     Then ``(drift, floor)`` of the runs at ``H`` and ``H/4`` (:func:`liefi.integrator.tolerance_drift._drift_pair`)
     and ``E_1``, the run at ``H``'s error (:func:`measured_order`).  ``drift=False``: in their place the
     two runs' saved states, for the caller to evaluate only if this check is the one kept (:func:`_check_plan`).
+
+    An ensemble (``y0`` of shape ``(B, n)``): every error is in each member's own scale (its size the maximum over
+    time, never over the members), ``E``, ``E_safe`` and ``E_1`` the largest over the members, ``trusted`` only
+    when every member passes the ratio test, and a last entry ``(E_b, E_1b)``, each member's ``E`` and ``E_1``,
+    from which :func:`predicted_error` and :func:`extrapolated_step` take each member's own measured order
+    (never one member's error at ``H`` over another's at ``H/2``).
     """
     from ..schemes.core import IntegrationError
 
@@ -151,19 +157,68 @@ def _global_check(fi, sch, y0, t0, T, H, tau, rtol, atol, p, backend, runs=None,
         return None
     if any(y.shape[1:] != ys[0].shape[1:] or not np.all(np.isfinite(y)) for y in ys) or ys[1].shape != ys[2].shape:
         return None
+    # each member's own scale (the max over time only) and each member's own errors, trust and order: the
+    # ensemble's error is the largest member's, its step the strictest member's (never one member's error at
+    # H against another's at H/2)
     size = _size(fi, np.max(np.abs(ys[2]), axis=0), CHECK_PART_FLOOR)
-    d1 = float(np.max(np.abs(ys[0] - ys[2][::fine]) / size))
-    d2 = float(np.max(np.abs(ys[1][::fine] - ys[2][::fine]) / size))
-    diff = np.abs(ys[1] - ys[2]) / (atol + rtol * size)
+    d1 = _per_member(np.abs(ys[0] - ys[2][::fine]) / size)
+    d2 = _per_member(np.abs(ys[1][::fine] - ys[2][::fine]) / size)
+    diff = _per_member(np.abs(ys[1] - ys[2]) / (atol + rtol * size))
     E = float(np.max(diff)) / (1.0 - 2.0 ** -p) * (T / tau)
     E_safe = float(np.max(diff)) * 2.0 ** p * (T / tau)
-    E1 = float(np.max(np.abs(ys[0] - ys[2][::fine]) / (atol + rtol * size))) * (T / tau)
+    e1 = _per_member(np.abs(ys[0] - ys[2][::fine]) / (atol + rtol * size)) * (T / tau)
+    E1 = float(np.max(e1))
     if not (math.isfinite(E) and math.isfinite(E_safe)):
         return None
-    trusted = d1 <= CHECK_TRUST and not (d2 > 1e3 * np.finfo(float).eps and d1 < 2.0 ** (p - 1) * d2)
+    trusted = bool(np.all((d1 <= CHECK_TRUST) & ~((d2 > 1e3 * np.finfo(float).eps) & (d1 < 2.0 ** (p - 1) * d2))))
     states = (ys[0], ys[2][::fine])
+    members = () if np.ndim(y0) < 2 else ((diff / (1.0 - 2.0 ** -p) * (T / tau), e1),)
     return (E, E_safe, H / 2, tau, trusted, m == 1) + (_drift_pair(fi, *states, runs.drift_scales()) if drift
-                                                      else states) + (E1,)
+                                                      else states) + (E1,) + members
+
+
+def _per_member(a):
+    """The largest of ``a`` (``(n_saved, ..., n)``) over time and components, one value per member (``(B,)`` for
+    an ensemble's ``(n_saved, B, n)``, a 0-d array for one trajectory's ``(n_saved, n)``)."""
+    a = np.asarray(a)
+    return np.max(a.reshape(a.shape[0], -1, a.shape[-1]), axis=(0, 2)) if a.ndim > 2 else np.max(a)
+
+
+def _members_orders(chk, p):
+    """``(E_b, q_b)``: each member's error at the check's step and its measured order (:func:`measured_order`
+    member by member), or ``None`` for one trajectory's check (no per-member record, ``chk[9]``)."""
+    if len(chk) < 10:
+        return None
+    Eb, E1b = (np.asarray(a, float) for a in chk[9])
+    with np.errstate(all="ignore"):
+        q = np.where((Eb > 0) & (E1b > Eb), np.log2(E1b / Eb), float(p))
+    return Eb, np.maximum(float(p), q)
+
+
+def predicted_error(chk, p, x):
+    """The error of a run at ``x`` times the check's step ``H/2`` (``x`` in ``[1, CHECK_GROWTH]``, in units of the
+    tolerance) by the measured order: ``E x^q`` (:func:`measured_order`); for an ensemble the largest over the
+    members of each member's ``E_b x^{q_b}`` (each member's own error and order, not the largest error's with
+    another member's order)."""
+    per = _members_orders(chk, p)
+    if per is None:
+        return chk[0] * x ** measured_order(chk, p)
+    return float(np.max(per[0] * x ** per[1]))
+
+
+def extrapolated_step(chk, p, target):
+    """The step at which the trusted check's run meets ``target`` by the measured order, at most
+    :data:`CHECK_GROWTH` times its step ``h = H/2``: ``h (target / E)^{1/q}``; for an ensemble the least over the
+    members of ``h (target / E_b)^{1/q_b}`` (the strictest member's)."""
+    h = chk[2]
+    per = _members_orders(chk, p)
+    if per is None:
+        e, q = chk[0], measured_order(chk, p)
+        return h * CHECK_GROWTH if e <= 0 else min(h * (target / e) ** (1.0 / q), CHECK_GROWTH * h)
+    Eb, qb = per
+    with np.errstate(all="ignore"):
+        steps = np.where(Eb > 0, h * (target / np.where(Eb > 0, Eb, 1.0)) ** (1.0 / qb), CHECK_GROWTH * h)
+    return float(min(np.min(steps), CHECK_GROWTH * h))
 
 
 def measured_order(chk, p):
@@ -205,7 +260,7 @@ def _verify_longer(fi, sch, y0, t0, T, chk, rtol, atol, p, backend, runs=None, n
     not by a model.
     """
     E, _E_safe, h = chk[0], chk[1], chk[2]
-    lo, e_lo = CHECK_GROWTH * h, E * CHECK_GROWTH ** measured_order(chk, p)
+    lo, e_lo = CHECK_GROWTH * h, predicted_error(chk, p, CHECK_GROWTH)
     best, hi = None, math.inf  # hi: the least step cut for its drift so far (no later candidate past it)
     refused = math.inf  # the least step within the tolerance refused for its drift
     prop = lo * (TARGET / e_lo) ** (1.0 / p) if e_lo > 0 else math.inf
