@@ -235,9 +235,9 @@ def arrays(draw, target_shape):
     vals = draw(st.lists(NUMBERS, min_size=int(np.prod(shape)), max_size=int(np.prod(shape))))
     a = np.array(vals, float).reshape(shape)
     if kind in ("sym", "spd") and len(shape) == 2 and shape[0] == shape[1]:
-        a = a + a.T
-        if kind == "spd":
-            with np.errstate(all="ignore"):
+        with np.errstate(all="ignore"):  # the drawn numbers include inf and -inf: inf + -inf is the NaN wanted
+            a = a + a.T
+            if kind == "spd":
                 a = a @ a.T + np.eye(shape[0]) * draw(st.floats(-1.0, 1.0))
     return a
 
