@@ -14,8 +14,11 @@ Python's cyclic garbage collector during the build (collections resume after it)
 the collector on, as a user runs them.
 
 Each number is the best of ``--repeat`` (3) runs, each in a fresh Python process (so sympy's cache starts
-empty every time).  Run from the repository root: ``python benchmarks/build_time.py [name ...]``; compare
-two checkouts with ``PYTHONPATH=<checkout> python benchmarks/build_time.py``.
+empty every time), with Python's bytecode cache on as in an installation (``PYTHONDONTWRITEBYTECODE`` is
+dropped from the runs' environment: with it, every liefi module the build imports on first use was compiled
+from source in every run, 4 ms of the Kane pendulum's build, a cost no installed liefi has).  Run from the
+repository root: ``python benchmarks/build_time.py [name ...]``; compare two checkouts with
+``PYTHONPATH=<checkout> python benchmarks/build_time.py``.
 """
 
 from __future__ import annotations
@@ -93,6 +96,7 @@ def measure(name, repeat=3):
     processes each."""
     env = dict(os.environ)
     env.setdefault("PYTHONPATH", str(ROOT))
+    env.pop("PYTHONDONTWRITEBYTECODE", None)  # bytecode cached as installed (see the module docstring)
     runs = []
     for _ in range(repeat):
         out = subprocess.run([sys.executable, __file__, "--one", name], env=env, capture_output=True, text=True,

@@ -190,21 +190,40 @@ class DataFunction:
             return
         rng = np.random.default_rng(20261122)
         scale = np.maximum(1.0, np.abs(x))
-        for _ in range(N_PROBES):
-            self._check_imaginary_part_kept(x + 0.5 * scale * rng.uniform(-1.0, 1.0, size=x.shape))
-
-    def _check_imaginary_part_kept(self, x):
-        """Named error if the complex step of the datum is exactly zero where finite differences are not."""
+        probes = np.stack([x + 0.5 * scale * rng.uniform(-1.0, 1.0, size=x.shape) for _ in range(N_PROBES)])
+        # the probes as one batch (three calls of the datum, not three per probe); a batch the datum raises on
+        # (a probe outside its domain) is probed point by point, each raising point skipped
         try:
-            with np.errstate(all="ignore"):
-                _, jc = _diff.probe_jacobian(self.fun, x)
-                h = 1e-6 * np.maximum(1.0, np.abs(x))
-                dx = h[:, None] * np.eye(self.n)  # row k: h_k e_k; the 2n differences in two calls
-                with _diff.directions_after(x):
-                    fp, fm = (np.asarray(self.fun(x + s * dx), float) for s in (1.0, -1.0))
-                jf = (fp - fm) / (2 * h.reshape((self.n,) + (1,) * (fp.ndim - 1)))
-        except Exception:  # noqa: BLE001 -- outside the datum's domain (or raising there): not a probe point
-            return
+            batch = self._probe_derivatives(probes)
+        except Exception:  # noqa: BLE001 -- see the point-by-point probes
+            batch = None
+        for i, p in enumerate(probes):
+            if batch is None:
+                try:
+                    jc, jf = self._probe_derivatives(p)
+                except Exception:  # noqa: BLE001 -- outside the datum's domain (or raising there): not a probe point
+                    continue
+            else:
+                jc, jf = batch[0][i], batch[1][i]
+            self._check_imaginary_part_kept(p, jc, jf)
+
+    def _probe_derivatives(self, x):
+        """``(complex step, central differences)`` of the datum at the point(s) ``x`` (``(n,)`` or ``(P, n)``):
+        each ``(..., n, *out)``, the derivatives along ``e_k`` at ``[..., k]``."""
+        with np.errstate(all="ignore"):
+            _, jc = _diff.probe_jacobian(self.fun, x)
+            h = 1e-6 * np.maximum(1.0, np.abs(x))
+            dx = h[..., :, None] * np.eye(self.n)  # row k: h_k e_k; the 2n differences in two calls
+            with _diff.directions_after(x):
+                fp, fm = (np.asarray(self.fun(x[..., None, :] + s * dx), float) for s in (1.0, -1.0))
+            jf = (fp - fm) / (2 * h.reshape(h.shape + (1,) * (fp.ndim - h.ndim)))
+        if jc.shape != jf.shape:
+            raise ValueError("the complex step and the differences disagree in shape")
+        return jc, jf
+
+    def _check_imaginary_part_kept(self, x, jc, jf):
+        """Named error if the complex step ``jc`` of the datum at ``x`` is exactly zero where the finite
+        differences ``jf`` are not."""
         if not (np.all(np.isfinite(jc)) and np.all(np.isfinite(jf))):
             return
         dropped = (jc == 0) & (np.abs(jf) > 1e-6 * max(1.0, float(np.max(np.abs(jf), initial=0.0))))

@@ -74,6 +74,27 @@ def _walk(sympy, exprs, values):
     return [ev(e) for e in exprs]
 
 
+def _known(sympy, args):
+    """The symbols an expression in ``args`` may hold: ``args`` and the free symbols of those that are not symbols
+    (the time ``t`` of ``q(t)``, ``Derivative(q(t), t)``: a walk takes such an argument whole, as a key of its
+    memo, and meets a bare ``t`` as a node it does not know)."""
+    known = set(args)
+    for a in args:
+        if not isinstance(a, sympy.Symbol):
+            known |= a.free_symbols
+    return known
+
+
+def _plain(sympy, args, exprs, wrt=()):
+    """``(args, exprs, wrt)`` with every argument that is not a symbol replaced by a ``Dummy`` (for lambdify and
+    sympy's ``diff``, the paths that need plain symbols): one ``xreplace``, which takes a node before its
+    arguments, so ``Derivative(q(t), t)`` is replaced whole before ``q(t)``."""
+    to = {a: sympy.Dummy() for a in args if not isinstance(a, sympy.Symbol)}
+    if not to:
+        return list(args), list(exprs), list(wrt)
+    return [to.get(a, a) for a in args], [e.xreplace(to) for e in exprs], [to.get(s, s) for s in wrt]
+
+
 def evaluator(sympy, args, exprs, what):
     r"""``f(*arrays) -> array (len(exprs), *shape)``: ``exprs`` (sympy, in the symbols ``args``) at the points given
     by one array per argument (broadcast to one shape), in numpy's arithmetic of the arrays given.
@@ -81,11 +102,14 @@ def evaluator(sympy, args, exprs, what):
     The expressions are walked at each call (no code is generated): for a few calls of large
     expressions, as the checks make, this is cheaper than ``lambdify``; an expression with a node
     the walker does not know, or a symbol that is not an argument, goes to :func:`lambdify_checked`
-    (whose errors, naming ``what``, it then raises).
+    (whose errors, naming ``what``, it then raises).  The arguments may be dynamicsymbols ``q(t)`` and their
+    derivatives ``Derivative(q(t), t)`` (a model's own expressions, walked as they are: no copy in plain symbols
+    is built, whose ``xreplace`` re-forms every node and asks sympy's assumptions anew); the fallback replaces
+    them by plain symbols first (:func:`_plain`).
     """
     args = list(args)
     exprs = [sympy.sympify(e, strict=True) for e in exprs]
-    known = set(args)
+    known = _known(sympy, args)
     compiled = []
 
     def f(*vals):
@@ -97,7 +121,7 @@ def evaluator(sympy, args, exprs, what):
                 out = _walk(sympy, exprs, {a: np.asarray(v) for a, v in zip(args, vals)})
                 return np.stack([np.broadcast_to(o, shape) for o in out]) if out else np.zeros((0,) + shape)
             except _Unknown:
-                compiled.append(lambdify_checked(sympy, args, exprs, what, cse=True, dummify=True))
+                compiled.append(lambdify_checked(sympy, *_plain(sympy, args, exprs)[:2], what, cse=True, dummify=True))
         shape = np.broadcast_shapes(*[np.shape(v) for v in vals])
         out = compiled[0](*vals)
         return np.stack([np.broadcast_to(np.asarray(o), shape) for o in out]) if out else np.zeros((0,) + shape)
@@ -186,7 +210,7 @@ def directional(sympy, args, exprs, wrt, what):
     """
     args, wrt = list(args), list(wrt)
     exprs = [sympy.sympify(e, strict=True) for e in exprs]
-    known = set(args)
+    known = _known(sympy, args)  # dynamicsymbols as arguments: as in evaluator
     fallback = []
 
     def f(*vals):
@@ -201,9 +225,10 @@ def directional(sympy, args, exprs, wrt, what):
                                      {s: np.asarray(t) for s, t in zip(wrt, dirs)})
                 return stacked(v), stacked(d)
             except _Unknown:
+                pargs, pexprs, pwrt = _plain(sympy, args, exprs, wrt)
                 T = [sympy.Dummy() for _ in wrt]
-                grads = [sum((e.diff(s) * t for s, t in zip(wrt, T)), sympy.S.Zero) for e in exprs]
-                fallback.append(evaluator(sympy, args + T, exprs + grads, what))
+                grads = [sum((e.diff(s) * t for s, t in zip(pwrt, T)), sympy.S.Zero) for e in pexprs]
+                fallback.append(evaluator(sympy, pargs + T, pexprs + grads, what))
         out = fallback[0](*vals, *dirs)
         return out[: len(exprs)], out[len(exprs):]
 

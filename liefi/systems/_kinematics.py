@@ -324,9 +324,9 @@ def _restore(sympy, me, frame, bodies, fixed, q, qd, u, Kq, Ku, constraints, aux
             vec = found[k][0].masscenter.pos_from(found[k][1]).dt(frame)
             derived[k] = (vec, vec.to_matrix(frame).xreplace(aux0))
         return derived[k]
-    X, V, Us = ([sympy.Dummy() for _ in s] for s in (q, qd, u))
-    plain = lambda e: sympy.sympify(e, strict=True).xreplace(aux0).xreplace({**dict(zip(qd, V)), **dict(zip(u, Us))}).xreplace(  # noqa: E731
-        dict(zip(q, X)))
+    # evaluated in the model's own q, qdot, u (_evaluate walks them as they are; no copy in plain symbols)
+    X, V, Us = list(q), list(qd), list(u)
+    plain = lambda e: sympy.sympify(e, strict=True).xreplace(aux0)  # noqa: E731
     exprs = [e for (_, _, a, _) in found for e in a]  # the model's velocities
     places = [e for (_, _, _, r) in found for e in r]  # the positions from R
     C = sympy.Matrix([sympy.sympify(c, strict=True).xreplace(aux0) for c in constraints]) if constraints else sympy.zeros(0, 1)
@@ -505,14 +505,12 @@ class _Checks:
         self.rng = np.random.default_rng(20261124)
 
     def _plain(self):
-        """``(X, V, Us, plain)``: plain symbols for ``q``, ``qdot``, ``u`` and the map of an expression into them."""
-        sp = self.sympy
-        X = [sp.Dummy() for _ in self.q]
-        V = [sp.Dummy() for _ in self.qd]
-        Us = [sp.Dummy() for _ in self.u]
-        to = {**dict(zip(self.qd, V)), **dict(zip(self.u, Us))}
-        plain = lambda e: sp.sympify(e, strict=True).xreplace(self.aux0).xreplace(to).xreplace(dict(zip(self.q, X)))  # noqa: E731
-        return X, V, Us, plain
+        """``(q, qdot, u, prepared)``: the arguments of the checks' evaluators (the model's own dynamicsymbols,
+        which :mod:`liefi.systems._evaluate` walks as they are) and an expression's preparation (the auxiliary
+        speeds at zero)."""
+        sp = self.sympy  # the model's own symbols: _evaluate walks the expressions as they are (no plain copy)
+        plain = lambda e: sp.sympify(e, strict=True).xreplace(self.aux0)  # noqa: E731
+        return list(self.q), list(self.qd), list(self.u), plain
 
     def _points(self):
         """Four random ``(q, qdot)`` (rows of ``(4, 2n)``) and their speeds ``u = W(q) qdot`` (``(4, m)``)."""

@@ -52,8 +52,11 @@ def holonomic_functions(sympy, f, q, X, params, bind):
     symbols that stand for them, ``bind(exprs, shape, what)`` liefi's lambdify with the
     constants bound.
     """
-    plain = sympy.Matrix([sympy.sympify(e, strict=True).xreplace(dict(zip(q, X))) for e in f])
-    bad = [e for e in plain if e.has(*[s.diff() for s in q])]
+    given = [sympy.sympify(e, strict=True) for e in f]
+    # read before q -> X: in the plain symbols a rate q' is Derivative(x, t), no longer the model's q' (and no
+    # Derivative of q is formed to look for)
+    bad = [e for e in given if e.has(sympy.Derivative)]
+    plain = sympy.Matrix([e.xreplace(dict(zip(q, X))) for e in given])
     if bad:
         raise ValueError(f"model: the configuration constraints {bad} hold velocities; configuration "
                          "constraints are f(q) = 0 (velocity constraints go to velocity_constraints)")
