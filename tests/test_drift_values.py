@@ -28,3 +28,32 @@ def test_drift_measurement_computes_no_jacobian(name, monkeypatch):
     monkeypatch.undo()
     want, who_want = drift(fi, Y, scales, jet)
     assert who == who_want and abs(got - want) <= 1e-13 * want, (got, want)
+
+
+@pytest.mark.parametrize("name", ["bicycle", "rattleback", "kepler"])
+def test_drift_evaluates_the_data_once(name, monkeypatch):
+    """``drift`` without a jet evaluates the data's values once at the states (the residuals and the scales at
+    them both read it: before, ``residuals`` and ``drift_scales`` each evaluated them, 2 calls; the bicycle's
+    step choice spent a tenth of its profile in its two drifts), and gives exactly what the two separate
+    evaluations give."""
+    from liefi.integrator import drift as drift_module
+    from liefi.reduction import core
+
+    fi = scenes.get(name).integrator()
+    rng = np.random.default_rng(2)
+    Y = fi.y0 + 1e-3 * rng.standard_normal((7,) + fi.y0.shape)
+    scales = drift_scales(fi, Y[0])
+    # the reference: the two evaluations made separately (the jet given, drift evaluates the scales on its own)
+    ref = drift(fi, Y, scales, drift_module.residuals(fi, Y))
+    calls = []
+    real = core.evaluate
+
+    def counted(*a, **k):
+        calls.append(k.get("derivatives", True))
+        return real(*a, **k)
+
+    monkeypatch.setattr(core, "evaluate", counted)
+    got = drift(fi, Y, scales)
+    monkeypatch.undo()
+    assert calls == [False], calls  # one evaluation, values only
+    assert got == ref and got[0] > 0, (got, ref)  # bit for bit: the same values, the same arithmetic

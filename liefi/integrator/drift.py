@@ -15,16 +15,19 @@ import numpy as np
 from ..reduction import core as _core
 
 
-def drift_scales(fi, y=None):
+def drift_scales(fi, y=None, values=None):
     """The scale of each penalized invariant, for relative drifts (``{name: s}``).
 
     ``J_i``: ``sqrt(2 E C_ii)``, the largest ``|<P, e_i>|`` at kinetic energy
     ``E`` (so ``J_i / s`` is a cosine); energy: ``E = max(|h|, T, |U|)``; a user
     invariant: ``max(|I_0|, sqrt(E))``; the penalty: 1 (for ``||R^T R - I||``).
+    ``values``: :func:`liefi.reduction.core.evaluate` at ``y`` without derivatives, when the caller has it
+    (:func:`drift`: the residuals at the same states read it too).
     """
     y = fi.y0 if y is None else np.asarray(y, float)
     _, z = fi.split(y)
-    t = _core.evaluate(fi.system, z, derivatives=False)  # values only: no Jacobian of the data
+    # values only: no Jacobian of the data
+    t = _core.evaluate(fi.system, z, derivatives=False) if values is None else values
     n = fi.system.space.data_dim
     U = np.asarray(fi.system.potential(z[..., :n]), float)
     T = np.abs(t.h - U)
@@ -52,11 +55,13 @@ def drift(fi, y, scales=None, jet=None):
     exchange along a run: a start at rest must not make every later drift huge).
     """
     y = np.asarray(y, float)
-    if jet is None:
-        jet = residuals(fi, y)
+    values = None
+    if jet is None:  # the data's values at y evaluated once, for the residuals and the scales at y
+        values = _core.evaluate(fi.system, fi.split(y)[1], derivatives=False)
+        jet = residuals(fi, y, values)
     with np.errstate(all="ignore"):
         try:
-            cur = drift_scales(fi, y)
+            cur = drift_scales(fi, y, values)
         except Exception:  # noqa: BLE001 -- non-finite states: the start scales only
             cur = {}
     scales = {k: max((v for v in ((scales or {}).get(k, 0.0), cur.get(k, 0.0)) if np.isfinite(v)), default=0.0)
@@ -74,15 +79,17 @@ def drift(fi, y, scales=None, jet=None):
     return best, who
 
 
-def residuals(fi, y):
+def residuals(fi, y, values=None):
     """The penalized invariants' names and residuals ``I_j(y) - I_j0`` at ``y``, values only.
 
     The residuals of :meth:`liefi.FeedbackIntegrator.invariant_gradients` (same terms,
     :meth:`~liefi.FeedbackIntegrator.invariant_terms`) without differentiating the data.  Returns a
-    namespace with ``names`` and ``residual`` (``(..., m)``), as the jet's.
+    namespace with ``names`` and ``residual`` (``(..., m)``), as the jet's.  ``values``: as
+    :func:`drift_scales`'s.
     """
     _, z = fi.split(y)
-    terms = fi.invariant_terms(z, _core.evaluate(fi.system, z, derivatives=False), fi.parameters())
+    t = _core.evaluate(fi.system, z, derivatives=False) if values is None else values
+    terms = fi.invariant_terms(z, t, fi.parameters())
     batch = y.shape[:-1]
     r = np.zeros(batch + (len(terms),))
     for j, term in enumerate(terms):
