@@ -28,7 +28,7 @@ from liefi.integrator.sensitivity import _holder
 from liefi.schemes import registry
 
 from test_sensitivity import rel
-from test_sensitivity_parameters import hand_sleigh, step_map_run, weighted_suslov
+from test_sensitivity_parameters import declared_ball, hand_sleigh, step_map_run, weighted_suslov
 
 H = 1e-30
 RTOL = 1e-10
@@ -113,17 +113,5 @@ def test_from_mechanics_sleigh_y0_and_two_constants_match_a_complex_step_of_the_
 
 @pytest.mark.slow  # ~40 s: the ball's 25 states, 25 complex runs of the reference
 def test_chaplygin_ball_y0_and_two_declared_parameters_match_a_complex_step_of_the_whole_run():
-    from liefi.groups import SO3
-    from liefi.systems.parameters import Parameters, declare
-    from liefi.systems.rolling import rolling_body, rolling_start
-
-    par = Parameters(radius=1.0, height=0.05)
-    e3 = np.array([0.0, 0.0, 1.0])
-
-    def contact(G):  # the ball's centre of mass `height` above its centre, along the body's third axis
-        G = np.asarray(G)
-        return -par["radius"] * G - par["height"] * (e3 + 0.0 * G)
-
-    ball = declare(rolling_body(1.0, [0.3, 0.4, 0.5], contact, gravity=1.0), par)
-    y0 = rolling_start(ball, SO3().exp(np.array([0.3, -0.2, 0.1])), np.array([0.5, -0.3, 1.0]))
+    ball, par, y0 = declared_ball()
     _check(ball, par, y0, "imex-rk4", T=0.05, reference=lambda: differentiated_data(ball))

@@ -129,8 +129,8 @@ def test_declare_refuses_what_is_no_parameters():
 # --- the Chaplygin ball by rolling_body: radius and centre-of-mass height declared -------------------
 
 
-@pytest.mark.slow  # ~30 s: the ball's trace (25 states) and 16 runs of the reference
-def test_chaplygin_ball_two_declared_parameters_through_a_split_scheme_with_auto_gains():
+def declared_ball():
+    """``(ball, par, y0)``: the Chaplygin ball by ``rolling_body`` with its radius and centre-of-mass height declared."""
     from liefi.groups import SO3
     from liefi.systems.rolling import rolling_body, rolling_start
 
@@ -142,7 +142,12 @@ def test_chaplygin_ball_two_declared_parameters_through_a_split_scheme_with_auto
         return -par["radius"] * G - par["height"] * (e3 + 0.0 * G)
 
     ball = declare(rolling_body(1.0, [0.3, 0.4, 0.5], contact, gravity=1.0), par)
-    y0 = rolling_start(ball, SO3().exp(np.array([0.3, -0.2, 0.1])), np.array([0.5, -0.3, 1.0]))
+    return ball, par, rolling_start(ball, SO3().exp(np.array([0.3, -0.2, 0.1])), np.array([0.5, -0.3, 1.0]))
+
+
+@pytest.mark.slow  # ~30 s: the ball's trace (25 states) and 16 runs of the reference
+def test_chaplygin_ball_two_declared_parameters_through_a_split_scheme_with_auto_gains():
+    ball, par, y0 = declared_ball()
     fi = liefi.FeedbackIntegrator(ball, y0)  # gains="auto"
     T, dt, scheme = 0.05, 0.01, "imex-rk4"
     sol = fi.run(T, dt=dt, scheme=scheme, backend="numpy", sensitivities=("radius", "height"))
