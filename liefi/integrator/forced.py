@@ -182,10 +182,11 @@ class ForcedFeedbackIntegrator(FeedbackIntegrator):
             tol = 1e-9 * max(1.0, abs(a), abs(b))
             if t0 < a - tol or t_final > b + tol:
                 out.append(name)
+                far = t_final if t_final - b >= a - t0 else t0  # the run's time farthest outside the nodes
                 warnings.warn(
                     f"inputs: the run spans [{t0:g}, {t_final:g}] but the spline input {name!r} has nodes over "
-                    f"[{a:g}, {b:g}] only; outside them its end cubics extrapolate (its value at t = {t_final:g} is "
-                    f"{np.array2string(np.asarray(sig(np.array(t_final))), precision=4)}). Give nodes over the whole "
+                    f"[{a:g}, {b:g}] only; outside them its end cubics extrapolate (its value at t = {far:g} is "
+                    f"{np.array2string(np.asarray(sig(np.array(far))), precision=4)}). Give nodes over the whole "
                     "run, or shorten the run", InputGridWarning, stacklevel=stacklevel)
         return out
 
